@@ -1,0 +1,153 @@
+"""Simulated Annealing of the Eq. 5 error over the model's DOFs (paper Eq. 6, §2.3, Table 1).
+
+Built from small parts in the manner of ``scipy.optimize.dual_annealing``:
+the proposal ``j + l·v`` with ``v_i = s(H_i)·r_i`` (re-drawn where the joint
+histogram says the angle is implausible, ``H_i < T_h``), the Metropolis
+acceptance at temperature τ, and the geometric cooling of τ and l. The loop
+itself is compiled (``core._kernels.anneal``); this module validates, prepares
+the histogram statistics and reports.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from core import _kernels
+from core.error import DEFAULT_EMPTY_VIEW_PENALTY_PX, Detections, check_views, view_offsets
+from core.histogram import Histograms
+from core.model import KinematicModel
+from core.rig import Rig
+
+__all__ = ["AnnealParams", "AnnealResult", "StopReason", "anneal", "search_space"]
+
+
+class StopReason(enum.Enum):
+    """Why the annealing loop ended (paper §2.3)."""
+
+    ITERATIONS = "iterations"  # N_end reached
+    BELOW_EPSILON = "below_epsilon"  # E < ε
+
+
+@dataclass(frozen=True)
+class AnnealParams:
+    """SA parameters; defaults are the paper's Table 1.
+
+    ``plausibility_threshold`` is T_h, compared with a histogram bin's probability.
+    ``polish`` tests the ``E < eps`` stop on the refined best posture at every
+    cooling step (see ``core.refine``); False gives the paper's plain SA.
+    ``huber_px`` is the refinement's least-squares radius.
+    """
+
+    n_end: int = 35000
+    n_l: int = 3500
+    n_tau: int = 1500
+    tau0: float = 200.0
+    l0: float = 1.0
+    c_l: float = 0.75
+    c_tau: float = 0.75
+    eps: float = 1.0
+    plausibility_threshold: float = 1e-4
+    polish: bool = True
+    huber_px: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("n_end", "n_l", "n_tau"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive whole number, got {value!r}")
+        for name in ("tau0", "l0"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"{name} must be a positive number, got {getattr(self, name)!r}")
+        for name in ("c_l", "c_tau"):
+            if not 0 < getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be in (0, 1], got {getattr(self, name)!r}")
+        if not (self.eps >= 0 and math.isfinite(self.eps)):
+            raise ValueError(f"eps must be a non-negative number, got {self.eps!r}")
+        if not (math.isfinite(self.huber_px) and self.huber_px > 0):
+            raise ValueError(f"huber_px must be a positive number, got {self.huber_px!r}")
+        if not 0 <= self.plausibility_threshold < 1:
+            raise ValueError(
+                f"plausibility_threshold must be in [0, 1), got {self.plausibility_threshold!r}"
+            )
+
+
+@dataclass(frozen=True)
+class AnnealResult:
+    """Best posture found: ``dofs`` (D,) in model order, its Eq. 5 ``error`` in pixels."""
+
+    dofs: np.ndarray
+    error: float
+    iterations: int
+    stop: StopReason
+
+
+@dataclass(frozen=True)
+class SearchSpace:
+    """What the SA kernel needs from the histograms, for every DOF (translations included).
+
+    mean, sigma : (D,) float64, start posture and s(H); table : (D, B) probabilities, NaN rows
+    for translational DOFs (no histogram).
+    """
+
+    mean: np.ndarray
+    sigma: np.ndarray
+    table: np.ndarray
+
+
+def search_space(model: KinematicModel, histograms: Histograms) -> SearchSpace:
+    """Start posture (histogram means), step scales s(H) and plausibility tables."""
+    if histograms.names != tuple(d.name for d in model.dofs if d.rotational):
+        raise ValueError(
+            f"histograms are for DOFs {list(histograms.names)}, model '{model.name}' "
+            f"has {[d.name for d in model.dofs if d.rotational]}"
+        )
+    D = len(model.dofs)
+    mean = 0.5 * (model.lower + model.upper)
+    sigma = (model.upper - model.lower) / math.sqrt(12.0)
+    table = np.full((D, histograms.bins), np.nan)
+    rot = np.flatnonzero(model.rotational)
+    mean[rot], sigma[rot], table[rot] = histograms.means(), histograms.stds(), histograms.probs
+    return SearchSpace(mean, np.maximum(sigma, 1e-6), np.ascontiguousarray(table))
+
+
+def anneal(
+    detections: Detections,
+    *,
+    model: KinematicModel,
+    rig: Rig,
+    space: SearchSpace,
+    params: AnnealParams,
+    rng: np.random.Generator,
+    start: np.ndarray | None = None,
+    offsets: np.ndarray | None = None,
+    empty_view_penalty_px: float = DEFAULT_EMPTY_VIEW_PENALTY_PX,
+) -> AnnealResult:
+    """Minimise Eq. 5 for one image by Simulated Annealing.
+
+    Parameters
+    ----------
+    detections : Detections, one group per rig view.
+    space : SearchSpace from :func:`search_space` (histogram means, s(H), T_h tables).
+    params : AnnealParams (Table 1 by default).
+    rng : numpy Generator; the same state gives the same result.
+    start : ndarray of shape (D,), optional; the histogram means by default (paper §3.1).
+    offsets : ndarray of shape (V, 2), optional, per-view pixel offsets (root tracking).
+    """
+    check_views(detections, rig)
+    q0 = space.mean.copy() if start is None else model._check_postures(start)[0].copy()
+    q0 = np.clip(q0, model.lower, model.upper)
+    state = rng.integers(1, np.iinfo(np.uint64).max, size=4, dtype=np.uint64, endpoint=True)
+    p = params
+    best, err, it = _kernels.anneal(
+        q0, model.lower, model.upper, space.sigma, space.table, float(p.plausibility_threshold),
+        model.arrays, rig.arrays, view_offsets(offsets, rig), detections.points,
+        detections.start, float(empty_view_penalty_px), p.n_end, p.n_l, p.n_tau,
+        float(p.tau0), float(p.l0), float(p.c_l), float(p.c_tau), float(p.eps), bool(p.polish),
+        float(p.huber_px), state,
+    )
+    stop = StopReason.BELOW_EPSILON if err < p.eps else StopReason.ITERATIONS
+    return AnnealResult(best, float(err), int(it), stop)

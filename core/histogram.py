@@ -1,0 +1,246 @@
+"""Joint-angle histograms: the adaptive constraints of paper §2.2 (Eq. 4, FORMATS §4).
+
+One distribution of ``bins`` bins (default 360) per rotational DOF; bin i covers
+``[i·w, (i+1)·w)`` degrees with ``w = 360 / bins`` after wrapping the angle into
+[0, 360). Each distribution carries its count N of Eq. 4, so that two
+histograms merge as the count-weighted mean with counts added; merging the
+prior with the *observed* histograms of two halves of a sequence gives exactly
+the histogram updated over the whole sequence.
+
+Means and spreads are taken on the circle and expressed in the DOF's own
+range coordinates (``min ≤ value ≤ max``, ``max`` may exceed 360), so a range
+such as 300..420 needs no special case.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from core.model import KinematicModel, ModelError, _esc, _num, _parse_xml
+
+__all__ = ["HistogramError", "Histograms"]
+
+DEFAULT_BINS = 360
+
+
+class HistogramError(ValueError):
+    """A histogram file or operation that does not fit the model."""
+
+
+@dataclass
+class Histograms:
+    """Per-DOF angle distributions with their Eq. 4 counts.
+
+    Attributes
+    ----------
+    model : str
+        Name of the model the histograms belong to.
+    names : tuple of str
+        Rotational DOF names, in model-file order.
+    lower, upper : ndarray of shape (R,), float64, degrees
+        The DOF ranges (range coordinates for means).
+    probs : ndarray of shape (R, B), float64
+        Each row a probability distribution (sum 1), or all zeros when its count is 0.
+    counts : ndarray of shape (R,), float64
+        N of Eq. 4 per DOF (measurements plus the prior's weight).
+    """
+
+    model: str
+    names: tuple[str, ...]
+    lower: np.ndarray
+    upper: np.ndarray
+    probs: np.ndarray
+    counts: np.ndarray
+
+    # ---- construction ---------------------------------------------------------------------
+    @classmethod
+    def uniform(
+        cls, model: KinematicModel, *, prior_weight: float = 100.0, bins: int = DEFAULT_BINS
+    ) -> Histograms:
+        """Uniform over each DOF's plausible range, zero elsewhere, worth ``prior_weight`` counts."""
+        if bins < 1:
+            raise ValueError(f"bins must be at least 1, got {bins}")
+        if not prior_weight > 0:
+            raise ValueError(f"prior_weight must be positive, got {prior_weight}")
+        empty = cls.empty(model, bins=bins)
+        for r in range(len(empty.names)):
+            mask = _range_mask(empty.lower[r], empty.upper[r], bins)
+            empty.probs[r, mask] = 1.0 / mask.sum()
+        empty.counts[:] = prior_weight
+        return empty
+
+    @classmethod
+    def empty(cls, model: KinematicModel, *, bins: int = DEFAULT_BINS) -> Histograms:
+        """No measurements yet (count 0): the neutral element of :meth:`merge`."""
+        rot = [d for d in model.dofs if d.rotational]
+        return cls(
+            model=model.name,
+            names=tuple(d.name for d in rot),
+            lower=np.array([d.min for d in rot], dtype=np.float64),
+            upper=np.array([d.max for d in rot], dtype=np.float64),
+            probs=np.zeros((len(rot), bins)),
+            counts=np.zeros(len(rot)),
+        )
+
+    def copy(self) -> Histograms:
+        return Histograms(self.model, self.names, self.lower.copy(), self.upper.copy(),
+                          self.probs.copy(), self.counts.copy())
+
+    @property
+    def bins(self) -> int:
+        return self.probs.shape[1]
+
+    # ---- Eq. 4 -----------------------------------------------------------------------------
+    def update(self, angles: np.ndarray) -> None:
+        """Eq. 4 in place for one measurement per DOF: ``H_N = ((N-1)·H_{N-1} + Δ) / N``.
+
+        Parameters
+        ----------
+        angles : ndarray of shape (R,), float64, degrees, rotational DOFs in model order.
+        """
+        a = np.asarray(angles, dtype=np.float64)
+        if a.shape != self.counts.shape:
+            raise ValueError(f"angles must have shape {self.counts.shape}, got {a.shape}")
+        idx = self.bin_index(a)
+        self.counts += 1.0
+        self.probs *= ((self.counts - 1.0) / self.counts)[:, None]
+        self.probs[np.arange(len(idx)), idx] += 1.0 / self.counts
+
+    def bin_index(self, angles: np.ndarray) -> np.ndarray:
+        """Bin of each angle (degrees, any interval) after wrapping into [0, 360)."""
+        b = np.floor(np.mod(angles, 360.0) / (360.0 / self.bins)).astype(np.int64)
+        return np.minimum(b, self.bins - 1)
+
+    def merge(self, *others: Histograms) -> Histograms:
+        """Count-weighted mean of ``self`` and ``others``, counts added (FORMATS §4)."""
+        out = self.copy()
+        for other in others:
+            out._check_compatible(other)
+            total = out.counts + other.counts
+            w = np.divide(out.counts, total, out=np.zeros_like(total), where=total > 0)
+            out.probs = out.probs * w[:, None] + other.probs * (1.0 - w)[:, None]
+            out.probs[total == 0] = 0.0
+            out.counts = total
+        return out
+
+    def _check_compatible(self, other: Histograms) -> None:
+        if other.names != self.names or other.bins != self.bins:
+            raise HistogramError(
+                f"cannot merge histograms of DOFs {list(other.names)} ({other.bins} bins) into "
+                f"{list(self.names)} ({self.bins} bins)"
+            )
+
+    # ---- statistics used by the search ----------------------------------------------------
+    def means(self) -> np.ndarray:
+        """(R,) circular mean of each DOF, in its range coordinates (degrees).
+
+        A mean falling outside the range goes to the nearer range end; a
+        distribution with no direction (uniform over the circle, or empty) gives
+        the range midpoint.
+        """
+        centres = (np.arange(self.bins) + 0.5) * (360.0 / self.bins)
+        rad = np.radians(centres)
+        out = np.empty(len(self.names))
+        for r in range(len(self.names)):
+            p = self.probs[r]
+            s, c = float(p @ np.sin(rad)), float(p @ np.cos(rad))
+            lo, hi = self.lower[r], self.upper[r]
+            if math.hypot(s, c) < 1e-9:
+                out[r] = 0.5 * (lo + hi)
+                continue
+            m = lo + (math.degrees(math.atan2(s, c)) - lo) % 360.0
+            if m > hi:  # outside the range: the nearer end on the circle
+                m = hi if (m - hi) < (lo + 360.0 - m) else lo
+            out[r] = m
+        return out
+
+    def stds(self) -> np.ndarray:
+        """(R,) standard deviation s(H) of each DOF about its circular mean, degrees.
+
+        An empty distribution gives the spread of a uniform one over the range.
+        """
+        centres = (np.arange(self.bins) + 0.5) * (360.0 / self.bins)
+        means = self.means()
+        out = np.empty(len(self.names))
+        for r in range(len(self.names)):
+            p = self.probs[r]
+            total = p.sum()
+            if total <= 0:
+                out[r] = (self.upper[r] - self.lower[r]) / math.sqrt(12.0)
+                continue
+            d = (centres - means[r] + 180.0) % 360.0 - 180.0
+            out[r] = math.sqrt(float(p @ (d * d)) / total)
+        return out
+
+    # ---- FORMATS §4 --------------------------------------------------------------------------
+    def to_xml(self) -> str:
+        lines = [f'<histograms model="{_esc(self.model)}" bins="{self.bins}">']
+        for name, count, p in zip(self.names, self.counts, self.probs, strict=True):
+            values = " ".join(_num(v) for v in p)
+            lines.append(f'  <dof name="{_esc(name)}" count="{_num(count)}">{values}</dof>')
+        lines.append("</histograms>")
+        return "\n".join(lines) + "\n"
+
+    @classmethod
+    def from_xml(cls, source: str | bytes | Path, model: KinematicModel) -> Histograms:
+        """Read ``histograms.xml`` for ``model``: one ``<dof>`` per rotational DOF of the model."""
+        try:
+            root = _parse_xml(source)
+        except ModelError as exc:
+            raise HistogramError(str(exc).replace("model file", "histogram file")) from exc
+        if root.tag != "histograms":
+            raise HistogramError(f"root element is <{root.tag}>, expected <histograms>")
+        try:
+            bins = int(root.get("bins", str(DEFAULT_BINS)))
+        except ValueError:
+            raise HistogramError(f"bins={root.get('bins')!r} is not a whole number") from None
+        if bins < 1:
+            raise HistogramError(f"bins={bins} must be at least 1")
+        out = cls.empty(model, bins=bins)
+        seen: set[str] = set()
+        for el in root.findall("dof"):
+            name = el.get("name", "")
+            if name not in out.names:
+                raise HistogramError(f"dof '{name}' is not a rotational DOF of model '{model.name}'")
+            if name in seen:
+                raise HistogramError(f"dof '{name}' appears twice")
+            seen.add(name)
+            r = out.names.index(name)
+            out.counts[r], out.probs[r] = _parse_dof(el, name, bins)
+        missing = [n for n in out.names if n not in seen]
+        if missing:
+            raise HistogramError(f"no histogram for DOF(s) {', '.join(missing)}")
+        return out
+
+
+def _parse_dof(el, name: str, bins: int) -> tuple[float, np.ndarray]:
+    where = f"dof '{name}'"
+    try:
+        count = float(el.get("count", "nan"))
+        values = np.array([float(v) for v in (el.text or "").split()], dtype=np.float64)
+    except ValueError as exc:
+        raise HistogramError(f"{where}: {exc}") from None
+    if not (math.isfinite(count) and count >= 0):
+        raise HistogramError(f"{where}: count must be a non-negative number")
+    if values.shape != (bins,):
+        raise HistogramError(f"{where}: expected {bins} values, got {values.size}")
+    if not np.all(np.isfinite(values)) or np.any(values < 0):
+        raise HistogramError(f"{where}: values must be non-negative numbers")
+    total = values.sum()
+    if count > 0 and abs(total - 1.0) > 1e-6:
+        raise HistogramError(f"{where}: values sum to {total:.6g}, not 1")
+    return count, (values / total if total > 0 else values)
+
+
+def _range_mask(lo: float, hi: float, bins: int) -> np.ndarray:
+    """Bins whose centre lies in [lo, hi] on the circle (at least the bin of the midpoint)."""
+    centres = (np.arange(bins) + 0.5) * (360.0 / bins)
+    rel = (centres - lo) % 360.0
+    mask = rel <= (hi - lo)
+    if not mask.any():
+        mask[int(((0.5 * (lo + hi)) % 360.0) / (360.0 / bins)) % bins] = True
+    return mask

@@ -1,0 +1,59 @@
+"""Local refinement of the posture Simulated Annealing found.
+
+SA with Table 1 parameters ends with steps of a degree or two, i.e. a few
+pixels on a long segment (the paper's 2.9 px mean view error). A bounded
+Levenberg–Marquardt on the same nearest-detection residuals polishes that
+basin to sub-pixel consistency. It never replaces SA's global search: it
+starts from SA's best posture, re-chooses nearest detections at every step
+(no marker labels), stays inside the DOF ranges, and its result is kept only
+if its Eq. 5 error is not worse (see ``core.fit``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from core import _kernels
+from core.error import Detections, check_views, view_offsets
+from core.model import KinematicModel
+from core.rig import Rig
+
+__all__ = ["refine"]
+
+
+def refine(
+    dofs: np.ndarray,
+    detections: Detections,
+    *,
+    model: KinematicModel,
+    rig: Rig,
+    offsets: np.ndarray | None = None,
+    huber_px: float = 1.0,
+    max_iter: int = 50,
+) -> np.ndarray:
+    """Refine a posture by bounded, robust least squares.
+
+    Parameters
+    ----------
+    dofs : ndarray of shape (D,), float64, the starting posture (SA's best).
+    huber_px : float
+        Residuals shorter than this are squared (least squares, efficient for
+        detection noise); longer ones count by their length, as in Eq. 5, so a
+        fused or missing marker cannot drag the fit.
+    max_iter : int
+        Levenberg–Marquardt iterations at most.
+
+    Returns
+    -------
+    ndarray of shape (D,), float64, the refined posture, inside the DOF ranges.
+    """
+    if not huber_px > 0:
+        raise ValueError(f"huber_px must be positive, got {huber_px}")
+    if max_iter < 0:
+        raise ValueError(f"max_iter must be non-negative, got {max_iter}")
+    check_views(detections, rig)
+    q = np.clip(model._check_postures(dofs)[0], model.lower, model.upper)
+    return _kernels.refine(
+        q, model.lower, model.upper, model.arrays, rig.arrays, view_offsets(offsets, rig),
+        detections.points, detections.start, float(huber_px), int(max_iter), 1e-5,
+    )

@@ -1,0 +1,213 @@
+"""Camera rig: one projection per view (paper Eq. 3 generalised; FORMATS §2).
+
+Three projection types map a world point (model units) to full-frame pixels
+(u right, v down, pixel centres at +0.5):
+
+- ``affine``: ``(u, v) = A · (x, y, z, 1)``, A 2×4 (orthographic views, mirrors);
+- ``pinhole``: OpenCV ``projectPoints`` semantics (Rodrigues ``rvec``, ``tvec``,
+  ``K``, distortion ``k1 k2 p1 p2 [k3 [k4 k5 k6]]``);
+- ``matrix``: DLT, ``(u, v) = (p1·X / p3·X, p2·X / p3·X)``, P 3×4.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import cv2
+import numpy as np
+
+from core import _kernels
+
+__all__ = ["Rig", "RigArrays", "RigError", "View"]
+
+PROJECTION_TYPES = ("affine", "pinhole", "matrix")
+_KIND = {"affine": 0, "pinhole": _kernels.PINHOLE, "matrix": 2}
+
+
+class RigError(ValueError):
+    """A rig file that cannot be used; the message names the view and the problem."""
+
+
+@dataclass(frozen=True)
+class View:
+    """One camera view: which video it is in, where, and how points project into it."""
+
+    name: str
+    video: int
+    roi: tuple[int, int, int, int] | None
+    projection: dict[str, Any]
+
+
+class RigArrays(NamedTuple):
+    """Views encoded for the kernels (see ``core._kernels``).
+
+    kind : (V,) int64; P : (V, 3, 4) float64; K : (V, 3, 3) float64; dist : (V, 8) float64.
+    """
+
+    kind: np.ndarray
+    P: np.ndarray
+    K: np.ndarray
+    dist: np.ndarray
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A validated camera rig. Build it with :meth:`from_json` or :meth:`from_dict`."""
+
+    views: tuple[View, ...]
+
+    @classmethod
+    def from_json(cls, source: str | bytes | Path) -> Rig:
+        """Parse and validate ``rig.json`` given as text, bytes or a path."""
+        try:
+            text = source.read_text() if isinstance(source, Path) else source
+            data = json.loads(text, parse_constant=_reject_constant)
+        except (OSError, UnicodeDecodeError) as exc:
+            raise RigError(f"cannot read rig file: {exc}") from exc
+        except json.JSONDecodeError as exc:
+            raise RigError(f"rig is not valid JSON: {exc}") from exc
+        return cls.from_dict(data)
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Rig:
+        """Validate a parsed rig document."""
+        if not isinstance(data, dict) or not isinstance(data.get("views"), list):
+            raise RigError("rig must be an object with a list 'views'")
+        if not data["views"]:
+            raise RigError("rig has no views")
+        views = tuple(_view_from_dict(v, i) for i, v in enumerate(data["views"]))
+        names = [v.name for v in views]
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            raise RigError(f"duplicate view name '{sorted(dup)[0]}'")
+        return cls(views)
+
+    def to_dict(self) -> dict[str, Any]:
+        out = []
+        for v in self.views:
+            d: dict[str, Any] = {"name": v.name, "video": v.video}
+            if v.roi is not None:
+                d["roi"] = list(v.roi)
+            d["projection"] = v.projection
+            out.append(d)
+        return {"views": out}
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2) + "\n"
+
+    @property
+    def n_videos(self) -> int:
+        """How many video files the rig expects (highest ``video`` index + 1)."""
+        return max(v.video for v in self.views) + 1
+
+    @cached_property
+    def arrays(self) -> RigArrays:
+        V = len(self.views)
+        kind = np.empty(V, dtype=np.int64)
+        P = np.zeros((V, 3, 4))
+        K = np.tile(np.eye(3), (V, 1, 1))
+        dist = np.zeros((V, 8))
+        for i, v in enumerate(self.views):
+            p = v.projection
+            kind[i] = _KIND[p["type"]]
+            if p["type"] == "affine":
+                P[i, :2] = p["matrix"]
+                P[i, 2, 3] = 1.0
+            elif p["type"] == "matrix":
+                P[i] = p["P"]
+            else:
+                R, _ = cv2.Rodrigues(np.asarray(p["rvec"], dtype=np.float64))
+                P[i, :, :3], P[i, :, 3] = R, p["tvec"]
+                K[i] = p["K"]
+                coeffs = list(p.get("dist", []))
+                dist[i, : len(coeffs)] = coeffs
+        return RigArrays(kind, P, K, dist)
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Project world points into every view.
+
+        Parameters
+        ----------
+        points : ndarray of shape (M, 3) or (T, M, 3), float64, model units, world frame.
+
+        Returns
+        -------
+        ndarray of shape (V, M, 2) or (T, V, M, 2), float64, full-frame pixels (u, v).
+        """
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.ndim not in (2, 3) or pts.shape[-1] != 3:
+            raise ValueError(f"points must have shape (M, 3) or (T, M, 3), got {pts.shape}")
+        many = np.ascontiguousarray(pts.reshape((-1, *pts.shape[-2:])))
+        a = self.arrays
+        out = _kernels.project_many(many, a.kind, a.P, a.K, a.dist)
+        return out[0] if pts.ndim == 2 else out
+
+
+# ---- validation ---------------------------------------------------------------------------
+
+
+def _reject_constant(name: str) -> float:
+    raise RigError(f"rig contains {name}, which is not a number")
+
+
+def _matrix(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise RigError(f"{where} must be a {'×'.join(map(str, shape))} array of numbers") from None
+    if arr.shape != shape:
+        raise RigError(f"{where} must have shape {'×'.join(map(str, shape))}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise RigError(f"{where} contains a value that is not a finite number")
+    return arr
+
+
+def _view_from_dict(d: Any, index: int) -> View:
+    if not isinstance(d, dict):
+        raise RigError(f"view {index} must be an object")
+    name = d.get("name", f"view{index}")
+    if not isinstance(name, str) or not name:
+        raise RigError(f"view {index}: 'name' must be a non-empty string")
+    where = f"view '{name}'"
+    video = d.get("video", 0)
+    if isinstance(video, bool) or not isinstance(video, int) or video < 0:
+        raise RigError(f"{where}: 'video' must be a non-negative integer index, got {video!r}")
+    roi = d.get("roi")
+    if roi is not None:
+        r = _matrix(roi, (4,), f"{where} roi")
+        if np.any(r != np.round(r)) or r[0] < 0 or r[1] < 0 or r[2] <= 0 or r[3] <= 0:
+            raise RigError(f"{where}: roi must be [x, y, width, height] with whole x, y >= 0 and width, height > 0")
+        roi = tuple(int(x) for x in r)
+    proj = d.get("projection")
+    if not isinstance(proj, dict) or proj.get("type") not in PROJECTION_TYPES:
+        raise RigError(f"{where}: 'projection' must be an object with type affine, pinhole or matrix")
+    return View(name, video, roi, _validate_projection(proj, where))
+
+
+def _validate_projection(p: dict[str, Any], where: str) -> dict[str, Any]:
+    kind = p["type"]
+    if kind == "affine":
+        A = _matrix(p.get("matrix"), (2, 4), f"{where} affine matrix")
+        if np.linalg.matrix_rank(A[:, :3]) < 2:
+            raise RigError(f"{where}: affine matrix is singular (its 2×3 part has rank < 2)")
+        return {"type": kind, "matrix": A.tolist()}
+    if kind == "matrix":
+        P = _matrix(p.get("P"), (3, 4), f"{where} P")
+        if np.linalg.matrix_rank(P[:, :3]) < 3:
+            raise RigError(f"{where}: P is singular (its 3×3 part has rank < 3)")
+        return {"type": kind, "P": P.tolist()}
+    K = _matrix(p.get("K"), (3, 3), f"{where} K")
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or not np.allclose(K[2], [0, 0, 1]):
+        raise RigError(f"{where}: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+    dist = p.get("dist", [])
+    if len(dist) not in (0, 4, 5, 8):
+        raise RigError(f"{where}: dist must have 0, 4, 5 or 8 coefficients (OpenCV order), got {len(dist)}")
+    dist_arr = _matrix(dist, (len(dist),), f"{where} dist")
+    rvec = _matrix(p.get("rvec"), (3,), f"{where} rvec")
+    tvec = _matrix(p.get("tvec"), (3,), f"{where} tvec")
+    return {"type": kind, "K": K.tolist(), "dist": dist_arr.tolist(), "rvec": rvec.tolist(),
+            "tvec": tvec.tolist()}
