@@ -1,0 +1,329 @@
+"""Fitting images and sequences: SA + refinement per image, histograms adapted per frame.
+
+Every image is fitted independently (paper §4): its random stream depends only
+on ``(seed, sample, attempt)``, so any slice of a sequence can be fitted by any
+worker, in any order, and give the same postures as a single process fitting
+the same chunks.
+
+The sequence flow, shared by ``mocap fit`` and the distributed workers:
+
+1. :func:`fit_chunk` fits a contiguous run of images once each, starting from
+   the given histograms and updating a working copy after every image whose
+   error is within the threshold (Eq. 4). It returns the fits and the
+   *observed* histograms of its images alone.
+2. The prior is merged with every chunk's observed histograms (count-weighted,
+   exactly the sequential Eq. 4 update when there is one chunk).
+3. Images still over the threshold are re-analysed (paper §3.2) with the merged
+   histograms as constraints, one :func:`reanalyse_image` attempt at a time, up
+   to ``max_attempts``, keeping each image's best posture; attempts after the
+   first start from a posture drawn from the histograms instead of their mean.
+4. Re-analysed images that came under the threshold are added to the
+   histograms in sample order.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from core.anneal import AnnealParams, SearchSpace, anneal, search_space
+from core.error import DEFAULT_EMPTY_VIEW_PENALTY_PX, Detections, view_error
+from core.histogram import Histograms
+from core.model import KinematicModel
+from core.refine import refine
+from core.rig import Rig
+
+__all__ = [
+    "ChunkResult",
+    "FitParams",
+    "ImageFit",
+    "SequenceResult",
+    "Status",
+    "fit_chunk",
+    "fit_image",
+    "fit_sequence",
+    "reanalyse_image",
+]
+
+
+class Status(enum.StrEnum):
+    """Per-image outcome, as written in the ``status`` column of angles.csv (FORMATS §3)."""
+
+    OK = "ok"
+    OVER_THRESHOLD = "over_threshold"
+    NO_DETECTIONS = "no_detections"
+
+
+@dataclass(frozen=True)
+class FitParams:
+    """Everything that decides a fit besides the data, the model, the rig and the seed.
+
+    error_threshold_px : an image whose Eq. 5 error is above this is re-analysed (paper: 10).
+    max_attempts : fits per image at most, the first included (paper: 5).
+    refine : polish SA's best posture by bounded least squares (``core.refine``).
+    empty_view_penalty_px : Eq. 5 charge per marker of a view without detections.
+    """
+
+    anneal: AnnealParams = field(default_factory=AnnealParams)
+    error_threshold_px: float = 10.0
+    max_attempts: int = 5
+    refine: bool = True
+    empty_view_penalty_px: float = DEFAULT_EMPTY_VIEW_PENALTY_PX
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.error_threshold_px) and self.error_threshold_px > 0):
+            raise ValueError(
+                f"error_threshold_px must be a positive number, got {self.error_threshold_px!r}"
+            )
+        if isinstance(self.max_attempts, bool) or not isinstance(self.max_attempts, int) or not (
+            1 <= self.max_attempts <= 100
+        ):
+            raise ValueError(f"max_attempts must be a whole number in 1..100, got {self.max_attempts!r}")
+        if not (math.isfinite(self.empty_view_penalty_px) and self.empty_view_penalty_px >= 0):
+            raise ValueError(
+                f"empty_view_penalty_px must be a non-negative number, got "
+                f"{self.empty_view_penalty_px!r}"
+            )
+
+
+@dataclass(frozen=True)
+class ImageFit:
+    """The accepted posture of one image (one row of angles.csv).
+
+    dofs : (D,) float64 in model order, NaN when there were no detections.
+    error : Eq. 5 error of ``dofs`` in pixels, NaN when there were no detections.
+    attempts : how many times the image was fitted (1 + re-analyses; 0 without detections).
+    iterations : SA iterations over all attempts.
+    """
+
+    sample: int
+    dofs: np.ndarray
+    error: float
+    attempts: int
+    status: Status
+    iterations: int
+
+
+@dataclass(frozen=True)
+class ChunkResult:
+    """Fits of a chunk, in sample order, and the histograms of its accepted angles alone."""
+
+    fits: list[ImageFit]
+    observed: Histograms
+
+
+@dataclass(frozen=True)
+class SequenceResult:
+    """Fits of a sequence in sample order, and the prior updated by every accepted image."""
+
+    fits: list[ImageFit]
+    histograms: Histograms
+
+
+def image_rng(seed: int, sample: int, attempt: int) -> np.random.Generator:
+    """The random stream of one attempt on one image: independent of chunking and order."""
+    return np.random.default_rng([seed, sample, attempt])
+
+
+def fit_image(
+    detections: Detections,
+    *,
+    model: KinematicModel,
+    rig: Rig,
+    space: SearchSpace,
+    params: FitParams,
+    rng: np.random.Generator,
+    start: np.ndarray | None = None,
+    offsets: np.ndarray | None = None,
+) -> tuple[np.ndarray, float, int]:
+    """One attempt on one image: SA from ``start`` (histogram means by default), then refinement.
+
+    The refined posture is kept only if its Eq. 5 error is not larger than SA's.
+
+    Returns
+    -------
+    (dofs (D,), Eq. 5 error in pixels, SA iterations)
+    """
+    penalty = params.empty_view_penalty_px
+    result = anneal(
+        detections, model=model, rig=rig, space=space, params=params.anneal, rng=rng,
+        start=start, offsets=offsets, empty_view_penalty_px=penalty,
+    )
+    dofs, error = result.dofs, result.error
+    if params.refine:
+        polished = refine(
+            dofs, detections, model=model, rig=rig, offsets=offsets,
+            huber_px=params.anneal.huber_px,
+        )
+        polished_error = view_error(
+            polished, detections, model=model, rig=rig, offsets=offsets,
+            empty_view_penalty_px=penalty,
+        )
+        if polished_error <= error:
+            dofs, error = polished, polished_error
+    return dofs, error, result.iterations
+
+
+def fit_chunk(
+    images: Iterable[Detections],
+    *,
+    model: KinematicModel,
+    rig: Rig,
+    histograms: Histograms,
+    params: FitParams,
+    seed: int,
+    first_sample: int = 0,
+    offsets: Iterable[np.ndarray | None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+    progress: Callable[[ImageFit], None] | None = None,
+) -> ChunkResult:
+    """Fit a contiguous run of images once each (step 1 of the module's flow).
+
+    Parameters
+    ----------
+    images : iterable of Detections, samples ``first_sample, first_sample + 1, …``.
+    histograms : the constraints at the start of the chunk; not modified.
+    seed : the job's seed; image ``s`` uses :func:`image_rng` ``(seed, s, 1)``.
+    offsets : optional per-image (V, 2) view offsets (root tracking), same length as images.
+    should_stop : checked between images; returning True ends the chunk early (cancel).
+    progress : called with every finished image.
+    """
+    working = histograms.copy()
+    observed = Histograms.empty(model, bins=histograms.bins)
+    rot = model.rotational
+    offset_iter = iter(offsets) if offsets is not None else None
+    fits = []
+    for k, det in enumerate(images):
+        if should_stop is not None and should_stop():
+            break
+        sample = first_sample + k
+        off = next(offset_iter) if offset_iter is not None else None
+        fit = _first_attempt(det, sample, off, model, rig, working, params, seed)
+        if fit.status is Status.OK:
+            working.update(fit.dofs[rot])
+            observed.update(fit.dofs[rot])
+        fits.append(fit)
+        if progress is not None:
+            progress(fit)
+    return ChunkResult(fits, observed)
+
+
+def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed) -> ImageFit:
+    if not np.any(det.counts):
+        nan = np.full(len(model.dofs), np.nan)
+        return ImageFit(sample, nan, math.nan, 0, Status.NO_DETECTIONS, 0)
+    space = search_space(model, histograms)
+    dofs, error, its = fit_image(
+        det, model=model, rig=rig, space=space, params=params,
+        rng=image_rng(seed, sample, 1), offsets=offsets,
+    )
+    return ImageFit(sample, dofs, error, 1, _status(error, params), its)
+
+
+def reanalyse_image(
+    detections: Detections,
+    previous: ImageFit,
+    *,
+    model: KinematicModel,
+    rig: Rig,
+    histograms: Histograms,
+    params: FitParams,
+    seed: int,
+    offsets: np.ndarray | None = None,
+) -> ImageFit:
+    """One more attempt on an over-threshold image (paper §3.2), keeping the better posture.
+
+    The attempt starts from a posture drawn from ``histograms`` (the merged
+    constraints), so that it does not retrace the first attempt's path, and
+    uses the stream :func:`image_rng` ``(seed, sample, attempts + 1)``.
+    """
+    attempt = previous.attempts + 1
+    if previous.status is not Status.OVER_THRESHOLD or attempt > params.max_attempts:
+        return previous
+    rng = image_rng(seed, previous.sample, attempt)
+    space = search_space(model, histograms)
+    start = draw_posture(model, histograms, rng)
+    dofs, error, its = fit_image(
+        detections, model=model, rig=rig, space=space, params=params, rng=rng,
+        start=start, offsets=offsets,
+    )
+    if not error < previous.error:
+        dofs, error = previous.dofs, previous.error
+    iterations = previous.iterations + its
+    return ImageFit(previous.sample, dofs, error, attempt, _status(error, params), iterations)
+
+
+def fit_sequence(
+    images: Sequence[Detections],
+    *,
+    model: KinematicModel,
+    rig: Rig,
+    histograms: Histograms,
+    params: FitParams,
+    seed: int,
+    chunk_size: int | None = None,
+    offsets: Sequence[np.ndarray | None] | None = None,
+    progress: Callable[[ImageFit], None] | None = None,
+) -> SequenceResult:
+    """Fit every image of a sequence: chunks, merge, re-analysis (the module's flow).
+
+    ``chunk_size=None`` fits the sequence as one chunk (histograms adapt over
+    the whole sequence, as in the paper); a chunked fit reproduces exactly what
+    workers fitting those chunks in parallel produce.
+    """
+    n = len(images)
+    size = n if chunk_size is None else chunk_size
+    if size < 1 and n:
+        raise ValueError(f"chunk_size must be at least 1, got {chunk_size}")
+    if offsets is not None and len(offsets) != n:
+        raise ValueError(f"offsets has {len(offsets)} entries for {n} images")
+    chunks = [
+        fit_chunk(
+            images[a : a + size], model=model, rig=rig, histograms=histograms, params=params,
+            seed=seed, first_sample=a, offsets=None if offsets is None else offsets[a : a + size],
+            progress=progress,
+        )
+        for a in range(0, n, max(size, 1))
+    ]
+    merged = histograms.merge(*(c.observed for c in chunks))
+    fits = [f for c in chunks for f in c.fits]
+    recovered = Histograms.empty(model, bins=histograms.bins)
+    for i, fit in enumerate(fits):
+        while fit.status is Status.OVER_THRESHOLD and fit.attempts < params.max_attempts:
+            fit = reanalyse_image(
+                images[i], fit, model=model, rig=rig, histograms=merged, params=params, seed=seed,
+                offsets=None if offsets is None else offsets[i],
+            )
+        if fit.status is Status.OK and fit.attempts > 1:
+            recovered.update(fit.dofs[model.rotational])
+        fits[i] = fit
+    return SequenceResult(fits, merged.merge(recovered))
+
+
+def draw_posture(
+    model: KinematicModel, histograms: Histograms, rng: np.random.Generator
+) -> np.ndarray:
+    """A random posture: angles drawn from the histograms, translations uniform in range.
+
+    Returns ndarray of shape (D,), float64, inside every DOF's range.
+    """
+    q = rng.uniform(model.lower, model.upper)
+    rot = np.flatnonzero(model.rotational)
+    width = 360.0 / histograms.bins
+    for r, i in enumerate(rot):
+        p = histograms.probs[r]
+        if p.sum() <= 0:
+            continue
+        b = rng.choice(histograms.bins, p=p / p.sum())
+        angle = (b + rng.random()) * width
+        lo = model.lower[i]
+        q[i] = lo + (angle - lo) % 360.0
+    return np.clip(q, model.lower, model.upper)
+
+
+def _status(error: float, params: FitParams) -> Status:
+    return Status.OK if error <= params.error_threshold_px else Status.OVER_THRESHOLD

@@ -1,0 +1,260 @@
+"""Eq. 5, Simulated Annealing, refinement and the sequence flow (chunks, merge, re-analysis)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from core.anneal import AnnealParams, StopReason, anneal, search_space
+from core.error import Detections, view_error
+from core.fit import FitParams, Status, fit_chunk, fit_sequence, reanalyse_image
+from core.histogram import Histograms
+from core.model import KinematicModel
+from core.refine import refine
+from core.rig import Rig
+
+EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
+FAST = AnnealParams(n_end=6000, n_l=600, n_tau=300)
+
+
+@pytest.fixture(scope="module")
+def locust() -> tuple[KinematicModel, Rig]:
+    return (
+        KinematicModel.from_xml(EXAMPLE / "model.xml"),
+        Rig.from_json(EXAMPLE / "rig.json"),
+    )
+
+
+def _detections(model, rig, postures, noise=0.0, seed=0) -> list[Detections]:
+    proj = rig.project(model.marker_positions(np.atleast_2d(postures)))
+    proj = proj + np.random.default_rng(seed).normal(0.0, noise, proj.shape) if noise else proj
+    return [Detections.from_views(list(p)) for p in proj]
+
+
+def _postures(model, n, seed=0) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(model.lower + 5, model.upper - 5, (n, 5))
+
+
+# ---- Eq. 5 ---------------------------------------------------------------------------------
+
+
+def test_eq5_by_hand(locust):
+    """One marker per view, a known offset to the nearest of two detections, and a ghost."""
+    model, rig = locust
+    q = np.array([170.0, 0.0, 0.0, 10.0, 90.0])
+    proj = rig.project(model.marker_positions(q))  # (2 views, 4 markers, 2)
+    side = proj[0] + [3.0, 4.0]  # every marker 5 px off in the side view
+    top = np.vstack([proj[1], [[5.0, 300.0]]])  # exact, plus a far ghost
+    det = Detections.from_views([side, top])
+    assert view_error(q, det, model=model, rig=rig) == pytest.approx(4 * 5.0)
+
+
+def test_eq5_empty_view_is_a_constant_penalty(locust):
+    model, rig = locust
+    q = np.array([170.0, 0.0, 0.0, 10.0, 90.0])
+    proj = rig.project(model.marker_positions(q))
+    det = Detections.from_views([proj[0] + [0.0, 1.0], np.zeros((0, 2))])
+    for penalty in (0.0, 5.0):
+        e = view_error(q, det, model=model, rig=rig, empty_view_penalty_px=penalty)
+        assert e == pytest.approx(4 * 1.0 + 4 * penalty)
+    nothing = Detections.from_views([np.zeros((0, 2)), np.zeros((0, 2))])
+    assert math.isfinite(view_error(q, nothing, model=model, rig=rig))
+
+
+def test_eq5_offsets_shift_projections(locust):
+    model, rig = locust
+    q = np.array([170.0, 0.0, 0.0, 10.0, 90.0])
+    det = _detections(model, rig, q)[0]
+    offsets = np.array([[0.0, 2.0], [0.0, 0.0]])
+    assert view_error(q, det, model=model, rig=rig, offsets=offsets) == pytest.approx(8.0)
+
+
+def test_detections_mismatched_views_rejected(locust):
+    model, rig = locust
+    with pytest.raises(ValueError, match="views"):
+        view_error(np.full(5, 100.0), Detections.from_views([np.zeros((1, 2))]), model=model, rig=rig)
+
+
+# ---- Simulated Annealing ------------------------------------------------------------------------
+
+
+def test_anneal_is_deterministic_per_seed(locust):
+    model, rig = locust
+    det = _detections(model, rig, _postures(model, 1), noise=0.1)[0]
+    space = search_space(model, Histograms.uniform(model))
+    params = replace(FAST, polish=False)
+    runs = [
+        anneal(det, model=model, rig=rig, space=space, params=params, rng=np.random.default_rng(s))
+        for s in (7, 7, 8)
+    ]
+    np.testing.assert_array_equal(runs[0].dofs, runs[1].dofs)
+    assert runs[0].error == runs[1].error
+    assert not np.array_equal(runs[0].dofs, runs[2].dofs)
+
+
+def test_anneal_stays_in_range_and_stops_below_epsilon(locust):
+    model, rig = locust
+    det = _detections(model, rig, _postures(model, 1, seed=4))[0]
+    space = search_space(model, Histograms.uniform(model))
+    result = anneal(det, model=model, rig=rig, space=space, params=AnnealParams(),
+                    rng=np.random.default_rng(0))
+    assert np.all(result.dofs >= model.lower) and np.all(result.dofs <= model.upper)
+    assert result.stop is StopReason.BELOW_EPSILON and result.error < 1.0
+    assert result.iterations < AnnealParams().n_end
+
+
+def test_anneal_redraws_implausible_angles(locust):
+    """With T_h above every bin outside 150..160 of phi, the search never leaves that band."""
+    model, rig = locust
+    hist = Histograms.uniform(model)
+    hist.probs[0] = 0.0
+    hist.probs[0, 150:160] = 0.1
+    det = _detections(model, rig, np.array([200.0, 0, 0, 10, 90]))[0]
+    space = search_space(model, hist)
+    params = replace(FAST, polish=False, plausibility_threshold=0.05)
+    result = anneal(det, model=model, rig=rig, space=space, params=params,
+                    rng=np.random.default_rng(1))
+    assert 150.0 <= result.dofs[0] < 160.0
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("n_end", 0), ("n_l", -1), ("n_tau", 1.5), ("tau0", 0.0), ("l0", -1.0), ("c_l", 1.5),
+     ("c_tau", 0.0), ("eps", -1.0), ("plausibility_threshold", 1.0), ("huber_px", 0.0)],
+)
+def test_anneal_params_validation(field, value):
+    with pytest.raises(ValueError, match=field):
+        AnnealParams(**{field: value})
+
+
+# ---- refinement --------------------------------------------------------------------------------
+
+
+def test_refine_reaches_subpixel_from_a_nearby_posture(locust):
+    model, rig = locust
+    truth = np.array([160.0, 10.0, 3.0, 20.0, 100.0])
+    det = _detections(model, rig, truth)[0]
+    start = truth + [1.5, -1.5, 1.0, -1.0, 2.0]
+    refined = refine(start, det, model=model, rig=rig)
+    assert view_error(refined, det, model=model, rig=rig) < 1e-6
+    np.testing.assert_allclose(refined, truth, atol=1e-5)
+
+
+def test_refine_respects_bounds(locust):
+    model, rig = locust
+    beyond = np.array([230.0, 0.0, 0.0, 10.0, 90.0])  # phi outside 120..220
+    det = _detections(model, rig, np.clip(beyond, model.lower, model.upper))[0]
+    refined = refine(beyond, det, model=model, rig=rig)
+    assert np.all(refined <= model.upper) and np.all(refined >= model.lower)
+
+
+# ---- sequences ---------------------------------------------------------------------------------
+
+
+def test_fit_sequence_recovers_postures(locust):
+    model, rig = locust
+    truth = _postures(model, 12, seed=2)
+    dets = _detections(model, rig, truth, noise=0.05, seed=2)
+    result = fit_sequence(dets, model=model, rig=rig, histograms=Histograms.uniform(model),
+                          params=FitParams(), seed=3)
+    q = np.array([f.dofs for f in result.fits])
+    errors = np.array([f.error for f in result.fits])
+    assert all(f.status is Status.OK for f in result.fits)
+    assert np.median(np.abs(q - truth)) < 0.2
+    assert errors.mean() < 1.0
+
+
+def test_chunked_fit_equals_fitting_the_chunks_and_merging(locust):
+    """What workers do (chunks from the same prior, merged by counts) is what fit_sequence does."""
+    model, rig = locust
+    dets = _detections(model, rig, _postures(model, 6, seed=5), noise=0.05)
+    prior = Histograms.uniform(model, prior_weight=20)
+    params = FitParams(anneal=FAST)
+    whole = fit_sequence(dets, model=model, rig=rig, histograms=prior, params=params, seed=9,
+                         chunk_size=4)
+    a = fit_chunk(dets[:4], model=model, rig=rig, histograms=prior, params=params, seed=9)
+    b = fit_chunk(dets[4:], model=model, rig=rig, histograms=prior, params=params, seed=9,
+                  first_sample=4)
+    for got, want in zip(whole.fits, a.fits + b.fits, strict=True):
+        np.testing.assert_array_equal(got.dofs, want.dofs)
+    merged = prior.merge(a.observed, b.observed)
+    np.testing.assert_allclose(whole.histograms.probs, merged.probs, atol=1e-12)
+    np.testing.assert_allclose(whole.histograms.counts, merged.counts)
+
+
+def test_single_chunk_histograms_equal_sequential_eq4_update(locust):
+    model, rig = locust
+    dets = _detections(model, rig, _postures(model, 5, seed=6), noise=0.05)
+    prior = Histograms.uniform(model, prior_weight=10)
+    result = fit_sequence(dets, model=model, rig=rig, histograms=prior,
+                          params=FitParams(anneal=FAST), seed=1)
+    expected = prior.copy()
+    for fit in result.fits:
+        expected.update(fit.dofs[model.rotational])
+    np.testing.assert_allclose(result.histograms.probs, expected.probs, atol=1e-12)
+    assert result.histograms.counts[0] == 10 + 5
+
+
+def test_over_threshold_images_are_reanalysed_up_to_max_attempts(locust):
+    model, rig = locust
+    dets = _detections(model, rig, _postures(model, 2, seed=7), noise=0.3)
+    params = FitParams(anneal=FAST, error_threshold_px=0.01, max_attempts=3)
+    result = fit_sequence(dets, model=model, rig=rig, histograms=Histograms.uniform(model),
+                          params=params, seed=2)
+    for fit in result.fits:
+        assert fit.attempts == 3
+        assert fit.status is Status.OVER_THRESHOLD
+        assert fit.error > 0.01
+    # Unchanged histograms: no image was accepted.
+    np.testing.assert_array_equal(result.histograms.counts, Histograms.uniform(model).counts)
+
+
+def test_reanalysis_keeps_the_best_attempt(locust):
+    model, rig = locust
+    det = _detections(model, rig, _postures(model, 1, seed=8), noise=0.3)[0]
+    params = FitParams(anneal=replace(FAST, n_end=300, n_tau=100, n_l=100, polish=False),
+                       refine=False, error_threshold_px=0.01)
+    prior = Histograms.uniform(model)
+    first = fit_chunk([det], model=model, rig=rig, histograms=prior, params=params, seed=0).fits[0]
+    errors = [first.error]
+    fit = first
+    for _ in range(3):
+        fit = reanalyse_image(det, fit, model=model, rig=rig, histograms=prior, params=params,
+                              seed=0)
+        errors.append(fit.error)
+    assert errors == sorted(errors, reverse=True)
+    assert fit.attempts == 4
+    assert fit.error == pytest.approx(view_error(fit.dofs, det, model=model, rig=rig))
+
+
+def test_image_without_detections(locust):
+    model, rig = locust
+    empty = Detections.from_views([np.zeros((0, 2)), np.zeros((0, 2))])
+    result = fit_sequence([empty], model=model, rig=rig, histograms=Histograms.uniform(model),
+                          params=FitParams(anneal=FAST), seed=0)
+    fit = result.fits[0]
+    assert fit.status is Status.NO_DETECTIONS and fit.attempts == 0
+    assert np.all(np.isnan(fit.dofs)) and math.isnan(fit.error)
+
+
+def test_fit_chunk_should_stop_ends_early(locust):
+    model, rig = locust
+    dets = _detections(model, rig, _postures(model, 4))
+    calls = iter([False, False, True, True])
+    result = fit_chunk(dets, model=model, rig=rig, histograms=Histograms.uniform(model),
+                       params=FitParams(anneal=FAST), seed=0, should_stop=lambda: next(calls))
+    assert [f.sample for f in result.fits] == [0, 1]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [({"error_threshold_px": 0.0}, "error_threshold_px"), ({"max_attempts": 0}, "max_attempts"),
+     ({"empty_view_penalty_px": -1.0}, "empty_view_penalty_px")],
+)
+def test_fit_params_validation(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        FitParams(**kwargs)
