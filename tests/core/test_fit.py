@@ -138,7 +138,7 @@ def test_refine_reaches_subpixel_from_a_nearby_posture(locust):
     model, rig = locust
     truth = np.array([160.0, 10.0, 3.0, 20.0, 100.0])
     det = _detections(model, rig, truth)[0]
-    start = truth + [1.5, -1.5, 1.0, -1.0, 2.0]
+    start = truth + np.array([1.5, -1.5, 1.0, -1.0, 2.0])
     refined = refine(start, det, model=model, rig=rig)
     assert view_error(refined, det, model=model, rig=rig) < 1e-6
     np.testing.assert_allclose(refined, truth, atol=1e-5)
