@@ -240,7 +240,9 @@ def _parse_xml(source: str | bytes | Path) -> Element:
             return SafeET.parse(source, forbid_dtd=True).getroot()
         return SafeET.fromstring(source, forbid_dtd=True)
     except DefusedXmlException as exc:
-        raise ModelError(f"refused unsafe XML ({type(exc).__name__}): DTDs and entities are not allowed") from exc
+        raise ModelError(
+            f"refused unsafe XML ({type(exc).__name__}): DTDs and entities are not allowed"
+        ) from exc
     except SafeET.ParseError as exc:
         raise ModelError(f"not well-formed XML: {exc}") from exc
     except OSError as exc:

@@ -180,7 +180,9 @@ def _view_from_dict(d: Any, index: int) -> View:
     if roi is not None:
         r = _matrix(roi, (4,), f"{where} roi")
         if np.any(r != np.round(r)) or r[0] < 0 or r[1] < 0 or r[2] <= 0 or r[3] <= 0:
-            raise RigError(f"{where}: roi must be [x, y, width, height] with whole x, y >= 0 and width, height > 0")
+            raise RigError(
+                f"{where}: roi must be [x, y, width, height], whole numbers, x, y >= 0, width, height > 0"
+            )
         roi = tuple(int(x) for x in r)
     proj = d.get("projection")
     if not isinstance(proj, dict) or proj.get("type") not in PROJECTION_TYPES:
