@@ -325,6 +325,39 @@ def _huber_cost(res, valid, c):
 
 
 @njit(cache=True)
+def solve_spd(A, b):
+    """x with A·x = b for a small symmetric positive-definite A, by Cholesky.
+
+    The damped normal equations of :func:`refine` are D×D with D the number of
+    DOFs; a direct solve avoids LAPACK (and SciPy, which numba needs for it).
+    """
+    n = b.shape[0]
+    L = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1):
+            acc = A[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            if i == j:
+                L[i, i] = math.sqrt(max(acc, 1e-300))
+            else:
+                L[i, j] = acc / L[j, j]
+    y = np.empty(n)
+    for i in range(n):
+        acc = b[i]
+        for k in range(i):
+            acc -= L[i, k] * y[k]
+        y[i] = acc / L[i, i]
+    x = np.empty(n)
+    for i in range(n - 1, -1, -1):
+        acc = y[i]
+        for k in range(i + 1, n):
+            acc -= L[k, i] * x[k]
+        x[i] = acc / L[i, i]
+    return x
+
+
+@njit(cache=True)
 def refine(q0, lower, upper, kin, views, offset, det, start, huber_c, max_iter, h_fd):
     """Levenberg–Marquardt on the Huber loss of nearest-detection residuals, within bounds.
 
@@ -373,7 +406,7 @@ def refine(q0, lower, upper, kin, views, offset, det, start, huber_c, max_iter, 
             H = A.copy()
             for i in range(D):
                 H[i, i] += lam * (A[i, i] + 1e-9)
-            delta = np.linalg.solve(H, -g)
+            delta = solve_spd(H, -g)
             for i in range(D):
                 trial[i] = min(max(q[i] + delta[i], lower[i]), upper[i])
             _residuals(trial, kin, views, offset, det, start, res2, valid)

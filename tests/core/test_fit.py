@@ -258,3 +258,13 @@ def test_fit_chunk_should_stop_ends_early(locust):
 def test_fit_params_validation(kwargs, match):
     with pytest.raises(ValueError, match=match):
         FitParams(**kwargs)
+
+
+@pytest.mark.parametrize("n", [1, 3, 7])
+def test_solve_spd_matches_numpy(n):
+    from core._kernels import solve_spd
+
+    rng = np.random.default_rng(n)
+    m = rng.normal(size=(n, n))
+    a, b = m @ m.T + n * np.eye(n), rng.normal(size=n)
+    np.testing.assert_allclose(solve_spd(a, b), np.linalg.solve(a, b), rtol=1e-10, atol=1e-12)
