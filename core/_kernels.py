@@ -172,14 +172,14 @@ def marker_positions_many(Q, kin):
 
 @njit(cache=True)
 def _distort(K, dist, v, x, y):
-    """OpenCV's pinhole model: normalised (x, y) → distorted → pixels through K."""
+    """OpenCV's pinhole model: normalised (x, y) → distorted → pixels through K (no skew)."""
     r2 = x * x + y * y
     radial = (1.0 + r2 * (dist[v, 0] + r2 * (dist[v, 1] + r2 * dist[v, 4]))) / (
         1.0 + r2 * (dist[v, 5] + r2 * (dist[v, 6] + r2 * dist[v, 7]))
     )
     xd = x * radial + 2.0 * dist[v, 2] * x * y + dist[v, 3] * (r2 + 2.0 * x * x)
     yd = y * radial + dist[v, 2] * (r2 + 2.0 * y * y) + 2.0 * dist[v, 3] * x * y
-    return K[v, 0, 0] * xd + K[v, 0, 1] * yd + K[v, 0, 2], K[v, 1, 1] * yd + K[v, 1, 2]
+    return K[v, 0, 0] * xd + K[v, 0, 2], K[v, 1, 1] * yd + K[v, 1, 2]
 
 
 @njit(cache=True)

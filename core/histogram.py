@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.model import KinematicModel, ModelError, _esc, _num, _parse_xml
+from core.model import KinematicModel, ModelError, _esc, _float, _num, _parse_xml
 
 __all__ = ["HistogramError", "Histograms"]
 
@@ -64,8 +64,8 @@ class Histograms:
         """Uniform over each DOF's plausible range, zero elsewhere, worth ``prior_weight`` counts."""
         if bins < 1:
             raise ValueError(f"bins must be at least 1, got {bins}")
-        if not prior_weight > 0:
-            raise ValueError(f"prior_weight must be positive, got {prior_weight}")
+        if not (prior_weight > 0 and math.isfinite(prior_weight)):
+            raise ValueError(f"prior_weight must be a positive finite number, got {prior_weight}")
         empty = cls.empty(model, bins=bins)
         for r in range(len(empty.names)):
             mask = _range_mask(empty.lower[r], empty.upper[r], bins)
@@ -142,39 +142,33 @@ class Histograms:
         distribution with no direction (uniform over the circle, or empty) gives
         the range midpoint.
         """
-        centres = (np.arange(self.bins) + 0.5) * (360.0 / self.bins)
-        rad = np.radians(centres)
-        out = np.empty(len(self.names))
-        for r in range(len(self.names)):
-            p = self.probs[r]
-            s, c = float(p @ np.sin(rad)), float(p @ np.cos(rad))
-            lo, hi = self.lower[r], self.upper[r]
-            if math.hypot(s, c) < 1e-9:
-                out[r] = 0.5 * (lo + hi)
-                continue
-            m = lo + (math.degrees(math.atan2(s, c)) - lo) % 360.0
-            if m > hi:  # outside the range: the nearer end on the circle
-                m = hi if (m - hi) < (lo + 360.0 - m) else lo
-            out[r] = m
-        return out
+        return self._means(clamp=True)
+
+    def _means(self, *, clamp: bool) -> np.ndarray:
+        """Circular means in range coordinates; without ``clamp`` they may lie outside the range."""
+        rad = np.radians(self._centres())
+        s, c = self.probs @ np.sin(rad), self.probs @ np.cos(rad)
+        lo, hi = self.lower, self.upper
+        m = lo + (np.degrees(np.arctan2(s, c)) - lo) % 360.0
+        if clamp:  # outside the range: the nearer end on the circle
+            nearer = np.where((m - hi) < (lo + 360.0 - m), hi, lo)
+            m = np.where(m > hi, nearer, m)
+        return np.where(np.hypot(s, c) < 1e-9, 0.5 * (lo + hi), m)
 
     def stds(self) -> np.ndarray:
         """(R,) standard deviation s(H) of each DOF about its circular mean, degrees.
 
         An empty distribution gives the spread of a uniform one over the range.
         """
-        centres = (np.arange(self.bins) + 0.5) * (360.0 / self.bins)
-        means = self.means()
-        out = np.empty(len(self.names))
-        for r in range(len(self.names)):
-            p = self.probs[r]
-            total = p.sum()
-            if total <= 0:
-                out[r] = (self.upper[r] - self.lower[r]) / math.sqrt(12.0)
-                continue
-            d = (centres - means[r] + 180.0) % 360.0 - 180.0
-            out[r] = math.sqrt(float(p @ (d * d)) / total)
-        return out
+        means = self._means(clamp=False)  # the spread of the distribution, not of its range
+        d = (self._centres()[None, :] - means[:, None] + 180.0) % 360.0 - 180.0
+        total = self.probs.sum(axis=1)
+        var = np.divide((self.probs * d * d).sum(axis=1), total, out=np.zeros_like(total),
+                        where=total > 0)
+        return np.where(total > 0, np.sqrt(var), (self.upper - self.lower) / math.sqrt(12.0))
+
+    def _centres(self) -> np.ndarray:
+        return (np.arange(self.bins) + 0.5) * (360.0 / self.bins)
 
     # ---- FORMATS §4 --------------------------------------------------------------------------
     def to_xml(self) -> str:
@@ -194,34 +188,37 @@ class Histograms:
             raise HistogramError(str(exc).replace("model file", "histogram file")) from exc
         if root.tag != "histograms":
             raise HistogramError(f"root element is <{root.tag}>, expected <histograms>")
-        try:
-            bins = int(root.get("bins", str(DEFAULT_BINS)))
-        except ValueError:
-            raise HistogramError(f"bins={root.get('bins')!r} is not a whole number") from None
+        raw_bins = root.get("bins", str(DEFAULT_BINS)).strip()
+        if not (raw_bins.isascii() and raw_bins.isdigit()):
+            raise HistogramError(f"bins={root.get('bins')!r} is not a whole number")
+        bins = int(raw_bins)
         if bins < 1:
             raise HistogramError(f"bins={bins} must be at least 1")
-        out = cls.empty(model, bins=bins)
-        seen: set[str] = set()
+        # Parse every <dof> before allocating (R, bins): ``bins`` comes from the file, and
+        # only the values actually present may decide how much memory is used.
+        names = tuple(d.name for d in model.dofs if d.rotational)
+        parsed: dict[str, tuple[float, np.ndarray]] = {}
         for el in root.findall("dof"):
             name = el.get("name", "")
-            if name not in out.names:
+            if name not in names:
                 raise HistogramError(f"dof '{name}' is not a rotational DOF of model '{model.name}'")
-            if name in seen:
+            if name in parsed:
                 raise HistogramError(f"dof '{name}' appears twice")
-            seen.add(name)
-            r = out.names.index(name)
-            out.counts[r], out.probs[r] = _parse_dof(el, name, bins)
-        missing = [n for n in out.names if n not in seen]
+            parsed[name] = _parse_dof(el, name, bins)
+        missing = [n for n in names if n not in parsed]
         if missing:
             raise HistogramError(f"no histogram for DOF(s) {', '.join(missing)}")
+        out = cls.empty(model, bins=bins)
+        for r, name in enumerate(out.names):
+            out.counts[r], out.probs[r] = parsed[name]
         return out
 
 
 def _parse_dof(el, name: str, bins: int) -> tuple[float, np.ndarray]:
     where = f"dof '{name}'"
     try:
-        count = float(el.get("count", "nan"))
-        values = np.array([float(v) for v in (el.text or "").split()], dtype=np.float64)
+        count = _float(el.get("count", "nan"))
+        values = np.array([_float(v) for v in (el.text or "").split()], dtype=np.float64)
     except ValueError as exc:
         raise HistogramError(f"{where}: {exc}") from None
     if not (math.isfinite(count) and count >= 0):
@@ -237,10 +234,11 @@ def _parse_dof(el, name: str, bins: int) -> tuple[float, np.ndarray]:
 
 
 def _range_mask(lo: float, hi: float, bins: int) -> np.ndarray:
-    """Bins whose centre lies in [lo, hi] on the circle (at least the bin of the midpoint)."""
-    centres = (np.arange(bins) + 0.5) * (360.0 / bins)
-    rel = (centres - lo) % 360.0
-    mask = rel <= (hi - lo)
-    if not mask.any():
-        mask[int(((0.5 * (lo + hi)) % 360.0) / (360.0 / bins)) % bins] = True
-    return mask
+    """Bins that overlap [lo, hi] on the circle by a positive length.
+
+    A fractional ``min`` such as 120.7 keeps bin 120 plausible for 120.7..121;
+    a range ending exactly on a bin edge does not reach into the next bin.
+    """
+    width = 360.0 / bins
+    rel = (np.arange(bins) * width - lo) % 360.0  # bin start, relative to lo
+    return (rel < (hi - lo)) | (rel + width > 360.0)

@@ -210,6 +210,8 @@ class KinematicModel:
         -------
         ndarray of shape (J, 4, 4), float64.
         """
+        if np.ndim(dofs) != 1:
+            raise ValueError(f"dofs must have shape (D,) with D={len(self.dofs)}, got {np.shape(dofs)}")
         q = self._check_postures(dofs)[0]
         rot = np.empty((len(self.joints), 3, 3))
         pos = np.empty((len(self.joints), 3))
@@ -224,7 +226,7 @@ class KinematicModel:
 
     def _check_postures(self, dofs: np.ndarray) -> np.ndarray:
         q = np.ascontiguousarray(np.atleast_2d(np.asarray(dofs, dtype=np.float64)))
-        if q.ndim != 2 or q.shape[1] != len(self.dofs):
+        if np.ndim(dofs) == 0 or q.ndim != 2 or q.shape[1] != len(self.dofs):
             raise ValueError(
                 f"dofs must have shape (D,) or (T, D) with D={len(self.dofs)}, got {np.shape(dofs)}"
             )
@@ -256,12 +258,24 @@ def _number(el: Element, attr: str, where: str, default: float | None = None) ->
             raise ModelError(f"{where}: missing attribute '{attr}'")
         return default
     try:
-        value = float(raw)
+        value = _float(raw)
     except ValueError:
         raise ModelError(f"{where}: attribute {attr}={raw!r} is not a number") from None
     if not math.isfinite(value):
         raise ModelError(f"{where}: attribute {attr}={raw!r} is not a finite number")
     return value
+
+
+def _float(raw: str) -> float:
+    """``float(raw)`` for C-locale decimals only: Python's digit separators ('1_0') and
+    non-ASCII digits are refused, so a typo cannot silently become another number.
+
+    >>> _float("-4.5e-1")
+    -0.45
+    """
+    if "_" in raw or not raw.isascii():
+        raise ValueError(f"could not convert string to float: {raw!r}")
+    return float(raw)
 
 
 def _xyz(el: Element | None, where: str) -> tuple[float, float, float]:
@@ -327,6 +341,16 @@ def _validate_model(model: KinematicModel) -> None:
             else f"model has {len(roots)} root joints ({', '.join(roots)}); exactly one is allowed"
         )
     _topological_order(model.joints)  # raises on a cycle
+    # DOF order is the posture layout; model.xml nests dofs in joints, so only joint-by-joint
+    # order survives to_xml/from_xml (models built in code could break it).
+    position = {j.name: i for i, j in enumerate(model.joints)}
+    last = 0
+    for d in model.dofs:
+        if d.joint not in position:
+            raise ModelError(f"dof '{d.name}': joint '{d.joint}' is not a joint of this model")
+        if position[d.joint] < last:
+            raise ModelError(f"dof '{d.name}': dofs must be listed joint by joint, in joint order")
+        last = position[d.joint]
     for d in model.dofs:
         _validate_dof(d, root=roots[0])
     seen: set[tuple[str, str]] = set()
@@ -434,6 +458,8 @@ def _num(value: float) -> str:
 
 
 def _esc(text: str) -> str:
+    """Text for a double-quoted attribute; tab, LF, CR as references (raw ones would read back as spaces)."""
     return (
         text.replace("&", "&amp;").replace('"', "&quot;").replace("<", "&lt;").replace(">", "&gt;")
+        .replace("\t", "&#9;").replace("\n", "&#10;").replace("\r", "&#13;")
     )

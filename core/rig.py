@@ -154,7 +154,18 @@ def _reject_constant(name: str) -> float:
     raise RigError(f"rig contains {name}, which is not a number")
 
 
+def _numeric(value: Any) -> bool:
+    """True for (nested lists/tuples of) int or float, or a numeric array: no strings, no booleans."""
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "iuf"
+    if isinstance(value, list | tuple):
+        return all(_numeric(v) for v in value)
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+
+
 def _matrix(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
+    if not _numeric(value):
+        raise RigError(f"{where} must be a {'×'.join(map(str, shape))} array of numbers")
     try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -203,11 +214,14 @@ def _validate_projection(p: dict[str, Any], where: str) -> dict[str, Any]:
             raise RigError(f"{where}: P is singular (its 3×3 part has rank < 3)")
         return {"type": kind, "P": P.tolist()}
     K = _matrix(p.get("K"), (3, 3), f"{where} K")
-    if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or not np.allclose(K[2], [0, 0, 1]):
-        raise RigError(f"{where}: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+    # OpenCV's projectPoints has no skew term (it reads fx, fy, cx, cy only): K[0][1] must be 0.
+    if K[0, 0] <= 0 or K[1, 1] <= 0 or K[0, 1] != 0 or K[1, 0] != 0 or not np.allclose(K[2], [0, 0, 1]):
+        raise RigError(f"{where}: K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0 (no skew)")
     dist = p.get("dist", [])
-    if len(dist) not in (0, 4, 5, 8):
-        raise RigError(f"{where}: dist must have 0, 4, 5 or 8 coefficients (OpenCV order), got {len(dist)}")
+    sequence = isinstance(dist, list | tuple) or (isinstance(dist, np.ndarray) and dist.ndim == 1)
+    if not sequence or len(dist) not in (0, 4, 5, 8):
+        got = len(dist) if sequence else repr(dist)
+        raise RigError(f"{where}: dist must be a list of 0, 4, 5 or 8 coefficients (OpenCV order), got {got}")
     dist_arr = _matrix(dist, (len(dist),), f"{where} dist")
     rvec = _matrix(p.get("rvec"), (3,), f"{where} rvec")
     tvec = _matrix(p.get("tvec"), (3,), f"{where} tvec")
