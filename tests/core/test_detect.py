@@ -1,0 +1,190 @@
+"""Marker detection: filter chain, regions and sub-pixel centroids (paper Fig. 1)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.detect import DetectorParams, detect
+from core.error import Detections
+from core.model import KinematicModel
+from core.rig import Rig
+from core.synth import render_frames
+
+SIZE = (128, 96)  # width, height of the test frames
+# Four markers 40 and 30 px apart: isolated at any root position.
+SQUARE = ((0, 0), (40, 0), (0, 30), (40, 30))
+
+
+def dots_model(*offsets: tuple[float, float]) -> KinematicModel:
+    """Markers at fixed pixel offsets from a root that translates in x and y."""
+    markers = "".join(
+        f'<marker name="m{i}" joint="root" x="{x}" y="{y}" z="0"/>'
+        for i, (x, y) in enumerate(offsets)
+    )
+    return KinematicModel.from_xml(
+        '<model name="dots" units="px"><joint name="root">'
+        '<dof axis="tx" name="tx" min="0" max="128"/><dof axis="ty" name="ty" min="0" max="96"/>'
+        f"</joint>{markers}</model>"
+    )
+
+
+def pixel_rig(*rois: list[int] | None, videos: tuple[int, ...] | None = None) -> Rig:
+    """Views with the identity projection (u, v) = (x, y), one per roi."""
+    views = [
+        {"name": f"v{i}", "video": videos[i] if videos else 0,
+         "projection": {"type": "affine", "matrix": [[1, 0, 0, 0], [0, 1, 0, 0]]},
+         **({"roi": roi} if roi is not None else {})}
+        for i, roi in enumerate(rois)
+    ]
+    return Rig.from_dict({"views": views})
+
+
+def rendered(model, rig, postures, *, seed=0, **kwargs):
+    return list(render_frames(model, rig, np.atleast_2d(postures), rng=np.random.default_rng(seed),
+                              frame_size=SIZE, **kwargs))
+
+
+def nearest_errors(detections: Detections, truth: np.ndarray) -> np.ndarray:
+    """Distance of each true point (M, 2) to the nearest detection of view 0."""
+    found = detections.view(0)
+    return np.min(np.linalg.norm(truth[:, None, :] - found[None, :, :], axis=2), axis=1)
+
+
+@pytest.mark.parametrize(("noise_sigma", "tolerance"), [(0.0, 0.02), (2.0, 0.1)])
+def test_centroid_of_isolated_markers_is_sub_pixel_accurate(noise_sigma, tolerance):
+    model, rig = dots_model(*SQUARE), pixel_rig(None)
+    postures = np.random.default_rng(5).uniform([20, 20], [70, 50], (8, 2))
+    frames = rendered(model, rig, postures, noise_sigma=noise_sigma)
+    for posture, frame in zip(postures, frames, strict=True):
+        det = detect([frame], rig=rig)
+        assert det.counts.tolist() == [4]
+        truth = rig.project(model.marker_positions(posture))[0]
+        assert np.all(nearest_errors(det, truth) <= tolerance)
+
+
+def test_roi_origin_is_added():
+    model = dots_model((0, 0))
+    rig = pixel_rig([0, 0, 64, 96], [64, 16, 64, 80])
+    frame = rendered(model, rig, [90.3, 50.6], noise_sigma=0.0)[0]
+    det = detect([frame], rig=rig)
+    assert det.counts.tolist() == [0, 1]
+    np.testing.assert_allclose(det.view(1)[0], [90.3, 50.6], atol=0.02)
+
+
+def test_overlapping_markers_give_one_region():
+    model, rig = dots_model((0, 0), (2.5, 1.0)), pixel_rig(None)
+    frame = rendered(model, rig, [50.0, 40.0])[0]
+    det = detect([frame], rig=rig)
+    assert det.counts.tolist() == [1]
+    np.testing.assert_allclose(det.view(0)[0], [51.25, 40.5], atol=0.1)  # between the two
+
+
+def test_area_limits_and_erosion_drop_small_regions():
+    frame = np.full(SIZE[::-1], 20, np.uint8)
+    frame[10, 10] = 250  # a hot pixel
+    frame[40:46, 60:66] = 250  # a 6×6 marker
+    rig = pixel_rig(None)
+    assert detect([frame], rig=rig, params=DetectorParams(min_area=1)).counts.tolist() == [2]
+    assert detect([frame], rig=rig, params=DetectorParams(min_area=2)).counts.tolist() == [1]
+    opened = DetectorParams(min_area=1, erode=1, dilate=1)
+    det = detect([frame], rig=rig, params=opened)
+    np.testing.assert_allclose(det.view(0), [[63.0, 43.0]])
+    assert detect([frame], rig=rig, params=DetectorParams(max_area=35)).counts.tolist() == [0]
+
+
+def test_otsu_and_blur_find_the_markers():
+    model, rig = dots_model(*SQUARE), pixel_rig(None)
+    frame = rendered(model, rig, [30.4, 25.7])[0]
+    for params in (DetectorParams(threshold="otsu"), DetectorParams(blur=3, threshold=60)):
+        det = detect([frame], rig=rig, params=params)
+        truth = rig.project(model.marker_positions(np.array([30.4, 25.7])))[0]
+        assert det.counts.tolist() == [4]
+        assert np.all(nearest_errors(det, truth) <= 0.1)
+
+
+def test_colour_frame_uses_the_selected_channel():
+    model, rig = dots_model(*SQUARE), pixel_rig(None)
+    grey = rendered(model, rig, [30.4, 25.7], noise_sigma=0.0)[0]
+    bgr = np.stack([np.full_like(grey, 20), np.full_like(grey, 20), grey], axis=2)  # red markers
+    truth = rig.project(model.marker_positions(np.array([30.4, 25.7])))[0]
+    red = detect([bgr], rig=rig, params=DetectorParams(channel="red"))
+    assert red.counts.tolist() == [4]
+    assert np.all(nearest_errors(red, truth) <= 0.02)
+    assert detect([bgr], rig=rig, params=DetectorParams(channel="blue")).counts.tolist() == [0]
+    # Grey conversion weighs red by 0.299: 20 + 0.299·210 < 100, raise nothing at threshold 100.
+    assert detect([bgr], rig=rig).counts.tolist() == [0]
+    assert detect([bgr], rig=rig, params=DetectorParams(threshold=40)).counts.tolist() == [4]
+
+
+def test_two_videos_are_detected_in_their_own_frames():
+    rig = pixel_rig(None, None, videos=(0, 1))
+    left = np.full((20, 30), 20, np.uint8)
+    right = left.copy()
+    right[5:8, 5:8] = 250
+    det = detect([left, right], rig=rig)
+    assert det.counts.tolist() == [0, 1]
+    np.testing.assert_allclose(det.view(1)[0], [6.5, 6.5])
+    with pytest.raises(ValueError, match="2 video"):
+        detect([left], rig=rig)
+
+
+def test_empty_and_saturated_images():
+    rig = pixel_rig(None)
+    assert detect([np.zeros((8, 8), np.uint8)], rig=rig).counts.tolist() == [0]
+    det = detect([np.full((8, 8), 255, np.uint8)], rig=rig, params=DetectorParams(max_area=64))
+    np.testing.assert_allclose(det.view(0), [[4.0, 4.0]])  # no background: plain centroid
+
+
+# ---- validation -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"channel": "gray"}, "channel"),
+        ({"channel": "RED"}, "channel"),
+        ({"threshold": 256}, "threshold"),
+        ({"threshold": -1}, "threshold"),
+        ({"threshold": "auto"}, "threshold"),
+        ({"threshold": True}, "threshold"),
+        ({"erode": -1}, "erode"),
+        ({"dilate": 1.5}, "dilate"),
+        ({"blur": 4}, "blur"),
+        ({"blur": -3}, "blur"),
+        ({"min_area": 0}, "min_area"),
+        ({"max_area": 0}, "max_area"),
+        ({"min_area": 10, "max_area": 5}, "max_area"),
+    ],
+)
+def test_detector_params_validation(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        DetectorParams(**kwargs)
+
+
+def test_wrong_number_of_frames():
+    rig = pixel_rig(None)
+    frame = np.zeros((8, 8), np.uint8)
+    with pytest.raises(ValueError, match="one frame per video"):
+        detect([frame, frame], rig=rig)
+
+
+def test_a_bare_frame_is_not_a_sequence_of_frames():
+    with pytest.raises(ValueError, match=r"\[frame\]"):
+        detect(np.zeros((8, 8), np.uint8), rig=pixel_rig(None))
+
+
+def test_roi_outside_the_frame():
+    with pytest.raises(ValueError, match="outside"):
+        detect([np.zeros((96, 100), np.uint8)], rig=pixel_rig([64, 0, 64, 96]))
+
+
+def test_frame_must_be_uint8_grey_or_bgr():
+    with pytest.raises(ValueError, match="uint8"):
+        detect([np.zeros((8, 8), np.float32)], rig=pixel_rig(None))
+
+
+def test_colour_channel_of_a_grey_frame():
+    with pytest.raises(ValueError, match="colour"):
+        detect([np.zeros((8, 8), np.uint8)], rig=pixel_rig(None),
+               params=DetectorParams(channel="green"))
