@@ -219,6 +219,54 @@ def project_many(world, kind, P, K, dist):
     return out
 
 
+@njit(cache=True)
+def fuse_projections(raw, fuse_px, out) -> None:
+    """Markers as the camera images them: closer than ``fuse_px`` they are one blob.
+
+    Each projection (V,M,2) is replaced by the mean of all projections of its
+    view within ``fuse_px`` of it (itself included): two overlapping discs give
+    one detection at their common centroid, so the true posture of a fused
+    frame is again a zero of the error.
+    """
+    f2 = fuse_px * fuse_px
+    for v in range(raw.shape[0]):
+        for m in range(raw.shape[1]):
+            su, sv, n = 0.0, 0.0, 0
+            for k in range(raw.shape[1]):
+                du, dv = raw[v, k, 0] - raw[v, m, 0], raw[v, k, 1] - raw[v, m, 1]
+                if du * du + dv * dv < f2:
+                    su += raw[v, k, 0]
+                    sv += raw[v, k, 1]
+                    n += 1
+            out[v, m, 0], out[v, m, 1] = su / n, sv / n
+
+
+@njit(cache=True)
+def imaged_markers(q, kin, views, offset, fuse_px, work):
+    """Pixel positions (V,M,2) at which the camera shows the markers of posture ``q``.
+
+    ``work`` = (rot, pos, world, raw, fused) scratch arrays; returns ``raw`` or
+    ``fused`` (``fuse_px <= 0``: no fusion, plain projections as in Eq. 5).
+    """
+    rot, pos, world, raw, fused = work
+    kind, P, K, dist = views
+    forward_kinematics(q, kin, rot, pos)
+    markers_from_joints(rot, pos, kin, world)
+    project_markers(world, kind, P, K, dist, offset, raw)
+    if fuse_px <= 0.0:
+        return raw
+    fuse_projections(raw, fuse_px, fused)
+    return fused
+
+
+@njit(cache=True)
+def workspace(kin, views):
+    """Scratch arrays for :func:`imaged_markers`."""
+    J, M, V = kin[0].shape[0], kin[6].shape[0], views[0].shape[0]
+    return (np.empty((J, 3, 3)), np.empty((J, 3)), np.empty((M, 3)), np.empty((V, M, 2)),
+            np.empty((V, M, 2)))
+
+
 # ---- Eq. 5 -------------------------------------------------------------------------------
 
 
@@ -252,15 +300,9 @@ def eq5(proj, det, start, penalty, limit):
 
 
 @njit(cache=True)
-def posture_error(q, kin, views, offset, det, start, penalty):
-    """Eq. 5 for one posture: FK, projection, nearest detections."""
-    kind, P, K, dist = views
-    J, M, V = kin[0].shape[0], kin[6].shape[0], kind.shape[0]
-    rot, pos = np.empty((J, 3, 3)), np.empty((J, 3))
-    world, proj = np.empty((M, 3)), np.empty((V, M, 2))
-    forward_kinematics(q, kin, rot, pos)
-    markers_from_joints(rot, pos, kin, world)
-    project_markers(world, kind, P, K, dist, offset, proj)
+def posture_error(q, kin, views, offset, det, start, penalty, fuse_px):
+    """Eq. 5 for one posture: FK, projection (fused below ``fuse_px``), nearest detections."""
+    proj = imaged_markers(q, kin, views, offset, fuse_px, workspace(kin, views))
     return eq5(proj, det, start, penalty, np.inf)
 
 
@@ -290,15 +332,10 @@ def next_uniform(s) -> float:
 
 
 @njit(cache=True)
-def _residuals(q, kin, views, offset, det, start, res, valid):
-    """Residual (V,M,2) of each projected marker to its nearest detection; valid (V,) views."""
-    kind, P, K, dist = views
-    J, M, V = kin[0].shape[0], kin[6].shape[0], kind.shape[0]
-    rot, pos = np.empty((J, 3, 3)), np.empty((J, 3))
-    world, proj = np.empty((M, 3)), np.empty((V, M, 2))
-    forward_kinematics(q, kin, rot, pos)
-    markers_from_joints(rot, pos, kin, world)
-    project_markers(world, kind, P, K, dist, offset, proj)
+def _residuals(q, kin, views, offset, det, start, fuse_px, work, res, valid):
+    """Residual (V,M,2) of each imaged marker to its nearest detection; valid (V,) views."""
+    proj = imaged_markers(q, kin, views, offset, fuse_px, work)
+    V, M = res.shape[0], res.shape[1]
     for v in range(V):
         a, b = start[v], start[v + 1]
         valid[v] = b > a
@@ -358,7 +395,7 @@ def solve_spd(A, b):
 
 
 @njit(cache=True)
-def refine(q0, lower, upper, kin, views, offset, det, start, huber_c, max_iter, h_fd):
+def refine(q0, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, max_iter, h_fd):
     """Levenberg–Marquardt on the Huber loss of nearest-detection residuals, within bounds.
 
     Nearest detections are re-chosen at every evaluation, so this polishes the
@@ -371,10 +408,11 @@ def refine(q0, lower, upper, kin, views, offset, det, start, huber_c, max_iter, 
     kind = views[0]
     V, M, D = kind.shape[0], kin[6].shape[0], q0.shape[0]
     q = q0.copy()
+    work = workspace(kin, views)
     res, res2 = np.empty((V, M, 2)), np.empty((V, M, 2))
     valid = np.empty(V, dtype=np.bool_)
     jac = np.empty((V, M, 2, D))
-    _residuals(q, kin, views, offset, det, start, res, valid)
+    _residuals(q, kin, views, offset, det, start, fuse_px, work, res, valid)
     cost = _huber_cost(res, valid, huber_c)
     lam = 1e-3
     step = np.inf
@@ -383,7 +421,7 @@ def refine(q0, lower, upper, kin, views, offset, det, start, huber_c, max_iter, 
         for i in range(D):
             trial[:] = q
             trial[i] += h_fd
-            _residuals(trial, kin, views, offset, det, start, res2, valid)
+            _residuals(trial, kin, views, offset, det, start, fuse_px, work, res2, valid)
             for v in range(V):
                 for m in range(M):
                     jac[v, m, 0, i] = (res2[v, m, 0] - res[v, m, 0]) / h_fd
@@ -409,7 +447,7 @@ def refine(q0, lower, upper, kin, views, offset, det, start, huber_c, max_iter, 
             delta = solve_spd(H, -g)
             for i in range(D):
                 trial[i] = min(max(q[i] + delta[i], lower[i]), upper[i])
-            _residuals(trial, kin, views, offset, det, start, res2, valid)
+            _residuals(trial, kin, views, offset, det, start, fuse_px, work, res2, valid)
             new_cost = _huber_cost(res2, valid, huber_c)
             if new_cost < cost:
                 step = np.max(np.abs(trial - q))
@@ -442,7 +480,7 @@ def _plausible(value, i, lower, upper, hist, bins_per_degree, h_min) -> bool:
 
 
 @njit(cache=True)
-def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start, penalty,
+def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start, penalty, fuse_px,
            n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish, huber_c, state):
     """Simulated Annealing of Eq. 5 over the DOFs (paper Eq. 6 and §2.3).
 
@@ -461,18 +499,12 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
 
     Returns (best posture, best error, iterations run).
     """
-    kind, P, K, dist = views
-    J, M, V, D = kin[0].shape[0], kin[6].shape[0], kind.shape[0], q0.shape[0]
+    D = q0.shape[0]
     bins_per_degree = hist.shape[1] / 360.0
-    rot, pos = np.empty((J, 3, 3)), np.empty((J, 3))
-    world, proj = np.empty((M, 3)), np.empty((V, M, 2))
-
+    work = workspace(kin, views)
     cur = q0.copy()
     cand = q0.copy()
-    forward_kinematics(cur, kin, rot, pos)
-    markers_from_joints(rot, pos, kin, world)
-    project_markers(world, kind, P, K, dist, offset, proj)
-    e_cur = eq5(proj, det, start, penalty, np.inf)
+    e_cur = eq5(imaged_markers(cur, kin, views, offset, fuse_px, work), det, start, penalty, np.inf)
     best, e_best = cur.copy(), e_cur
     tau, step = tau0, l0
     it = 0
@@ -490,9 +522,7 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
         # eq5 stop summing as soon as the proposal is certainly rejected.
         u = next_uniform(state)
         limit = e_cur - tau * math.log(u) if u > 0.0 else np.inf
-        forward_kinematics(cand, kin, rot, pos)
-        markers_from_joints(rot, pos, kin, world)
-        project_markers(world, kind, P, K, dist, offset, proj)
+        proj = imaged_markers(cand, kin, views, offset, fuse_px, work)
         e_new = eq5(proj, det, start, penalty, limit)
         if e_new <= limit:
             cur[:] = cand
@@ -505,8 +535,9 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
         if it % n_tau == 0:
             tau *= c_tau
             if polish:
-                polished = refine(best, lower, upper, kin, views, offset, det, start, huber_c, 20, 1e-5)
-                e_pol = posture_error(polished, kin, views, offset, det, start, penalty)
+                polished = refine(best, lower, upper, kin, views, offset, det, start, fuse_px,
+                                  huber_c, 20, 1e-5)
+                e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px)
                 if e_pol < e_best:
                     best[:] = polished
                     e_best = e_pol

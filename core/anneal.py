@@ -17,7 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from core import _kernels
-from core.error import DEFAULT_EMPTY_VIEW_PENALTY_PX, Detections, check_views, view_offsets
+from core.error import (
+    DEFAULT_EMPTY_VIEW_PENALTY_PX,
+    Detections,
+    check_fusion,
+    check_views,
+    view_offsets,
+)
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
@@ -90,12 +96,13 @@ class SearchSpace:
     """What the SA kernel needs from the histograms, for every DOF (translations included).
 
     mean, sigma : (D,) float64, start posture and s(H); table : (D, B) probabilities, NaN rows
-    for translational DOFs (no histogram).
+    for translational DOFs (no histogram); histograms : the histograms they come from.
     """
 
     mean: np.ndarray
     sigma: np.ndarray
     table: np.ndarray
+    histograms: Histograms
 
 
 def search_space(model: KinematicModel, histograms: Histograms) -> SearchSpace:
@@ -111,7 +118,7 @@ def search_space(model: KinematicModel, histograms: Histograms) -> SearchSpace:
     table = np.full((D, histograms.bins), np.nan)
     rot = np.flatnonzero(model.rotational)
     mean[rot], sigma[rot], table[rot] = histograms.means(), histograms.stds(), histograms.probs
-    return SearchSpace(mean, np.maximum(sigma, 1e-6), np.ascontiguousarray(table))
+    return SearchSpace(mean, np.maximum(sigma, 1e-6), np.ascontiguousarray(table), histograms)
 
 
 def anneal(
@@ -125,6 +132,7 @@ def anneal(
     start: np.ndarray | None = None,
     offsets: np.ndarray | None = None,
     empty_view_penalty_px: float = DEFAULT_EMPTY_VIEW_PENALTY_PX,
+    fusion_px: float = 0.0,
 ) -> AnnealResult:
     """Minimise Eq. 5 for one image by Simulated Annealing.
 
@@ -136,6 +144,7 @@ def anneal(
     rng : numpy Generator; the same state gives the same result.
     start : ndarray of shape (D,), optional; the histogram means by default (paper §3.1).
     offsets : ndarray of shape (V, 2), optional, per-view pixel offsets (root tracking).
+    fusion_px : markers projecting closer than this are one blob (``core.error``); 0: off.
     """
     check_views(detections, rig)
     q0 = space.mean.copy() if start is None else model._check_postures(start)[0].copy()
@@ -145,7 +154,7 @@ def anneal(
     best, err, it = _kernels.anneal(
         q0, model.lower, model.upper, space.sigma, space.table, float(p.plausibility_threshold),
         model.arrays, rig.arrays, view_offsets(offsets, rig), detections.points,
-        detections.start, float(empty_view_penalty_px), p.n_end, p.n_l, p.n_tau,
+        detections.start, float(empty_view_penalty_px), check_fusion(fusion_px), p.n_end, p.n_l, p.n_tau,
         float(p.tau0), float(p.l0), float(p.c_l), float(p.c_tau), float(p.eps), bool(p.polish),
         float(p.huber_px), state,
     )

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from core.anneal import AnnealParams, SearchSpace, anneal, search_space
-from core.error import DEFAULT_EMPTY_VIEW_PENALTY_PX, Detections, view_error
+from core.error import DEFAULT_EMPTY_VIEW_PENALTY_PX, Detections, check_fusion, view_error
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.refine import refine
@@ -66,6 +66,11 @@ class FitParams:
     max_attempts : fits per image at most, the first included (paper: 5).
     refine : polish SA's best posture by bounded least squares (``core.refine``).
     empty_view_penalty_px : Eq. 5 charge per marker of a view without detections.
+    fusion_px : markers projecting closer than this are fitted as one blob (about the
+        marker diameter in pixels; 0 = the paper's Eq. 5). Reported errors are plain Eq. 5.
+    restarts : within one attempt, SA runs again (from a posture drawn from the
+        histograms) at most this many times while the objective stays >= ε: SA's
+        own convergence test says it is in a local minimum, whatever the threshold.
     """
 
     anneal: AnnealParams = field(default_factory=AnnealParams)
@@ -73,6 +78,8 @@ class FitParams:
     max_attempts: int = 5
     refine: bool = True
     empty_view_penalty_px: float = DEFAULT_EMPTY_VIEW_PENALTY_PX
+    fusion_px: float = 0.0
+    restarts: int = 2
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.error_threshold_px) and self.error_threshold_px > 0):
@@ -88,6 +95,11 @@ class FitParams:
                 f"empty_view_penalty_px must be a non-negative number, got "
                 f"{self.empty_view_penalty_px!r}"
             )
+        check_fusion(self.fusion_px)
+        if isinstance(self.restarts, bool) or not isinstance(self.restarts, int) or not (
+            0 <= self.restarts <= 100
+        ):
+            raise ValueError(f"restarts must be a whole number in 0..100, got {self.restarts!r}")
 
 
 @dataclass(frozen=True)
@@ -95,7 +107,9 @@ class ImageFit:
     """The accepted posture of one image (one row of angles.csv).
 
     dofs : (D,) float64 in model order, NaN when there were no detections.
-    error : Eq. 5 error of ``dofs`` in pixels, NaN when there were no detections.
+    error : Eq. 5 error of ``dofs`` in pixels (the ``error_px`` column), NaN without detections.
+    objective : the minimised error (Eq. 5 with marker fusion when enabled), used to keep
+        the best attempt.
     attempts : how many times the image was fitted (1 + re-analyses; 0 without detections).
     iterations : SA iterations over all attempts.
     """
@@ -103,6 +117,7 @@ class ImageFit:
     sample: int
     dofs: np.ndarray
     error: float
+    objective: float
     attempts: int
     status: Status
     iterations: int
@@ -139,33 +154,42 @@ def fit_image(
     rng: np.random.Generator,
     start: np.ndarray | None = None,
     offsets: np.ndarray | None = None,
-) -> tuple[np.ndarray, float, int]:
+) -> tuple[np.ndarray, float, float, int]:
     """One attempt on one image: SA from ``start`` (histogram means by default), then refinement.
 
-    The refined posture is kept only if its Eq. 5 error is not larger than SA's.
+    The refined posture is kept only if it does not raise the fitted objective
+    (Eq. 5 with marker fusion when ``params.fusion_px`` > 0). While the
+    objective stays at or above ε, SA is restarted from a posture drawn from
+    the histograms, up to ``params.restarts`` times, keeping the best.
 
     Returns
     -------
-    (dofs (D,), Eq. 5 error in pixels, SA iterations)
+    (dofs (D,), plain Eq. 5 error in pixels, minimised objective, SA iterations)
     """
-    penalty = params.empty_view_penalty_px
-    result = anneal(
-        detections, model=model, rig=rig, space=space, params=params.anneal, rng=rng,
-        start=start, offsets=offsets, empty_view_penalty_px=penalty,
-    )
-    dofs, error = result.dofs, result.error
-    if params.refine:
-        polished = refine(
-            dofs, detections, model=model, rig=rig, offsets=offsets,
-            huber_px=params.anneal.huber_px,
+    common = dict(model=model, rig=rig, offsets=offsets)
+    penalty, fusion = params.empty_view_penalty_px, params.fusion_px
+    dofs, objective, iterations = None, math.inf, 0
+    for run in range(params.restarts + 1):
+        if run and objective < params.anneal.eps:
+            break
+        result = anneal(
+            detections, space=space, params=params.anneal, rng=rng,
+            start=start if run == 0 else draw_posture(model, space.histograms, rng),
+            empty_view_penalty_px=penalty, fusion_px=fusion, **common,
         )
-        polished_error = view_error(
-            polished, detections, model=model, rig=rig, offsets=offsets,
-            empty_view_penalty_px=penalty,
-        )
-        if polished_error <= error:
-            dofs, error = polished, polished_error
-    return dofs, error, result.iterations
+        iterations += result.iterations
+        q, value = result.dofs, result.error
+        if params.refine:
+            polished = refine(q, detections, huber_px=params.anneal.huber_px, fusion_px=fusion,
+                              **common)
+            polished_value = view_error(polished, detections, empty_view_penalty_px=penalty,
+                                        fusion_px=fusion, **common)
+            if polished_value <= value:
+                q, value = polished, polished_value
+        if value < objective:
+            dofs, objective = q, value
+    error = view_error(dofs, detections, empty_view_penalty_px=penalty, **common)
+    return dofs, error, objective, iterations
 
 
 def fit_chunk(
@@ -215,13 +239,13 @@ def fit_chunk(
 def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed) -> ImageFit:
     if not np.any(det.counts):
         nan = np.full(len(model.dofs), np.nan)
-        return ImageFit(sample, nan, math.nan, 0, Status.NO_DETECTIONS, 0)
+        return ImageFit(sample, nan, math.nan, math.nan, 0, Status.NO_DETECTIONS, 0)
     space = search_space(model, histograms)
-    dofs, error, its = fit_image(
+    dofs, error, objective, its = fit_image(
         det, model=model, rig=rig, space=space, params=params,
         rng=image_rng(seed, sample, 1), offsets=offsets,
     )
-    return ImageFit(sample, dofs, error, 1, _status(error, params), its)
+    return ImageFit(sample, dofs, error, objective, 1, _status(error, params), its)
 
 
 def reanalyse_image(
@@ -247,14 +271,15 @@ def reanalyse_image(
     rng = image_rng(seed, previous.sample, attempt)
     space = search_space(model, histograms)
     start = draw_posture(model, histograms, rng)
-    dofs, error, its = fit_image(
+    dofs, error, objective, its = fit_image(
         detections, model=model, rig=rig, space=space, params=params, rng=rng,
         start=start, offsets=offsets,
     )
-    if not error < previous.error:
-        dofs, error = previous.dofs, previous.error
+    if not objective < previous.objective:
+        dofs, error, objective = previous.dofs, previous.error, previous.objective
+    status = _status(error, params)
     iterations = previous.iterations + its
-    return ImageFit(previous.sample, dofs, error, attempt, _status(error, params), iterations)
+    return ImageFit(previous.sample, dofs, error, objective, attempt, status, iterations)
 
 
 def fit_sequence(

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from core import _kernels
-from core.error import Detections, check_views, view_offsets
+from core.error import Detections, check_fusion, check_views, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
 
@@ -30,6 +30,7 @@ def refine(
     offsets: np.ndarray | None = None,
     huber_px: float = 1.0,
     max_iter: int = 50,
+    fusion_px: float = 0.0,
 ) -> np.ndarray:
     """Refine a posture by bounded, robust least squares.
 
@@ -42,6 +43,8 @@ def refine(
         fused or missing marker cannot drag the fit.
     max_iter : int
         Levenberg–Marquardt iterations at most.
+    fusion_px : float
+        Markers projecting closer than this are one blob (``core.error``); 0: off.
 
     Returns
     -------
@@ -55,5 +58,6 @@ def refine(
     q = np.clip(model._check_postures(dofs)[0], model.lower, model.upper)
     return _kernels.refine(
         q, model.lower, model.upper, model.arrays, rig.arrays, view_offsets(offsets, rig),
-        detections.points, detections.start, float(huber_px), int(max_iter), 1e-5,
+        detections.points, detections.start, check_fusion(fusion_px), float(huber_px),
+        int(max_iter), 1e-5,
     )

@@ -268,3 +268,35 @@ def test_solve_spd_matches_numpy(n):
     m = rng.normal(size=(n, n))
     a, b = m @ m.T + n * np.eye(n), rng.normal(size=n)
     np.testing.assert_allclose(solve_spd(a, b), np.linalg.solve(a, b), rtol=1e-10, atol=1e-12)
+
+
+def test_fused_markers_are_predicted_at_their_common_centroid(locust):
+    """Two markers 2 px apart image as one blob at their midpoint (4 px markers)."""
+    model, rig = locust
+    q = np.array([170.0, 0.0, 0.0, 10.0, 90.0])
+    proj = rig.project(model.marker_positions(q))
+    side = proj[0].copy()
+    side[1] = side[0] + [2.0, 0.0]  # pretend M1 projects 2 px from M0 ...
+    fused = np.vstack([0.5 * (side[0] + side[1]), side[2:]])  # ... the camera sees one blob
+    from core import _kernels
+
+    moved = side[None].copy()
+    out = np.empty_like(moved)
+    _kernels.fuse_projections(moved, 4.0, out)
+    np.testing.assert_allclose(out[0, 0], fused[0])
+    np.testing.assert_allclose(out[0, 1], fused[0])
+    np.testing.assert_allclose(out[0, 2:], side[2:])
+
+
+def test_restarts_rescue_a_local_minimum(locust):
+    """A one-iteration SA cannot converge; restarts run SA again while the objective >= eps."""
+    model, rig = locust
+    det = _detections(model, rig, _postures(model, 1, seed=10))[0]
+    tiny = replace(FAST, n_end=1, polish=False)
+    no_restart = fit_chunk([det], model=model, rig=rig, histograms=Histograms.uniform(model),
+                           params=FitParams(anneal=tiny, refine=False, restarts=0), seed=0)
+    with_restarts = fit_chunk([det], model=model, rig=rig, histograms=Histograms.uniform(model),
+                              params=FitParams(anneal=tiny, refine=False, restarts=5), seed=0)
+    assert no_restart.fits[0].iterations == 1
+    assert with_restarts.fits[0].iterations == 6
+    assert with_restarts.fits[0].objective <= no_restart.fits[0].objective
