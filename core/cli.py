@@ -6,16 +6,58 @@ line on stderr saying what is wrong.
 
 from __future__ import annotations
 
+import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import replace
+from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import typer
+from rich.progress import Progress
+from typer.exceptions import TyperException
 
+from core.anneal import AnnealParams
 from core.demo import MARKER_DIAMETER_PX, locust_benchmark
+from core.detect import DetectorParams
 from core.fit import FitParams, Status, fit_sequence
-from core.histogram import Histograms
+from core.histogram import HistogramError, Histograms
+from core.model import KinematicModel, ModelError
+from core.pipeline import FitJob, VideoSource, run_fit, write_outputs
+from core.rig import Rig, RigError
+from core.synth import natural_movements, read_truth_csv, render_frames, write_truth_csv, write_video
+from core.video import VideoError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0])
+
+USER_ERRORS = (ModelError, RigError, HistogramError, VideoError, ValueError, OSError)
+
+
+def run() -> None:
+    """Console entry point: typer's usage errors also become one line and exit code 2."""
+    try:
+        code = app(standalone_mode=False)  # returns the code of a typer.Exit raised inside
+    except TyperException as exc:
+        typer.echo(f"mocap: error: {exc.format_message()}", err=True)
+        sys.exit(exc.exit_code)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except typer.Abort:
+        typer.echo("mocap: aborted", err=True)
+        sys.exit(130)
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+@contextmanager
+def user_errors() -> Iterator[None]:
+    """Turn a user's mistake into one line on stderr and exit code 2."""
+    try:
+        yield
+    except USER_ERRORS as exc:
+        typer.echo(f"mocap: error: {exc}", err=True)
+        raise typer.Exit(2) from None
 
 
 @app.callback()
@@ -25,8 +67,8 @@ def main() -> None:
 
 @app.command()
 def demo(
-    samples: int = typer.Option(200, min=1, max=5000, help="images to render and fit"),
-    seed: int = typer.Option(2004, help="seed of the movement, the rendering and the fit"),
+    samples: Annotated[int, typer.Option(min=1, max=5000, help="images to render and fit")] = 200,
+    seed: Annotated[int, typer.Option(help="seed of the movement, the rendering and the fit")] = 2004,
 ) -> None:
     """Render the locust hind-leg example, detect its markers, fit it and print the accuracy."""
     t0 = time.perf_counter()
@@ -47,3 +89,121 @@ def demo(
         f"{name} {value:.3f}" for name, value in zip(bench.model.dof_names, rmse, strict=True)))
     print(f"mean view error {np.nanmean(errors):.3f} px (Eq. 5, 8 markers); "
           f"{sum(f.status is not Status.OK for f in result.fits)} images not ok")
+
+
+Opt = typer.Option
+
+
+@app.command()
+def fit(
+    videos: Annotated[list[Path], typer.Argument(help="video file(s), one per camera of the rig")],
+    model: Annotated[Path, Opt("--model", help="model.xml (FORMATS §1)")],
+    rig: Annotated[Path, Opt("--rig", help="rig.json (FORMATS §2)")],
+    out: Annotated[Path, Opt("--out", help="output directory")],
+    deinterlace: Annotated[bool, Opt("--deinterlace", help="fit both fields of every frame")] = False,
+    field_order: Annotated[str, Opt(help="even-first or odd-first (DV is odd-first)")] = "even-first",
+    error_threshold_px: Annotated[float, Opt(help="re-analyse images above this error")] = 10.0,
+    max_attempts: Annotated[int, Opt(help="fits per image at most")] = 5,
+    iterations: Annotated[int, Opt(help="SA iterations N_end (N_l, N_tau scale along)")] = 35000,
+    seed: Annotated[int, Opt(help="random seed: same seed, same result")] = 0,
+    histograms: Annotated[Path | None, Opt("--histograms", help="starting histograms.xml")] = None,
+    jobs: Annotated[int, Opt(min=1, max=256, help="processes fitting chunks in parallel")] = 1,
+    chunk_size: Annotated[int | None, Opt(min=1, help="images per chunk (default: a share per job)")] = None,
+    marker_diameter_px: Annotated[
+        float, Opt(min=0.0, help="markers closer than this are one blob (0: plain Eq. 5)")] = 0.0,
+    threshold: Annotated[str, Opt(help="detection threshold: grey level 0..255 or 'otsu'")] = "100",
+    channel: Annotated[str, Opt(help="grey, red, green or blue")] = "grey",
+    blur: Annotated[int, Opt(help="Gaussian blur kernel before the threshold (0: none, odd)")] = 0,
+    erode: Annotated[int, Opt(help="erosion iterations after the threshold")] = 0,
+    dilate: Annotated[int, Opt(help="dilation iterations after erosion")] = 0,
+    min_area: Annotated[int, Opt(help="smallest marker region, pixels")] = 2,
+    max_area: Annotated[int, Opt(help="largest marker region, pixels")] = 2000,
+    prior_weight: Annotated[float, Opt(help="counts of the uniform prior histograms")] = 100.0,
+) -> None:
+    """Detect markers in VIDEO(s) and fit the model to every image: angles, histograms, report."""
+    with user_errors():
+        kinematic = KinematicModel.from_xml(model)
+        camera_rig = Rig.from_json(rig)
+        if len(videos) != camera_rig.n_videos:
+            raise ValueError(f"the rig expects {camera_rig.n_videos} video(s), got {len(videos)}")
+        start = (Histograms.from_xml(histograms, kinematic) if histograms is not None
+                 else Histograms.uniform(kinematic, prior_weight=prior_weight))
+        params = FitParams(
+            anneal=scaled_iterations(iterations), error_threshold_px=error_threshold_px,
+            max_attempts=max_attempts, fusion_px=marker_diameter_px,
+        )
+        detector = DetectorParams(channel=channel, threshold=_threshold(threshold), erode=erode,
+                                  dilate=dilate, blur=blur, min_area=min_area, max_area=max_area)
+        source = VideoSource(tuple(videos), camera_rig, detector, deinterlace, field_order)
+        job = FitJob(source, kinematic, params, seed, chunk_size)
+        with progress_bar(len(source)) as advance:
+            outcome = run_fit(job, start, jobs=jobs, progress=advance)
+        report = write_outputs(out, job, outcome)
+    print(f"{report['images']} images in {report['seconds']} s ({report['images_per_s']} images/s); "
+          f"status {report['status']}; mean error {report['error_px']['mean']} px; "
+          f"wrote {out}/angles.csv, histograms.xml, report.json")
+
+
+def _threshold(text: str) -> float | str:
+    """--threshold: 'otsu' or a grey level."""
+    if text == "otsu":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"--threshold must be a grey level 0..255 or 'otsu', got {text!r}") from None
+
+
+def scaled_iterations(n_end: int) -> AnnealParams:
+    """Table 1 with N_end = ``n_end`` and N_l, N_tau scaled linearly (paper §3.2)."""
+    table = AnnealParams()
+    ratio = n_end / table.n_end
+    return replace(table, n_end=n_end, n_l=max(1, round(table.n_l * ratio)),
+                   n_tau=max(1, round(table.n_tau * ratio)))
+
+
+@contextmanager
+def progress_bar(total: int) -> Iterator:
+    """A progress callback: a bar on a terminal, nothing otherwise."""
+    if not sys.stderr.isatty():
+        yield None
+        return
+    with Progress(transient=True) as bar:
+        task = bar.add_task("fitting", total=total)
+        yield lambda _fit: bar.advance(task)
+
+
+@app.command()
+def synth(
+    model: Annotated[Path, Opt("--model", help="model.xml")],
+    rig: Annotated[Path, Opt("--rig", help="rig.json")],
+    out: Annotated[Path, Opt("--out", help="output directory")],
+    trajectory: Annotated[Path | None, Opt(help="truth CSV to render (default: generated)")] = None,
+    samples: Annotated[int, Opt(min=1, help="images to generate without --trajectory")] = 300,
+    fps: Annotated[float, Opt(min=0.001, help="frames per second of the video")] = 50.0,
+    marker_diameter_px: Annotated[float, Opt(min=0.5)] = 4.0,
+    noise: Annotated[float, Opt(min=0.0, help="background noise sigma, grey levels")] = 2.0,
+    ghosts: Annotated[int, Opt(min=0, help="ghost markers per view and image")] = 0,
+    interlaced: Annotated[bool, Opt(help="two fields per frame (samples are fields)")] = False,
+    seed: Annotated[int, Opt()] = 0,
+) -> None:
+    """Render a model moving through a rig: DIR/video<k>.avi per camera and DIR/truth.csv."""
+    with user_errors():
+        kinematic, camera_rig = KinematicModel.from_xml(model), Rig.from_json(rig)
+        rng = np.random.default_rng(seed)
+        if trajectory is not None:
+            names, truth = read_truth_csv(trajectory)
+            if names != kinematic.dof_names:
+                raise ValueError(f"{trajectory} has DOF columns {names}, the model {kinematic.dof_names}")
+        else:
+            truth = natural_movements(kinematic, camera_rig, samples, rng=rng, fps=fps)
+        if interlaced and len(truth) % 2:
+            truth = truth[:-1]
+        out.mkdir(parents=True, exist_ok=True)
+        for k in range(camera_rig.n_videos):
+            frames = render_frames(kinematic, camera_rig, truth, rng=rng, video=k,
+                                   marker_diameter_px=marker_diameter_px, noise_sigma=noise,
+                                   ghosts_per_view=ghosts, interlaced=interlaced)
+            write_video(out / f"video{k}.avi", frames, fps=fps)
+        write_truth_csv(out / "truth.csv", kinematic, truth, fps=fps, interlaced=interlaced)
+    print(f"wrote {camera_rig.n_videos} video(s) and truth.csv ({len(truth)} images) to {out}")

@@ -27,6 +27,7 @@ import enum
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -111,7 +112,9 @@ class ImageFit:
     objective : the minimised error (Eq. 5 with marker fusion when enabled), used to keep
         the best attempt.
     attempts : how many times the image was fitted (1 + re-analyses; 0 without detections).
+    status : ok, over_threshold or no_detections.
     iterations : SA iterations over all attempts.
+    detections : number of detected points in each view.
     """
 
     sample: int
@@ -121,6 +124,7 @@ class ImageFit:
     attempts: int
     status: Status
     iterations: int
+    detections: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -237,15 +241,16 @@ def fit_chunk(
 
 
 def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed) -> ImageFit:
-    if not np.any(det.counts):
+    counts = tuple(int(c) for c in det.counts)
+    if not any(counts):
         nan = np.full(len(model.dofs), np.nan)
-        return ImageFit(sample, nan, math.nan, math.nan, 0, Status.NO_DETECTIONS, 0)
+        return ImageFit(sample, nan, math.nan, math.nan, 0, Status.NO_DETECTIONS, 0, counts)
     space = search_space(model, histograms)
     dofs, error, objective, its = fit_image(
         det, model=model, rig=rig, space=space, params=params,
         rng=image_rng(seed, sample, 1), offsets=offsets,
     )
-    return ImageFit(sample, dofs, error, objective, 1, _status(error, params), its)
+    return ImageFit(sample, dofs, error, objective, 1, _status(error, params), its, counts)
 
 
 def reanalyse_image(
@@ -279,7 +284,8 @@ def reanalyse_image(
         dofs, error, objective = previous.dofs, previous.error, previous.objective
     status = _status(error, params)
     iterations = previous.iterations + its
-    return ImageFit(previous.sample, dofs, error, objective, attempt, status, iterations)
+    return ImageFit(previous.sample, dofs, error, objective, attempt, status, iterations,
+                    previous.detections)
 
 
 def fit_sequence(
@@ -293,12 +299,19 @@ def fit_sequence(
     chunk_size: int | None = None,
     offsets: Sequence[np.ndarray | None] | None = None,
     progress: Callable[[ImageFit], None] | None = None,
+    map_chunks: Callable[..., Iterable[ChunkResult]] = map,
 ) -> SequenceResult:
     """Fit every image of a sequence: chunks, merge, re-analysis (the module's flow).
 
-    ``chunk_size=None`` fits the sequence as one chunk (histograms adapt over
-    the whole sequence, as in the paper); a chunked fit reproduces exactly what
-    workers fitting those chunks in parallel produce.
+    Parameters
+    ----------
+    images : sequence of Detections; slicing ``images[a:b]`` may return any iterable
+        (a video source decodes that range lazily), ``images[i]`` one image.
+    chunk_size : images per chunk; ``None`` fits the sequence as one chunk (histograms
+        adapt over the whole sequence, as in the paper). A chunked fit reproduces exactly
+        what workers fitting those chunks in parallel produce.
+    progress : called with every image fitted in this process.
+    map_chunks : ``map`` or an executor's ``map``, to fit chunks in other processes.
     """
     n = len(images)
     size = n if chunk_size is None else chunk_size
@@ -306,27 +319,34 @@ def fit_sequence(
         raise ValueError(f"chunk_size must be at least 1, got {chunk_size}")
     if offsets is not None and len(offsets) != n:
         raise ValueError(f"offsets has {len(offsets)} entries for {n} images")
-    chunks = [
-        fit_chunk(
-            images[a : a + size], model=model, rig=rig, histograms=histograms, params=params,
-            seed=seed, first_sample=a, offsets=None if offsets is None else offsets[a : a + size],
-            progress=progress,
-        )
-        for a in range(0, n, max(size, 1))
-    ]
+    ranges = [(a, min(a + size, n)) for a in range(0, n, max(size, 1))]
+    run = partial(_fit_range, images, model, rig, histograms, params, seed, offsets, progress)
+    chunks = list(map_chunks(run, ranges))
     merged = histograms.merge(*(c.observed for c in chunks))
     fits = [f for c in chunks for f in c.fits]
     recovered = Histograms.empty(model, bins=histograms.bins)
     for i, fit in enumerate(fits):
+        if fit.status is not Status.OVER_THRESHOLD or fit.attempts >= params.max_attempts:
+            continue
+        det = images[i]
         while fit.status is Status.OVER_THRESHOLD and fit.attempts < params.max_attempts:
             fit = reanalyse_image(
-                images[i], fit, model=model, rig=rig, histograms=merged, params=params, seed=seed,
+                det, fit, model=model, rig=rig, histograms=merged, params=params, seed=seed,
                 offsets=None if offsets is None else offsets[i],
             )
-        if fit.status is Status.OK and fit.attempts > 1:
+        if fit.status is Status.OK:
             recovered.update(fit.dofs[model.rotational])
         fits[i] = fit
     return SequenceResult(fits, merged.merge(recovered))
+
+
+def _fit_range(images, model, rig, histograms, params, seed, offsets, progress, bounds) -> ChunkResult:
+    """One chunk of :func:`fit_sequence` (a module-level function, so processes can run it)."""
+    a, b = bounds
+    return fit_chunk(
+        images[a:b], model=model, rig=rig, histograms=histograms, params=params, seed=seed,
+        first_sample=a, offsets=None if offsets is None else offsets[a:b], progress=progress,
+    )
 
 
 def draw_posture(

@@ -16,6 +16,7 @@ from typing import TextIO
 
 import numpy as np
 
+from core.fields import field_parities
 from core.fit import ImageFit, Status
 from core.model import KinematicModel
 
@@ -27,16 +28,20 @@ class SampleClock:
     """Maps an analysed image (sample) to its video frame, field and time.
 
     Without de-interlacing a sample is a frame. De-interlaced, frame k gives
-    sample 2k (even field, rows 0, 2, …, at k/fps) and sample 2k+1 (odd field,
-    half a frame period later), e.g. PAL: 50 images/s from 25 frames/s.
+    sample 2k (the field exposed first, at k/fps) and sample 2k+1 (the other
+    field, half a frame period later), e.g. PAL: 50 images/s from 25 frames/s.
+    ``field_order`` says which rows come first: 'even-first' (rows 0, 2, …) or
+    'odd-first' (see ``core.fields``).
     """
 
     fps: float
     deinterlaced: bool = False
+    field_order: str = "even-first"
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.fps) and self.fps > 0):
             raise ValueError(f"fps must be a positive number, got {self.fps!r}")
+        field_parities(self.field_order)
 
     def frame(self, sample: int) -> int:
         return sample // 2 if self.deinterlaced else sample
@@ -44,7 +49,7 @@ class SampleClock:
     def field(self, sample: int) -> str:
         if not self.deinterlaced:
             return ""
-        return "even" if sample % 2 == 0 else "odd"
+        return ("even", "odd")[field_parities(self.field_order)[sample % 2]]
 
     def time(self, sample: int) -> float:
         if not self.deinterlaced:

@@ -1,0 +1,222 @@
+"""From video files to fitted angles: the chunk code shared by ``mocap fit`` and the workers.
+
+A :class:`VideoSource` is a lazy sequence of per-image detections: slicing it
+decodes and detects only that range of frames (seeking into the video), and
+indexing it decodes one frame, so memory is bounded by one frame whatever the
+video's length, and a chunk can start in the middle of a long video. With
+de-interlacing every frame gives two images (even field, then odd).
+
+:func:`run_fit` hands a source to :func:`core.fit.fit_sequence`, in this
+process or in ``jobs`` processes; :func:`write_outputs` writes ``angles.csv``,
+``histograms.xml`` and ``report.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any, overload
+
+import numpy as np
+
+from core.detect import DetectorParams, detect
+from core.error import Detections
+from core.fields import detect_fields, field_parities, field_rig
+from core.fit import FitParams, ImageFit, SequenceResult, Status, fit_sequence
+from core.histogram import Histograms
+from core.model import KinematicModel
+from core.results import SampleClock, write_angles_csv
+from core.rig import Rig
+from core.video import VideoSet
+
+__all__ = ["FitJob", "FitOutcome", "VideoSource", "run_fit", "write_outputs"]
+
+
+@dataclass(frozen=True)
+class VideoSource(Sequence[Detections]):
+    """Detections of every analysed image of a set of synchronised videos, decoded on demand.
+
+    videos : one file per camera, in the rig's ``video`` index order.
+    deinterlace : every frame gives two images, its fields in ``field_order`` (``core.fields``).
+    """
+
+    videos: tuple[Path, ...]
+    rig: Rig
+    detector: DetectorParams = field(default_factory=DetectorParams)
+    deinterlace: bool = False
+    field_order: str = "even-first"
+
+    def __post_init__(self) -> None:
+        field_parities(self.field_order)
+
+    @cached_property
+    def _field_rigs(self) -> tuple[Rig, Rig]:
+        return field_rig(self.rig, 0), field_rig(self.rig, 1)
+
+    @cached_property
+    def _videos(self) -> VideoSet:
+        """The probed videos, once: chunks and re-analyses seek without probing again."""
+        return VideoSet(self.videos)
+
+    @property
+    def fps(self) -> float:
+        return self._videos.fps
+
+    @property
+    def per_frame(self) -> int:
+        return 2 if self.deinterlace else 1
+
+    def __len__(self) -> int:
+        return self._videos.frames * self.per_frame
+
+    @overload
+    def __getitem__(self, index: int) -> Detections: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> Iterator[Detections]: ...  # type: ignore[override]
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            start, stop, step = index.indices(len(self))
+            if step != 1:
+                raise ValueError("a VideoSource can only be sliced contiguously")
+            return self._range(start, stop)
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"image {index} out of range for {n} images")
+        return next(self._range(index % n, index % n + 1))
+
+    def _range(self, start: int, stop: int) -> Iterator[Detections]:
+        """Detections of images [start, stop), decoding frames in one pass."""
+        k = self.per_frame
+        first, last = start // k, (stop + k - 1) // k
+        sample = first * k
+        for frames in self._videos.read(first, last):
+            images = (
+                detect_fields(frames, rig=self.rig, params=self.detector,
+                              field_order=self.field_order, rigs=self._field_rigs)
+                if self.deinterlace
+                else (detect(frames, rig=self.rig, params=self.detector),)
+            )
+            for det in images:
+                if start <= sample < stop:
+                    yield det
+                sample += 1
+
+
+@dataclass(frozen=True)
+class FitJob:
+    """One fitting job: videos, model, rig and every setting that decides the result."""
+
+    source: VideoSource
+    model: KinematicModel
+    params: FitParams = field(default_factory=FitParams)
+    seed: int = 0
+    chunk_size: int | None = None
+
+    @property
+    def clock(self) -> SampleClock:
+        return SampleClock(self.source.fps, self.source.deinterlace, self.source.field_order)
+
+
+@dataclass(frozen=True)
+class FitOutcome:
+    """What :func:`run_fit` measured besides the fits themselves."""
+
+    result: SequenceResult
+    seconds: float
+    jobs: int
+
+
+def run_fit(
+    job: FitJob,
+    histograms: Histograms,
+    *,
+    jobs: int = 1,
+    progress: Callable[[ImageFit], None] | None = None,
+) -> FitOutcome:
+    """Fit every image of ``job``; ``jobs`` > 1 fits its chunks in that many processes.
+
+    With several processes the sequence is split into chunks of ``job.chunk_size``
+    images (default: an equal share per process), each fitted from ``histograms``
+    and merged by counts, exactly as distributed workers do; ``progress`` then
+    reports re-analysed images only.
+    """
+    if jobs < 1:
+        raise ValueError(f"jobs must be at least 1, got {jobs}")
+    n = len(job.source)
+    chunk = job.chunk_size or (math.ceil(n / jobs) if jobs > 1 else None)
+    kwargs: dict[str, Any] = dict(
+        model=job.model, rig=job.source.rig, histograms=histograms, params=job.params,
+        seed=job.seed, chunk_size=chunk,
+    )
+    t0 = time.perf_counter()
+    if jobs == 1:
+        result = fit_sequence(job.source, progress=progress, **kwargs)
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            result = fit_sequence(job.source, map_chunks=pool.map, **kwargs)
+    return FitOutcome(result, time.perf_counter() - t0, jobs)
+
+
+def write_outputs(out: Path, job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
+    """Write ``angles.csv``, ``histograms.xml`` and ``report.json`` into ``out``; return the report."""
+    out.mkdir(parents=True, exist_ok=True)
+    fits = outcome.result.fits
+    write_angles_csv(out / "angles.csv", job.model, fits, job.clock)
+    (out / "histograms.xml").write_text(outcome.result.histograms.to_xml())
+    report = build_report(job, outcome)
+    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    return report
+
+
+def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
+    """Images, throughput, error statistics, over-threshold images, detections and settings."""
+    fits = outcome.result.fits
+    errors = np.array([f.error for f in fits if f.status is not Status.NO_DETECTIONS])
+    counts = np.array([f.detections for f in fits]).reshape(len(fits), -1)
+    views = [v.name for v in job.source.rig.views]
+    return {
+        "images": len(fits),
+        "videos": [str(p) for p in job.source.videos],
+        "fps": job.clock.fps,
+        "deinterlaced": job.source.deinterlace,
+        "seconds": round(outcome.seconds, 3),
+        "images_per_s": round(len(fits) / outcome.seconds, 2) if outcome.seconds > 0 else None,
+        "jobs": outcome.jobs,
+        "status": {s.value: sum(f.status is s for f in fits) for s in Status},
+        "error_px": _stats(errors),
+        "reanalysed": sum(f.attempts > 1 for f in fits),
+        "over_threshold_images": [f.sample for f in fits if f.status is Status.OVER_THRESHOLD],
+        "detections_per_view": {
+            name: {"mean": round(float(counts[:, v].mean()), 3) if len(fits) else None,
+                   "min": int(counts[:, v].min()) if len(fits) else None,
+                   "per_image": counts[:, v].tolist()}
+            for v, name in enumerate(views)
+        },
+        "settings": {
+            "model": job.model.name,
+            "seed": job.seed,
+            "chunk_size": job.chunk_size,
+            "fit": asdict(job.params),
+            "detector": asdict(job.source.detector),
+        },
+    }
+
+
+def _stats(values: np.ndarray) -> dict[str, float | None]:
+    if values.size == 0:
+        return {"mean": None, "median": None, "p95": None, "max": None}
+    return {
+        "mean": round(float(values.mean()), 4),
+        "median": round(float(np.median(values)), 4),
+        "p95": round(float(np.percentile(values, 95)), 4),
+        "max": round(float(values.max()), 4),
+    }
+

@@ -1,0 +1,211 @@
+"""Video input: any container and codec OpenCV's bundled FFmpeg decodes, read by frame range.
+
+Labs bring AVI/DV, MJPG, MPEG-4, H.264 MP4, FFV1 … files, one per camera. This
+module probes them (frame count, fps, size), checks that the videos of one rig
+agree, and reads a frame range by seeking to its first frame, so that a chunk
+in the middle of a long video costs only its own frames and memory holds one
+frame per video at a time, whatever the video's length.
+
+Containers do not always tell the truth: a truncated file or a rewritten index
+may announce more frames than it holds. :func:`probe` therefore decodes the
+last announced frame and, if that fails, finds the real last frame by bisection
+(a few seeks, never a full decode); a range that still runs out early raises
+:class:`VideoError` rather than returning short.
+
+Every failure is one :class:`VideoError` naming the file and the problem.
+Files are opened with the FFmpeg backend only, by absolute path, so neither a
+``%d`` in a name (OpenCV's image-sequence reader) nor a ``proto:`` prefix
+(FFmpeg's protocols) can make the reader open something else.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+__all__ = ["MAX_FRAME_MISMATCH", "VideoError", "VideoInfo", "VideoSet", "probe"]
+
+# Videos of one rig are cut from synchronised cameras, but their files may end a
+# frame or two apart (a camera started late, a trailing partial frame dropped).
+# Up to this many frames the shortest one decides; beyond it the set is refused.
+MAX_FRAME_MISMATCH = 2
+# Relative difference of frame rates still considered the same rate (25 vs 25.0001).
+_FPS_TOLERANCE = 1e-3
+
+
+class VideoError(ValueError):
+    """A video that cannot be used; the message names the file and the problem."""
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """What :func:`probe` learnt of one file: decodable frames, rate and frame size (pixels)."""
+
+    path: Path
+    frames: int
+    fps: float
+    width: int
+    height: int
+
+
+def probe(path: str | Path) -> VideoInfo:
+    """Open ``path``, check that it decodes, and return its real frame count, fps and size.
+
+    Raises
+    ------
+    VideoError
+        If the file is missing, not a video FFmpeg decodes, holds no frame, or
+        has no usable frame rate.
+    """
+    path = _absolute(path)
+    capture = _open(path)
+    try:
+        fps = capture.get(cv2.CAP_PROP_FPS)
+        announced = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        first = _read_at(capture, 0)
+        if first is None:
+            raise VideoError(f"{path}: holds no decodable frame")
+        frames = _decodable_frames(capture, max(announced, 1))
+    finally:
+        capture.release()
+    if not (math.isfinite(fps) and fps > 0):
+        raise VideoError(f"{path}: the container gives no usable frame rate ({fps!r})")
+    height, width = first.shape[:2]
+    return VideoInfo(path, frames, float(fps), int(width), int(height))
+
+
+class VideoSet:
+    """The synchronised videos of one rig (one per camera, in the rig's ``video`` order).
+
+    Frame ``k`` of the set is frame ``k`` of every file. Their frame counts may
+    differ by :data:`MAX_FRAME_MISMATCH` frames (the shortest decides), their
+    frame rates not at all.
+    """
+
+    def __init__(self, paths: Sequence[str | Path]):
+        if not paths:
+            raise VideoError("no video file given")
+        self.infos = tuple(probe(p) for p in paths)
+        _check_synchronised(self.infos)
+
+    @property
+    def paths(self) -> tuple[Path, ...]:
+        return tuple(i.path for i in self.infos)
+
+    @property
+    def frames(self) -> int:
+        """Frames every file has."""
+        return min(i.frames for i in self.infos)
+
+    @property
+    def fps(self) -> float:
+        return self.infos[0].fps
+
+    def read(self, first: int, last: int) -> Iterator[tuple[np.ndarray, ...]]:
+        """Frames ``first`` to ``last - 1``: one tuple of BGR uint8 (H, W, 3) frames per index.
+
+        Seeks every file to ``first`` and decodes forward; one frame per file is
+        held at a time. Raises :class:`VideoError` if a file ends early.
+        """
+        if not 0 <= first <= last <= self.frames:
+            raise ValueError(f"frame range [{first}, {last}) is not within 0..{self.frames}")
+        if first == last:
+            return
+        captures = [_open(i.path) for i in self.infos]
+        try:
+            for capture, info in zip(captures, self.infos, strict=True):
+                _seek(capture, first, info.path)
+            for index in range(first, last):
+                yield tuple(_next(c, i.path, index) for c, i in zip(captures, self.infos, strict=True))
+        finally:
+            for capture in captures:
+                capture.release()
+
+
+# ---- helpers -------------------------------------------------------------------------------
+
+
+def _absolute(path: str | Path) -> Path:
+    p = Path(path)
+    if "\x00" in str(p):
+        raise VideoError("a video path contains a NUL byte")
+    p = p.absolute()
+    if not p.is_file():
+        raise VideoError(f"{p}: no such video file")
+    return p
+
+
+def _open(path: Path) -> cv2.VideoCapture:
+    capture = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    if not capture.isOpened():
+        capture.release()
+        raise VideoError(f"{path}: not a video file FFmpeg can decode (or it is damaged)")
+    return capture
+
+
+def _read_at(capture: cv2.VideoCapture, index: int) -> np.ndarray | None:
+    """Frame ``index`` (seek, then decode), or None if there is no such frame."""
+    if index > 0 and not capture.set(cv2.CAP_PROP_POS_FRAMES, index):
+        return None
+    if index == 0:
+        capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
+    ok, frame = capture.read()
+    return frame if ok and frame is not None else None
+
+
+def _decodable_frames(capture: cv2.VideoCapture, announced: int) -> int:
+    """The real number of frames, frame 0 being known to decode.
+
+    ``announced`` if its last frame decodes and the next does not; fewer found by
+    bisection (invariant: frame ``lo`` decodes, frame ``hi`` does not); more, or
+    no count at all, by decoding forward from the last announced frame.
+    """
+    if _read_at(capture, announced - 1) is not None:
+        if not capture.grab():
+            return announced
+        count = announced + 1
+        while capture.grab():
+            count += 1
+        return count
+    lo, hi = 0, announced - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if _read_at(capture, mid) is not None:
+            lo = mid
+        else:
+            hi = mid
+    return lo + 1
+
+
+def _seek(capture: cv2.VideoCapture, index: int, path: Path) -> None:
+    if index and not capture.set(cv2.CAP_PROP_POS_FRAMES, index):
+        raise VideoError(f"{path}: cannot seek to frame {index}")
+
+
+def _next(capture: cv2.VideoCapture, path: Path, index: int) -> np.ndarray:
+    ok, frame = capture.read()
+    if not ok or frame is None:
+        raise VideoError(f"{path}: ended or failed to decode at frame {index}")
+    return frame
+
+
+def _check_synchronised(infos: Sequence[VideoInfo]) -> None:
+    counts = [i.frames for i in infos]
+    if max(counts) - min(counts) > MAX_FRAME_MISMATCH:
+        listing = ", ".join(f"{i.path.name}: {i.frames}" for i in infos)
+        raise VideoError(
+            f"the videos of one rig must have the same number of frames (within "
+            f"{MAX_FRAME_MISMATCH}); got {listing}"
+        )
+    rate = infos[0].fps
+    for info in infos[1:]:
+        if abs(info.fps - rate) > _FPS_TOLERANCE * rate:
+            raise VideoError(
+                f"the videos of one rig must have the same frame rate; {infos[0].path.name} "
+                f"has {rate:g} fps, {info.path.name} {info.fps:g}"
+            )

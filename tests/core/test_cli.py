@@ -1,0 +1,140 @@
+"""`mocap synth` and `mocap fit` end to end: files in, FORMATS files out, clear errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from core.cli import app
+from core.histogram import Histograms
+from core.model import KinematicModel
+from core.results import read_angles_csv
+from core.synth import read_truth_csv
+
+EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
+RUN = CliRunner()
+
+
+def _invoke(*args: str):
+    return RUN.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("clip")
+    result = _invoke("synth", "--model", EXAMPLE / "model.xml", "--rig", EXAMPLE / "rig.json",
+                     "--out", out, "--samples", "40", "--seed", "3")
+    assert result.exit_code == 0, result.output
+    return out
+
+
+@pytest.fixture(scope="module")
+def interlaced_clip(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("interlaced")
+    result = _invoke("synth", "--model", EXAMPLE / "model.xml", "--rig", EXAMPLE / "rig.json",
+                     "--out", out, "--samples", "24", "--seed", "4", "--interlaced")
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def _fit(clip: Path, out: Path, *extra: str):
+    return _invoke("fit", clip / "video0.avi", "--model", EXAMPLE / "model.xml",
+                   "--rig", EXAMPLE / "rig.json", "--out", out, "--marker-diameter-px", "4", *extra)
+
+
+def test_fit_writes_formats_files_and_matches_the_truth(clip, tmp_path):
+    result = _fit(clip, tmp_path / "out", "--seed", "1")
+    assert result.exit_code == 0, result.output
+    table = read_angles_csv(tmp_path / "out" / "angles.csv")
+    names, truth = read_truth_csv(clip / "truth.csv")
+    assert table.dof_names == names
+    assert table.samples.tolist() == list(range(40)) and table.frames.tolist() == list(range(40))
+    assert set(table.fields) == {""}
+    np.testing.assert_allclose(table.times, np.arange(40) / 50.0)
+    rmse = np.sqrt(np.mean((table.dofs - truth) ** 2, axis=0))
+    assert np.all(rmse < 0.5), rmse
+    assert all(s.value == "ok" for s in table.statuses)
+    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
+    hist = Histograms.from_xml(tmp_path / "out" / "histograms.xml", model)
+    assert hist.counts[0] == 100 + 40
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["images"] == 40 and report["status"]["ok"] == 40
+    assert report["detections_per_view"]["side"]["min"] >= 3
+    assert report["settings"]["seed"] == 1
+
+
+def test_two_jobs_give_the_same_result_as_one_with_the_same_chunks(clip, tmp_path):
+    one = _fit(clip, tmp_path / "one", "--chunk-size", "20", "--jobs", "1")
+    two = _fit(clip, tmp_path / "two", "--chunk-size", "20", "--jobs", "2")
+    assert one.exit_code == 0 and two.exit_code == 0, one.output + two.output
+    a = read_angles_csv(tmp_path / "one" / "angles.csv")
+    b = read_angles_csv(tmp_path / "two" / "angles.csv")
+    np.testing.assert_array_equal(a.dofs, b.dofs)
+    assert (tmp_path / "one" / "histograms.xml").read_text() == (
+        tmp_path / "two" / "histograms.xml").read_text()
+
+
+def test_deinterlaced_fit_reports_fields(interlaced_clip, tmp_path):
+    result = _fit(interlaced_clip, tmp_path / "out", "--deinterlace")
+    assert result.exit_code == 0, result.output
+    table = read_angles_csv(tmp_path / "out" / "angles.csv")
+    _, truth = read_truth_csv(interlaced_clip / "truth.csv")
+    assert len(table.samples) == 24
+    assert table.fields[:4] == ["even", "odd", "even", "odd"]
+    assert table.frames[:4].tolist() == [0, 0, 1, 1]
+    np.testing.assert_allclose(table.times[:3], [0.0, 0.01, 0.02])
+    assert np.median(np.abs(table.dofs - truth)) < 0.5
+
+
+@pytest.mark.parametrize(
+    ("case", "match"),
+    [("missing_model", "cannot read model"), ("bad_rig", "rig"), ("text_video", "video"),
+     ("two_videos", "expects 1 video"), ("bad_histograms", "histogram")],
+)
+def test_bad_input_exits_2_with_one_line(clip, tmp_path, case, match):
+    model, rig, video = EXAMPLE / "model.xml", EXAMPLE / "rig.json", clip / "video0.avi"
+    extra: list = []
+    videos = [video]
+    if case == "missing_model":
+        model = tmp_path / "nope.xml"
+    elif case == "bad_rig":
+        rig = tmp_path / "rig.json"
+        rig.write_text('{"views": []}')
+    elif case == "text_video":
+        videos = [tmp_path / "notes.avi"]
+        videos[0].write_text("not a video")
+    elif case == "two_videos":
+        videos = [video, video]
+    else:
+        bad = tmp_path / "h.xml"
+        bad.write_text('<histograms model="x" bins="360"></histograms>')
+        extra = ["--histograms", bad]
+    result = _invoke("fit", *videos, "--model", model, "--rig", rig, "--out", tmp_path / "o",
+                     *extra)
+    assert result.exit_code == 2
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("mocap: error:")
+    assert match in lines[0].lower()
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [(["fit", "v.avi", "--model", "m.xml", "--rig", "r.json", "--out", "o", "--jobs", "0"], "--jobs"),
+     (["fit"], "missing argument"), (["fit", "v.avi", "--bogus"], "no such option"),
+     (["fit", "v.avi", "--model", "m.xml", "--rig", "r.json", "--out", "o"], "cannot read model")],
+)
+def test_the_console_script_turns_usage_errors_into_one_line_and_exit_2(tmp_path, args, match):
+    """The installed entry point (core.cli:run), not typer's test runner: what a user sees."""
+    result = subprocess.run([sys.executable, "-c", "from core.cli import run; run()", *args],
+                            capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert result.returncode == 2
+    assert result.stdout == ""
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("mocap: error:"), result.stderr
+    assert match in lines[0].lower()
