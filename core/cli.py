@@ -28,6 +28,7 @@ from core.model import KinematicModel, ModelError
 from core.pipeline import FitJob, VideoSource, run_fit, write_outputs
 from core.rig import Rig, RigError
 from core.synth import natural_movements, read_truth_csv, render_frames, write_truth_csv, write_video
+from core.track import RootTracking
 from core.video import VideoError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0])
@@ -119,6 +120,11 @@ def fit(
     min_area: Annotated[int, Opt(help="smallest marker region, pixels")] = 2,
     max_area: Annotated[int, Opt(help="largest marker region, pixels")] = 2000,
     prior_weight: Annotated[float, Opt(help="counts of the uniform prior histograms")] = 100.0,
+    root_marker: Annotated[
+        str | None, Opt(help="track this marker (at the root's origin) to move the root")] = None,
+    root_start: Annotated[
+        str | None, Opt(help="its position in every view of the first image: 'u,v;u,v'")] = None,
+    root_max_jump_px: Annotated[float, Opt(help="largest move of the root marker per image")] = 20.0,
 ) -> None:
     """Detect markers in VIDEO(s) and fit the model to every image: angles, histograms, report."""
     with user_errors():
@@ -135,13 +141,28 @@ def fit(
         detector = DetectorParams(channel=channel, threshold=_threshold(threshold), erode=erode,
                                   dilate=dilate, blur=blur, min_area=min_area, max_area=max_area)
         source = VideoSource(tuple(videos), camera_rig, detector, deinterlace, field_order)
-        job = FitJob(source, kinematic, params, seed, chunk_size)
+        root = None if root_marker is None else RootTracking(
+            root_marker, _positions(root_start), root_max_jump_px)
+        job = FitJob(source, kinematic, params, seed, chunk_size, root)
         with progress_bar(len(source)) as advance:
             outcome = run_fit(job, start, jobs=jobs, progress=advance)
         report = write_outputs(out, job, outcome)
     print(f"{report['images']} images in {report['seconds']} s ({report['images_per_s']} images/s); "
           f"status {report['status']}; mean error {report['error_px']['mean']} px; "
           f"wrote {out}/angles.csv, histograms.xml, report.json")
+
+
+def _positions(text: str | None) -> tuple[tuple[float, float], ...] | None:
+    """--root-start: 'u,v;u,v' (one pair per view) → ((u, v), (u, v))."""
+    if text is None:
+        return None
+    try:
+        pairs = tuple(tuple(float(x) for x in pair.split(",")) for pair in text.split(";"))
+    except ValueError:
+        raise ValueError(f"--root-start must be 'u,v;u,v' (numbers), got {text!r}") from None
+    if any(len(p) != 2 for p in pairs):
+        raise ValueError(f"--root-start must be 'u,v;u,v', one pair per view, got {text!r}")
+    return pairs  # type: ignore[return-value]
 
 
 def _threshold(text: str) -> float | str:

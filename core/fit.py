@@ -5,20 +5,22 @@ on ``(seed, sample, attempt)``, so any slice of a sequence can be fitted by any
 worker, in any order, and give the same postures as a single process fitting
 the same chunks.
 
-The sequence flow, shared by ``mocap fit`` and the distributed workers:
+The sequence flow, shared by ``mocap fit`` and the distributed workers (each step a
+public function, so that a worker calls the same code as a local run):
 
-1. :func:`fit_chunk` fits a contiguous run of images once each, starting from
-   the given histograms and updating a working copy after every image whose
-   error is within the threshold (Eq. 4). It returns the fits and the
-   *observed* histograms of its images alone.
-2. The prior is merged with every chunk's observed histograms (count-weighted,
-   exactly the sequential Eq. 4 update when there is one chunk).
-3. Images still over the threshold are re-analysed (paper §3.2) with the merged
-   histograms as constraints, one :func:`reanalyse_image` attempt at a time, up
-   to ``max_attempts``, keeping each image's best posture; attempts after the
-   first start from a posture drawn from the histograms instead of their mean.
-4. Re-analysed images that came under the threshold are added to the
-   histograms in sample order.
+1. :func:`plan_chunks` splits the images into contiguous chunks.
+2. :func:`fit_chunk` fits a chunk's images once each, starting from the given
+   histograms and updating a working copy after every image whose error is
+   within the threshold (Eq. 4). It returns the fits and the *observed*
+   histograms of its images alone.
+3. :func:`merge_chunks`: the prior merged with every chunk's observed histograms
+   (count-weighted; exactly the sequential Eq. 4 update when there is one chunk).
+4. Images for which :func:`needs_reanalysis` holds are re-analysed (paper §3.2)
+   with the merged histograms as constraints, one :func:`reanalyse_image`
+   attempt at a time, up to ``max_attempts``, keeping each image's best posture;
+   attempts after the first start from a posture drawn from the histograms.
+5. :func:`finish_sequence` gives the final histograms: the prior updated by the
+   final posture of every image that is within the threshold.
 """
 
 from __future__ import annotations
@@ -44,9 +46,13 @@ __all__ = [
     "ImageFit",
     "SequenceResult",
     "Status",
+    "finish_sequence",
     "fit_chunk",
     "fit_image",
     "fit_sequence",
+    "merge_chunks",
+    "needs_reanalysis",
+    "plan_chunks",
     "reanalyse_image",
 ]
 
@@ -125,6 +131,33 @@ class ImageFit:
     status: Status
     iterations: int
     detections: tuple[int, ...]
+
+    def to_record(self) -> dict:
+        """The fit as JSON-safe values (None for NaN), for a database row or a message.
+
+        >>> fit = ImageFit(3, np.array([1.5, np.nan]), 0.25, 0.2, 1, Status.OK, 500, (4, 3))
+        >>> ImageFit.from_record(fit.to_record()).to_record() == fit.to_record()
+        True
+        """
+        return {
+            "sample": self.sample, "dofs": [_json_float(v) for v in self.dofs],
+            "error": _json_float(self.error), "objective": _json_float(self.objective),
+            "attempts": self.attempts, "status": self.status.value,
+            "iterations": self.iterations, "detections": list(self.detections),
+        }
+
+    @classmethod
+    def from_record(cls, record: dict) -> ImageFit:
+        """Inverse of :meth:`to_record`."""
+        return cls(
+            sample=int(record["sample"]),
+            dofs=np.array([math.nan if v is None else v for v in record["dofs"]], dtype=np.float64),
+            error=math.nan if record["error"] is None else float(record["error"]),
+            objective=math.nan if record["objective"] is None else float(record["objective"]),
+            attempts=int(record["attempts"]), status=Status(record["status"]),
+            iterations=int(record["iterations"]),
+            detections=tuple(int(c) for c in record["detections"]),
+        )
 
 
 @dataclass(frozen=True)
@@ -288,6 +321,41 @@ def reanalyse_image(
                     previous.detections)
 
 
+def plan_chunks(n_images: int, chunk_size: int | None) -> list[tuple[int, int]]:
+    """Contiguous ``[first, last)`` sample ranges covering ``n_images``; one chunk for ``None``."""
+    if chunk_size is not None and (isinstance(chunk_size, bool) or chunk_size < 1):
+        raise ValueError(f"chunk_size must be at least 1, got {chunk_size!r}")
+    size = max(n_images, 1) if chunk_size is None else chunk_size
+    return [(a, min(a + size, n_images)) for a in range(0, n_images, size)]
+
+
+def merge_chunks(prior: Histograms, observed: Iterable[Histograms]) -> Histograms:
+    """Step 3: the constraints for re-analysis, prior and chunks' observations by counts."""
+    return prior.merge(*observed)
+
+
+def needs_reanalysis(fit: ImageFit, params: FitParams) -> bool:
+    """True while an image is over the threshold and has attempts left (paper §3.2)."""
+    return fit.status is Status.OVER_THRESHOLD and fit.attempts < params.max_attempts
+
+
+def finish_sequence(
+    prior: Histograms, fits: Sequence[ImageFit], *, model: KinematicModel
+) -> SequenceResult:
+    """Step 5: the fits in sample order and the prior updated by every image within the threshold.
+
+    Eq. 4 counts do not depend on the order of the measurements, so this equals
+    updating the prior image by image; it also equals the chunks' merge plus the
+    images that re-analysis brought under the threshold.
+    """
+    ordered = sorted(fits, key=lambda f: f.sample)
+    observed = Histograms.empty(model, bins=prior.bins)
+    for fit in ordered:
+        if fit.status is Status.OK:
+            observed.update(fit.dofs[model.rotational])
+    return SequenceResult(ordered, prior.merge(observed))
+
+
 def fit_sequence(
     images: Sequence[Detections],
     *,
@@ -301,7 +369,7 @@ def fit_sequence(
     progress: Callable[[ImageFit], None] | None = None,
     map_chunks: Callable[..., Iterable[ChunkResult]] = map,
 ) -> SequenceResult:
-    """Fit every image of a sequence: chunks, merge, re-analysis (the module's flow).
+    """Fit every image of a sequence: the module's five steps.
 
     Parameters
     ----------
@@ -314,30 +382,23 @@ def fit_sequence(
     map_chunks : ``map`` or an executor's ``map``, to fit chunks in other processes.
     """
     n = len(images)
-    size = n if chunk_size is None else chunk_size
-    if size < 1 and n:
-        raise ValueError(f"chunk_size must be at least 1, got {chunk_size}")
     if offsets is not None and len(offsets) != n:
         raise ValueError(f"offsets has {len(offsets)} entries for {n} images")
-    ranges = [(a, min(a + size, n)) for a in range(0, n, max(size, 1))]
     run = partial(_fit_range, images, model, rig, histograms, params, seed, offsets, progress)
-    chunks = list(map_chunks(run, ranges))
-    merged = histograms.merge(*(c.observed for c in chunks))
+    chunks = list(map_chunks(run, plan_chunks(n, chunk_size)))
+    merged = merge_chunks(histograms, (c.observed for c in chunks))
     fits = [f for c in chunks for f in c.fits]
-    recovered = Histograms.empty(model, bins=histograms.bins)
     for i, fit in enumerate(fits):
-        if fit.status is not Status.OVER_THRESHOLD or fit.attempts >= params.max_attempts:
+        if not needs_reanalysis(fit, params):
             continue
         det = images[i]
-        while fit.status is Status.OVER_THRESHOLD and fit.attempts < params.max_attempts:
+        while needs_reanalysis(fit, params):
             fit = reanalyse_image(
                 det, fit, model=model, rig=rig, histograms=merged, params=params, seed=seed,
                 offsets=None if offsets is None else offsets[i],
             )
-        if fit.status is Status.OK:
-            recovered.update(fit.dofs[model.rotational])
         fits[i] = fit
-    return SequenceResult(fits, merged.merge(recovered))
+    return finish_sequence(histograms, fits, model=model)
 
 
 def _fit_range(images, model, rig, histograms, params, seed, offsets, progress, bounds) -> ChunkResult:
@@ -368,6 +429,10 @@ def draw_posture(
         lo = model.lower[i]
         q[i] = lo + (angle - lo) % 360.0
     return np.clip(q, model.lower, model.upper)
+
+
+def _json_float(value: float) -> float | None:
+    return None if not math.isfinite(value) else float(value)
 
 
 def _status(error: float, params: FitParams) -> Status:

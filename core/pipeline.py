@@ -1,14 +1,21 @@
-"""From video files to fitted angles: the chunk code shared by ``mocap fit`` and the workers.
+"""From video files to fitted angles: the job steps shared by ``mocap fit`` and the workers.
 
 A :class:`VideoSource` is a lazy sequence of per-image detections: slicing it
 decodes and detects only that range of frames (seeking into the video), and
 indexing it decodes one frame, so memory is bounded by one frame whatever the
 video's length, and a chunk can start in the middle of a long video. With
-de-interlacing every frame gives two images (even field, then odd).
+de-interlacing every frame gives two images (its fields, in time order).
 
-:func:`run_fit` hands a source to :func:`core.fit.fit_sequence`, in this
-process or in ``jobs`` processes; :func:`write_outputs` writes ``angles.csv``,
-``histograms.xml`` and ``report.json``.
+A :class:`FitJob` is everything that decides a result. Its steps, which a
+local run (:func:`run_fit`) and the distributed workers both call:
+
+- :func:`plan`: the number of images, the chunks, and the root-tracking offsets
+  (tracking is sequential, so it runs once over the whole sequence here);
+- :func:`fit_range`: fit one chunk (``core.fit.fit_chunk`` on its frames);
+- :func:`reanalyse`: one more attempt on one over-threshold image;
+- :func:`finish`: the final histograms of the sequence.
+
+:func:`write_outputs` writes ``angles.csv``, ``histograms.xml`` and ``report.json``.
 """
 
 from __future__ import annotations
@@ -18,7 +25,7 @@ import math
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any, overload
@@ -28,14 +35,29 @@ import numpy as np
 from core.detect import DetectorParams, detect
 from core.error import Detections
 from core.fields import detect_fields, field_parities, field_rig
-from core.fit import FitParams, ImageFit, SequenceResult, Status, fit_sequence
+from core.fit import (
+    ChunkResult,
+    FitParams,
+    ImageFit,
+    SequenceResult,
+    Status,
+    finish_sequence,
+    fit_chunk,
+    fit_sequence,
+    plan_chunks,
+    reanalyse_image,
+)
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.results import SampleClock, write_angles_csv
 from core.rig import Rig
+from core.track import RootTracking, root_reference, track_root
 from core.video import VideoSet
 
-__all__ = ["FitJob", "FitOutcome", "VideoSource", "run_fit", "write_outputs"]
+__all__ = [
+    "FitJob", "FitOutcome", "Plan", "VideoSource", "finish", "fit_range", "plan", "reanalyse",
+    "run_fit", "write_outputs",
+]
 
 
 @dataclass(frozen=True)
@@ -112,17 +134,81 @@ class VideoSource(Sequence[Detections]):
 
 @dataclass(frozen=True)
 class FitJob:
-    """One fitting job: videos, model, rig and every setting that decides the result."""
+    """One fitting job: videos, model, rig and every setting that decides the result.
+
+    chunk_size : images per chunk; None fits the sequence as one chunk.
+    root : optional root tracking (``core.track``).
+    """
 
     source: VideoSource
     model: KinematicModel
     params: FitParams = field(default_factory=FitParams)
     seed: int = 0
     chunk_size: int | None = None
+    root: RootTracking | None = None
 
     @property
     def clock(self) -> SampleClock:
         return SampleClock(self.source.fps, self.source.deinterlace, self.source.field_order)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What :func:`plan` decided: image count, chunk ranges ``[first, last)``, offsets (N, V, 2)."""
+
+    images: int
+    chunks: list[tuple[int, int]]
+    offsets: np.ndarray | None
+
+
+def plan(job: FitJob) -> Plan:
+    """Count the images, split them into chunks, and track the root if asked."""
+    n = len(job.source)
+    offsets = None
+    if job.root is not None:
+        reference = root_reference(job.model, job.source.rig, job.root.marker)
+        offsets = track_root(job.source[0:n], reference=reference, tracking=job.root)
+    return Plan(n, plan_chunks(n, job.chunk_size), offsets)
+
+
+def fit_range(
+    job: FitJob,
+    histograms: Histograms,
+    first: int,
+    last: int,
+    *,
+    offsets: np.ndarray | None = None,
+    should_stop: Callable[[], bool] | None = None,
+    progress: Callable[[ImageFit], None] | None = None,
+) -> ChunkResult:
+    """Fit images ``[first, last)`` once each from ``histograms`` (a chunk; ``core.fit`` step 2).
+
+    offsets : the plan's offsets of these images, (last - first, V, 2), or None.
+    should_stop : checked between images (cancel); the result then holds the images done.
+    """
+    return fit_chunk(
+        job.source[first:last], model=job.model, rig=job.source.rig, histograms=histograms,
+        params=job.params, seed=job.seed, first_sample=first, offsets=offsets,
+        should_stop=should_stop, progress=progress,
+    )
+
+
+def reanalyse(
+    job: FitJob, previous: ImageFit, histograms: Histograms, *, offsets: np.ndarray | None = None
+) -> ImageFit:
+    """One more attempt on an over-threshold image, against the merged ``histograms``.
+
+    offsets : this image's (V, 2) offsets from the plan, or None.
+    """
+    return reanalyse_image(
+        job.source[previous.sample], previous, model=job.model, rig=job.source.rig,
+        histograms=histograms, params=job.params, seed=job.seed, offsets=offsets,
+    )
+
+
+def finish(job: FitJob, prior: Histograms, fits: Sequence[ImageFit]) -> SequenceResult:
+    """The fits in sample order and the prior updated by every image within the threshold."""
+    return finish_sequence(prior, fits, model=job.model)
 
 
 @dataclass(frozen=True)
@@ -141,22 +227,23 @@ def run_fit(
     jobs: int = 1,
     progress: Callable[[ImageFit], None] | None = None,
 ) -> FitOutcome:
-    """Fit every image of ``job``; ``jobs`` > 1 fits its chunks in that many processes.
+    """Fit every image of ``job`` in this process, or its chunks in ``jobs`` processes.
 
-    With several processes the sequence is split into chunks of ``job.chunk_size``
-    images (default: an equal share per process), each fitted from ``histograms``
-    and merged by counts, exactly as distributed workers do; ``progress`` then
-    reports re-analysed images only.
+    With several processes and no ``job.chunk_size``, the sequence is split into
+    one chunk per process; chunks are fitted from ``histograms`` and merged by
+    counts, exactly as distributed workers do. ``progress`` then reports the
+    re-analysed images only.
     """
     if jobs < 1:
         raise ValueError(f"jobs must be at least 1, got {jobs}")
-    n = len(job.source)
-    chunk = job.chunk_size or (math.ceil(n / jobs) if jobs > 1 else None)
+    t0 = time.perf_counter()
+    if jobs > 1 and job.chunk_size is None:
+        job = replace(job, chunk_size=max(1, math.ceil(len(job.source) / jobs)))
+    steps = plan(job)
     kwargs: dict[str, Any] = dict(
         model=job.model, rig=job.source.rig, histograms=histograms, params=job.params,
-        seed=job.seed, chunk_size=chunk,
+        seed=job.seed, chunk_size=job.chunk_size, offsets=steps.offsets,
     )
-    t0 = time.perf_counter()
     if jobs == 1:
         result = fit_sequence(job.source, progress=progress, **kwargs)
     else:
@@ -204,6 +291,8 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
             "model": job.model.name,
             "seed": job.seed,
             "chunk_size": job.chunk_size,
+            "field_order": job.source.field_order if job.source.deinterlace else None,
+            "root_tracking": None if job.root is None else asdict(job.root),
             "fit": asdict(job.params),
             "detector": asdict(job.source.detector),
         },

@@ -138,3 +138,24 @@ def test_the_console_script_turns_usage_errors_into_one_line_and_exit_2(tmp_path
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("mocap: error:"), result.stderr
     assert match in lines[0].lower()
+
+
+def test_fit_with_root_tracking_follows_a_moving_body(tmp_path):
+    """Rendered with a translating root, fitted with the fixed-root model and --root-marker."""
+    phi = '<dof axis="y" name="phi"'
+    text = (EXAMPLE / "model.xml").read_text().replace(
+        phi, '<dof axis="tx" name="x" min="-10" max="10"/>\n    ' + phi)
+    moving = tmp_path / "moving.xml"
+    moving.write_text(text)
+    synth = _invoke("synth", "--model", moving, "--rig", EXAMPLE / "rig.json", "--out", tmp_path / "clip",
+                    "--samples", "20", "--seed", "8")
+    assert synth.exit_code == 0, synth.output
+    names, truth = read_truth_csv(tmp_path / "clip" / "truth.csv")
+    start = ";".join(f"{240 + 3 * truth[0, 0]},{y}" for y in (184, 438))
+    result = _fit(tmp_path / "clip", tmp_path / "out", "--root-marker", "M0", "--root-start", start)
+    assert result.exit_code == 0, result.output
+    table = read_angles_csv(tmp_path / "out" / "angles.csv")
+    assert table.dof_names == names[1:]
+    assert np.abs(table.dofs - truth[:, 1:]).max() < 1.0
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["settings"]["root_tracking"]["marker"] == "M0"
