@@ -170,10 +170,15 @@ class ChunkResult:
 
 @dataclass(frozen=True)
 class SequenceResult:
-    """Fits of a sequence in sample order, and the prior updated by every accepted image."""
+    """Fits of a sequence in sample order, and the prior updated by every accepted image.
+
+    observed : the histograms of the accepted images alone (``histograms`` is the
+        prior merged with it), to fold a job into an archive that has moved on.
+    """
 
     fits: list[ImageFit]
     histograms: Histograms
+    observed: Histograms
 
 
 def image_rng(seed: int, sample: int, attempt: int) -> np.random.Generator:
@@ -353,7 +358,7 @@ def finish_sequence(
     for fit in ordered:
         if fit.status is Status.OK:
             observed.update(fit.dofs[model.rotational])
-    return SequenceResult(ordered, prior.merge(observed))
+    return SequenceResult(ordered, prior.merge(observed), observed)
 
 
 def fit_sequence(
