@@ -59,7 +59,7 @@ def main() -> None:
     print(f"fit (Table 1 + refinement) {default:9.1f} images/s  paper {PAPER_FIT_IMAGES_PER_S}  "
           f"x{default / PAPER_FIT_IMAGES_PER_S:.0f}  target {TARGET_FIT:.0f}: "
           f"{'MET' if default >= TARGET_FIT else 'NOT MET'}")
-    plain = FitParams(anneal=replace(AnnealParams(), polish=False), restarts=0)
+    plain = FitParams(anneal=replace(AnnealParams(), polish_every=0), restarts=0)
     rate = fit_rate(bench, plain, min(n, args.plain_samples))
     print(f"fit (plain paper SA, Table 1)  {rate:9.1f} images/s  paper {PAPER_FIT_IMAGES_PER_S}  "
           f"x{rate / PAPER_FIT_IMAGES_PER_S:.0f}")

@@ -33,11 +33,17 @@ from functools import partial
 
 import numpy as np
 
-from core.anneal import AnnealParams, SearchSpace, anneal, search_space
-from core.error import DEFAULT_EMPTY_VIEW_PENALTY_PX, Detections, check_fusion, view_error
+from core import _kernels
+from core.anneal import AnnealParams, SearchSpace, search_space
+from core.error import (
+    DEFAULT_EMPTY_VIEW_PENALTY_PX,
+    Detections,
+    check_fusion,
+    check_views,
+    view_offsets,
+)
 from core.histogram import Histograms
 from core.model import KinematicModel
-from core.refine import refine
 from core.rig import Rig
 
 __all__ = [
@@ -181,9 +187,16 @@ class SequenceResult:
     observed: Histograms
 
 
-def image_rng(seed: int, sample: int, attempt: int) -> np.random.Generator:
-    """The random stream of one attempt on one image: independent of chunking and order."""
-    return np.random.default_rng([seed, sample, attempt])
+_UINT64 = (1 << 64) - 1
+
+
+def image_stream(seed: int, sample: int, attempt: int) -> np.ndarray:
+    """The random stream of one attempt on one image: a xoshiro256** state, (4,) uint64.
+
+    It depends only on ``(seed, sample, attempt)``, so a chunk fitted anywhere,
+    in any order, draws the same numbers as a single process would.
+    """
+    return _kernels.stream_state(np.uint64(seed & _UINT64), np.uint64(sample), np.uint64(attempt))
 
 
 def fit_image(
@@ -193,45 +206,40 @@ def fit_image(
     rig: Rig,
     space: SearchSpace,
     params: FitParams,
-    rng: np.random.Generator,
-    start: np.ndarray | None = None,
+    stream: np.ndarray,
+    draw_start: bool = False,
     offsets: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float, float, int]:
-    """One attempt on one image: SA from ``start`` (histogram means by default), then refinement.
+    """One attempt on one image: SA from the histogram means (paper §3.1), then refinement.
 
+    ``draw_start`` starts from a posture drawn from the histograms instead
+    (re-analysis, so that an attempt does not retrace the first one's path).
     The refined posture is kept only if it does not raise the fitted objective
     (Eq. 5 with marker fusion when ``params.fusion_px`` > 0). While the
     objective stays at or above ε, SA is restarted from a posture drawn from
-    the histograms, up to ``params.restarts`` times, keeping the best.
+    the histograms, up to ``params.restarts`` times, keeping the best. The whole
+    attempt runs compiled (``core._kernels.fit_attempt``).
+
+    Parameters
+    ----------
+    stream : the attempt's random state from :func:`image_stream`; advanced in place.
+    offsets : (V, 2) per-view pixel offsets (root tracking), optional.
 
     Returns
     -------
     (dofs (D,), plain Eq. 5 error in pixels, minimised objective, SA iterations)
     """
-    common = dict(model=model, rig=rig, offsets=offsets)
-    penalty, fusion = params.empty_view_penalty_px, params.fusion_px
-    dofs, objective, iterations = None, math.inf, 0
-    for run in range(params.restarts + 1):
-        if run and objective < params.anneal.eps:
-            break
-        result = anneal(
-            detections, space=space, params=params.anneal, rng=rng,
-            start=start if run == 0 else draw_posture(model, space.histograms, rng),
-            empty_view_penalty_px=penalty, fusion_px=fusion, **common,
-        )
-        iterations += result.iterations
-        q, value = result.dofs, result.error
-        if params.refine:
-            polished = refine(q, detections, huber_px=params.anneal.huber_px, fusion_px=fusion,
-                              **common)
-            polished_value = view_error(polished, detections, empty_view_penalty_px=penalty,
-                                        fusion_px=fusion, **common)
-            if polished_value <= value:
-                q, value = polished, polished_value
-        if value < objective:
-            dofs, objective = q, value
-    error = view_error(dofs, detections, empty_view_penalty_px=penalty, **common)
-    return dofs, error, objective, iterations
+    check_views(detections, rig)
+    a = params.anneal
+    dofs, error, objective, iterations = _kernels.fit_attempt(
+        space.mean, draw_start, model.lower, model.upper, space.sigma, space.table,
+        float(a.plausibility_threshold), model.arrays, rig.arrays, view_offsets(offsets, rig),
+        detections.points, detections.start, float(params.empty_view_penalty_px),
+        float(params.fusion_px), a.n_end, a.n_l, a.n_tau, float(a.tau0), float(a.l0), float(a.c_l),
+        float(a.c_tau), float(a.eps), a.polish_every, float(a.huber_px), params.refine,
+        params.restarts, stream,
+    )
+    return dofs, float(error), float(objective), int(iterations)
 
 
 def fit_chunk(
@@ -253,7 +261,7 @@ def fit_chunk(
     ----------
     images : iterable of Detections, samples ``first_sample, first_sample + 1, …``.
     histograms : the constraints at the start of the chunk; not modified.
-    seed : the job's seed; image ``s`` uses :func:`image_rng` ``(seed, s, 1)``.
+    seed : the job's seed; image ``s`` uses :func:`image_stream` ``(seed, s, 1)``.
     offsets : optional per-image (V, 2) view offsets (root tracking), same length as images.
     should_stop : checked between images; returning True ends the chunk early (cancel).
     progress : called with every finished image.
@@ -286,7 +294,7 @@ def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed) -
     space = search_space(model, histograms)
     dofs, error, objective, its = fit_image(
         det, model=model, rig=rig, space=space, params=params,
-        rng=image_rng(seed, sample, 1), offsets=offsets,
+        stream=image_stream(seed, sample, 1), offsets=offsets,
     )
     return ImageFit(sample, dofs, error, objective, 1, _status(error, params), its, counts)
 
@@ -306,17 +314,15 @@ def reanalyse_image(
 
     The attempt starts from a posture drawn from ``histograms`` (the merged
     constraints), so that it does not retrace the first attempt's path, and
-    uses the stream :func:`image_rng` ``(seed, sample, attempts + 1)``.
+    uses the stream :func:`image_stream` ``(seed, sample, attempts + 1)``.
     """
     attempt = previous.attempts + 1
     if previous.status is not Status.OVER_THRESHOLD or attempt > params.max_attempts:
         return previous
-    rng = image_rng(seed, previous.sample, attempt)
     space = search_space(model, histograms)
-    start = draw_posture(model, histograms, rng)
     dofs, error, objective, its = fit_image(
-        detections, model=model, rig=rig, space=space, params=params, rng=rng,
-        start=start, offsets=offsets,
+        detections, model=model, rig=rig, space=space, params=params,
+        stream=image_stream(seed, previous.sample, attempt), draw_start=True, offsets=offsets,
     )
     if not objective < previous.objective:
         dofs, error, objective = previous.dofs, previous.error, previous.objective
@@ -413,27 +419,6 @@ def _fit_range(images, model, rig, histograms, params, seed, offsets, progress, 
         images[a:b], model=model, rig=rig, histograms=histograms, params=params, seed=seed,
         first_sample=a, offsets=None if offsets is None else offsets[a:b], progress=progress,
     )
-
-
-def draw_posture(
-    model: KinematicModel, histograms: Histograms, rng: np.random.Generator
-) -> np.ndarray:
-    """A random posture: angles drawn from the histograms, translations uniform in range.
-
-    Returns ndarray of shape (D,), float64, inside every DOF's range.
-    """
-    q = rng.uniform(model.lower, model.upper)
-    rot = np.flatnonzero(model.rotational)
-    width = 360.0 / histograms.bins
-    for r, i in enumerate(rot):
-        p = histograms.probs[r]
-        if p.sum() <= 0:
-            continue
-        b = rng.choice(histograms.bins, p=p / p.sum())
-        angle = (b + rng.random()) * width
-        lo = model.lower[i]
-        q[i] = lo + (angle - lo) % 360.0
-    return np.clip(q, model.lower, model.upper)
 
 
 def _json_float(value: float) -> float | None:

@@ -14,12 +14,14 @@ such as 300..420 needs no special case.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from core import _kernels
 from core.model import KinematicModel, ModelError, _esc, _float, _num, _parse_xml
 
 __all__ = ["HistogramError", "Histograms"]
@@ -105,10 +107,7 @@ class Histograms:
         a = np.asarray(angles, dtype=np.float64)
         if a.shape != self.counts.shape:
             raise ValueError(f"angles must have shape {self.counts.shape}, got {a.shape}")
-        idx = self.bin_index(a)
-        self.counts += 1.0
-        self.probs *= ((self.counts - 1.0) / self.counts)[:, None]
-        self.probs[np.arange(len(idx)), idx] += 1.0 / self.counts
+        _kernels.eq4_update(self.probs, self.counts, self.bin_index(a))
 
     def bin_index(self, angles: np.ndarray) -> np.ndarray:
         """Bin of each angle (degrees, any interval) after wrapping into [0, 360)."""
@@ -142,33 +141,21 @@ class Histograms:
         distribution with no direction (uniform over the circle, or empty) gives
         the range midpoint.
         """
-        return self._means(clamp=True)
-
-    def _means(self, *, clamp: bool) -> np.ndarray:
-        """Circular means in range coordinates; without ``clamp`` they may lie outside the range."""
-        rad = np.radians(self._centres())
-        s, c = self.probs @ np.sin(rad), self.probs @ np.cos(rad)
-        lo, hi = self.lower, self.upper
-        m = lo + (np.degrees(np.arctan2(s, c)) - lo) % 360.0
-        if clamp:  # outside the range: the nearer end on the circle
-            nearer = np.where((m - hi) < (lo + 360.0 - m), hi, lo)
-            m = np.where(m > hi, nearer, m)
-        return np.where(np.hypot(s, c) < 1e-9, 0.5 * (lo + hi), m)
+        return self.stats()[0]
 
     def stds(self) -> np.ndarray:
         """(R,) standard deviation s(H) of each DOF about its circular mean, degrees.
 
-        An empty distribution gives the spread of a uniform one over the range.
+        The spread is measured about the unclamped mean (the spread of the
+        distribution, not of its range). An empty distribution gives the spread
+        of a uniform one over the range.
         """
-        means = self._means(clamp=False)  # the spread of the distribution, not of its range
-        d = (self._centres()[None, :] - means[:, None] + 180.0) % 360.0 - 180.0
-        total = self.probs.sum(axis=1)
-        var = np.divide((self.probs * d * d).sum(axis=1), total, out=np.zeros_like(total),
-                        where=total > 0)
-        return np.where(total > 0, np.sqrt(var), (self.upper - self.lower) / math.sqrt(12.0))
+        return self.stats()[1]
 
-    def _centres(self) -> np.ndarray:
-        return (np.arange(self.bins) + 0.5) * (360.0 / self.bins)
+    def stats(self) -> tuple[np.ndarray, np.ndarray]:
+        """(:meth:`means`, :meth:`stds`) in one pass: the search needs both for every image."""
+        sin_c, cos_c = _centre_trig(self.bins)
+        return _kernels.circular_stats(self.probs, self.lower, self.upper, sin_c, cos_c)
 
     # ---- FORMATS §4 --------------------------------------------------------------------------
     def to_xml(self) -> str:
@@ -231,6 +218,13 @@ def _parse_dof(el, name: str, bins: int) -> tuple[float, np.ndarray]:
     if count > 0 and abs(total - 1.0) > 1e-6:
         raise HistogramError(f"{where}: values sum to {total:.6g}, not 1")
     return count, (values / total if total > 0 else values)
+
+
+@functools.cache
+def _centre_trig(bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sine and cosine of the bin centres, (bins,) each: constants of the bin count."""
+    centres = np.radians((np.arange(bins) + 0.5) * (360.0 / bins))
+    return np.sin(centres), np.cos(centres)
 
 
 def _range_mask(lo: float, hi: float, bins: int) -> np.ndarray:

@@ -86,7 +86,7 @@ def test_anneal_is_deterministic_per_seed(locust):
     model, rig = locust
     det = _detections(model, rig, _postures(model, 1), noise=0.1)[0]
     space = search_space(model, Histograms.uniform(model))
-    params = replace(FAST, polish=False)
+    params = replace(FAST, polish_every=0)
     runs = [
         anneal(det, model=model, rig=rig, space=space, params=params, rng=np.random.default_rng(s))
         for s in (7, 7, 8)
@@ -115,7 +115,7 @@ def test_anneal_redraws_implausible_angles(locust):
     hist.probs[0, 150:160] = 0.1
     det = _detections(model, rig, np.array([200.0, 0, 0, 10, 90]))[0]
     space = search_space(model, hist)
-    params = replace(FAST, polish=False, plausibility_threshold=0.05)
+    params = replace(FAST, polish_every=0, plausibility_threshold=0.05)
     result = anneal(det, model=model, rig=rig, space=space, params=params,
                     rng=np.random.default_rng(1))
     assert 150.0 <= result.dofs[0] < 160.0
@@ -124,7 +124,8 @@ def test_anneal_redraws_implausible_angles(locust):
 @pytest.mark.parametrize(
     ("field", "value"),
     [("n_end", 0), ("n_l", -1), ("n_tau", 1.5), ("tau0", 0.0), ("l0", -1.0), ("c_l", 1.5),
-     ("c_tau", 0.0), ("eps", -1.0), ("plausibility_threshold", 1.0), ("huber_px", 0.0)],
+     ("c_tau", 0.0), ("eps", -1.0), ("plausibility_threshold", 1.0), ("huber_px", 0.0),
+     ("polish_every", -1), ("polish_every", 2.5)],
 )
 def test_anneal_params_validation(field, value):
     with pytest.raises(ValueError, match=field):
@@ -216,7 +217,7 @@ def test_over_threshold_images_are_reanalysed_up_to_max_attempts(locust):
 def test_reanalysis_keeps_the_best_attempt(locust):
     model, rig = locust
     det = _detections(model, rig, _postures(model, 1, seed=8), noise=0.3)[0]
-    params = FitParams(anneal=replace(FAST, n_end=300, n_tau=100, n_l=100, polish=False),
+    params = FitParams(anneal=replace(FAST, n_end=300, n_tau=100, n_l=100, polish_every=0),
                        refine=False, error_threshold_px=0.01)
     prior = Histograms.uniform(model)
     first = fit_chunk([det], model=model, rig=rig, histograms=prior, params=params, seed=0).fits[0]
@@ -292,7 +293,7 @@ def test_restarts_rescue_a_local_minimum(locust):
     """A one-iteration SA cannot converge; restarts run SA again while the objective >= eps."""
     model, rig = locust
     det = _detections(model, rig, _postures(model, 1, seed=10))[0]
-    tiny = replace(FAST, n_end=1, polish=False)
+    tiny = replace(FAST, n_end=1, polish_every=0)
     no_restart = fit_chunk([det], model=model, rig=rig, histograms=Histograms.uniform(model),
                            params=FitParams(anneal=tiny, refine=False, restarts=0), seed=0)
     with_restarts = fit_chunk([det], model=model, rig=rig, histograms=Histograms.uniform(model),
