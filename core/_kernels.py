@@ -32,6 +32,7 @@ DEG = math.pi / 180.0
 AFFINE, PINHOLE, MATRIX = 0, 1, 2
 BEHIND_CAMERA = 1.0e9  # pixel coordinate given to points behind a pinhole camera
 FRAME = 12  # numbers per joint frame: rotation (row-major 3×3), then origin (3)
+NO_TARGETS = np.zeros((0, 3))  # refine in image mode
 
 # ---- rotations -----------------------------------------------------------------------------
 
@@ -363,13 +364,27 @@ def next_uniform(s) -> float:
 
 
 @njit(cache=True)
-def _residuals(q, kin, views, offset, det, start, fuse_px, work, res, valid):
-    """Residual (V,M,2) of each imaged marker to its nearest detection; valid (V,) views."""
+def _residuals(q, kin, views, offset, det, start, fuse_px, targets, work, res, valid):
+    """Residual groups ``res`` of posture ``q`` and which count, ``valid`` (G,).
+
+    Image mode (no ``targets``, ``res`` (V·M, 2)): group v·M + m is imaged marker
+    m of view v minus its nearest detection; a view without detections does not
+    count. Target mode (``targets`` and ``res`` (M, 3)): group m is world marker
+    m minus its target (inverse kinematics).
+    """
+    if targets.shape[0] > 0:
+        fr, sc, world = work[0], work[1], work[2]
+        joint_frames(q, kin, fr, sc)
+        world_markers(fr, kin, world)
+        for m in range(world.shape[0]):
+            for a in range(3):
+                res[m, a] = world[m, a] - targets[m, a]
+            valid[m] = True
+        return
     proj = imaged_markers(q, kin, views, offset, fuse_px, work)
-    V, M = res.shape[0], res.shape[1]
+    V, M = proj.shape[0], proj.shape[1]
     for v in range(V):
         a, b = start[v], start[v + 1]
-        valid[v] = b > a
         for m in range(M):
             pu, pv = proj[v, m, 0], proj[v, m, 1]
             best, bu, bv = np.inf, 0.0, 0.0
@@ -380,17 +395,25 @@ def _residuals(q, kin, views, offset, det, start, fuse_px, work, res, valid):
                 best = d2 if nearer else best
                 bu = du if nearer else bu
                 bv = dv if nearer else bv
-            res[v, m, 0], res[v, m, 1] = bu, bv
+            g = v * M + m
+            res[g, 0], res[g, 1] = bu, bv
+            valid[g] = b > a
+
+
+@njit(cache=True, inline="always")
+def _norm(res, g):
+    acc = 0.0
+    for a in range(res.shape[1]):
+        acc += res[g, a] * res[g, a]
+    return math.sqrt(acc)
 
 
 @njit(cache=True, inline="always")
 def _huber_cost(res, valid, c):
     total = 0.0
-    for v in range(res.shape[0]):
-        if not valid[v]:
-            continue
-        for m in range(res.shape[1]):
-            e = math.sqrt(res[v, m, 0] ** 2 + res[v, m, 1] ** 2)
+    for g in range(res.shape[0]):
+        if valid[g]:
+            e = _norm(res, g)
             total += 0.5 * e * e if e <= c else c * (e - 0.5 * c)
     return total
 
@@ -434,27 +457,30 @@ def _cholesky_solve(A, b, L, x) -> None:
 
 
 @njit(cache=True)
-def refine(q0, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, max_iter, h_fd):
-    """Levenberg–Marquardt on the Huber loss of nearest-detection residuals, within bounds.
+def refine(q0, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, max_iter, h_fd,
+           targets):
+    """Levenberg–Marquardt on the Huber loss of residual groups (:func:`_residuals`), within bounds.
 
-    Nearest detections are re-chosen at every evaluation, so this polishes the
-    basin SA found (sub-pixel) without committing to marker labels. Residuals
-    below ``huber_c`` pixels are fitted by least squares (efficient for
-    detection noise), larger ones by their length (robust to fused or missing
-    markers, as Eq. 5 is). Jacobian by forward differences of ``h_fd`` degrees.
-    Stops after ``max_iter`` steps, or when a step moves less than 1e-6 (degrees,
-    model units) or gains less than 1e-10 of the cost. Returns the refined posture.
+    Image mode (``targets`` of shape (0, 3)): nearest detections are re-chosen at
+    every evaluation, so this polishes the basin SA found (sub-pixel) without
+    committing to marker labels. Residuals below ``huber_c`` pixels are fitted
+    by least squares (efficient for detection noise), larger ones by their
+    length (robust to fused or missing markers, as Eq. 5 is). Target mode
+    (``targets`` (M, 3)): inverse kinematics onto world marker positions.
+    Jacobian by forward differences of ``h_fd`` degrees. Stops after
+    ``max_iter`` steps, or when a step moves less than 1e-6 (degrees, model
+    units) or gains less than 1e-10 of the cost. Returns the refined posture.
     """
-    kind = views[0]
-    V, M, D = kind.shape[0], kin[6].shape[0], q0.shape[0]
+    M, D = kin[6].shape[0], q0.shape[0]
+    G, C = (M, 3) if targets.shape[0] > 0 else (views[0].shape[0] * M, 2)
     q, trial = q0.copy(), q0.copy()
     work = workspace(kin, views, D)
-    res, res2 = np.empty((V, M, 2)), np.empty((V, M, 2))
-    valid = np.empty(V, dtype=np.bool_)
-    jac = np.empty((V, M, 2, D))
+    res, res2 = np.empty((G, C)), np.empty((G, C))
+    valid = np.empty(G, dtype=np.bool_)
+    jac = np.empty((G, C, D))
     A, H, L = np.empty((D, D)), np.empty((D, D)), np.empty((D, D))
     g, delta = np.empty(D), np.empty(D)
-    _residuals(q, kin, views, offset, det, start, fuse_px, work, res, valid)
+    _residuals(q, kin, views, offset, det, start, fuse_px, targets, work, res, valid)
     cost = _huber_cost(res, valid, huber_c)
     lam = 1e-3
     step, gain = np.inf, np.inf
@@ -462,24 +488,22 @@ def refine(q0, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, m
         for i in range(D):
             trial[:] = q
             trial[i] += h_fd
-            _residuals(trial, kin, views, offset, det, start, fuse_px, work, res2, valid)
-            for v in range(V):
-                for m in range(M):
-                    jac[v, m, 0, i] = (res2[v, m, 0] - res[v, m, 0]) / h_fd
-                    jac[v, m, 1, i] = (res2[v, m, 1] - res[v, m, 1]) / h_fd
+            _residuals(trial, kin, views, offset, det, start, fuse_px, targets, work, res2, valid)
+            for k in range(G):
+                for a in range(C):
+                    jac[k, a, i] = (res2[k, a] - res[k, a]) / h_fd
         A[:] = 0.0
         g[:] = 0.0
-        for v in range(V):
-            if not valid[v]:
+        for k in range(G):
+            if not valid[k]:
                 continue
-            for m in range(M):
-                e = math.sqrt(res[v, m, 0] ** 2 + res[v, m, 1] ** 2)
-                w = 1.0 if e <= huber_c else huber_c / e
-                for a in range(2):
-                    for i in range(D):
-                        g[i] -= w * jac[v, m, a, i] * res[v, m, a]
-                        for k in range(D):
-                            A[i, k] += w * jac[v, m, a, i] * jac[v, m, a, k]
+            e = _norm(res, k)
+            w = 1.0 if e <= huber_c else huber_c / e
+            for a in range(C):
+                for i in range(D):
+                    g[i] -= w * jac[k, a, i] * res[k, a]
+                    for j in range(D):
+                        A[i, j] += w * jac[k, a, i] * jac[k, a, j]
         improved = False
         while lam < 1e8:
             H[:] = A
@@ -488,7 +512,7 @@ def refine(q0, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, m
             _cholesky_solve(H, g, L, delta)
             for i in range(D):
                 trial[i] = min(max(q[i] + delta[i], lower[i]), upper[i])
-            _residuals(trial, kin, views, offset, det, start, fuse_px, work, res2, valid)
+            _residuals(trial, kin, views, offset, det, start, fuse_px, targets, work, res2, valid)
             new_cost = _huber_cost(res2, valid, huber_c)
             if new_cost < cost:
                 step = np.max(np.abs(trial - q))
@@ -540,7 +564,8 @@ def _propose(cur, cand, step, sigma, lower, upper, hist, turns, bins_per_degree,
 def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, huber_c,
             out) -> float:
     """Refine ``q`` (20 LM steps) into ``out`` if that lowers its error; return the error of ``out``."""
-    polished = refine(q, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, 20, 1e-5)
+    polished = refine(q, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, 20, 1e-5,
+                      NO_TARGETS)
     e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px)
     if e_pol < e_q:
         out[:] = polished
@@ -694,7 +719,7 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
         iterations += its
         if refine_result:
             polished = refine(q, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, 50,
-                              1e-5)
+                              1e-5, NO_TARGETS)
             e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px)
             if e_pol <= value:
                 q, value = polished, e_pol
@@ -756,3 +781,102 @@ def circular_stats(probs, lower, upper, sin_c, cos_c):
         else:
             stds[r] = (hi - lo) / math.sqrt(12.0)
     return means, stds
+
+
+# ---- depth-flip alternatives (kinematic jumps) ------------------------------------------------
+
+
+@njit(cache=True)
+def _reflect(points, rows, origin, normal) -> None:
+    """Reflect ``points[k]`` for every ``rows[k]`` through the plane (origin, unit normal)."""
+    for k in range(points.shape[0]):
+        if rows[k]:
+            d = ((points[k, 0] - origin[0]) * normal[0] + (points[k, 1] - origin[1]) * normal[1]
+                 + (points[k, 2] - origin[2]) * normal[2])
+            for a in range(3):
+                points[k, a] -= 2.0 * d * normal[a]
+
+
+@njit(cache=True)
+def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset, det, start, penalty,
+                      fuse_px, huber_c, flip_joints, subtree_joints, subtree_markers, depth,
+                      perspective, masks, out_q, out_objective):
+    """Other postures that image (almost) like ``q``: one view's depth flips (kinematic jumps).
+
+    A view does not see depth along its viewing direction: reflecting the part
+    of the model below a joint through the plane that contains the joint and is
+    normal to that direction leaves the view's image unchanged (exactly for an
+    orthographic view, nearly for a perspective one). For every view and every
+    subset ``masks`` of ``flip_joints`` (bit f: flip the subtree of joint f, root
+    side first), the reflected marker configuration is scored in all views; if
+    it is within ``tolerance`` of ``objective``, inverse kinematics finds the
+    posture nearest to it within the DOF ranges, and image refinement polishes
+    it. Distinct postures (some DOF more than 1 apart) scoring within
+    ``tolerance`` of ``objective`` are written to ``out_q``/``out_objective``.
+
+    ``depth`` (V,3): the viewing direction, or the camera centre where
+    ``perspective``; ``subtree_joints`` (F,J) and ``subtree_markers`` (F,M): what
+    lies below each flip joint. Returns how many alternatives were written.
+    """
+    J, M, V, D = kin[0].shape[0], kin[6].shape[0], views[0].shape[0], q.shape[0]
+    work = workspace(kin, views, D)
+    fr, sc = work[0], work[1]
+    joint_frames(q, kin, fr, sc)
+    world = np.empty((M, 3))
+    world_markers(fr, kin, world)
+    joints = np.empty((J, 3))
+    for k in range(J):
+        for a in range(3):
+            joints[k, a] = fr[FRAME * k + 9 + a]
+    targets, moved = np.empty((M, 3)), np.empty((J, 3))
+    raw, fused = np.empty((V, M, 2)), np.empty((V, M, 2))
+    normal = np.empty(3)
+    kind, P, K, dist = views
+    found = 0
+    for v in range(V):
+        for mask in masks:
+            targets[:] = world
+            moved[:] = joints
+            for f in range(flip_joints.shape[0]):
+                if (mask >> f) & 1 == 0:
+                    continue
+                origin = moved[flip_joints[f]].copy()
+                for a in range(3):
+                    normal[a] = origin[a] - depth[v, a] if perspective[v] else depth[v, a]
+                length = math.sqrt(normal[0] ** 2 + normal[1] ** 2 + normal[2] ** 2)
+                if length < 1e-12:
+                    continue
+                normal /= length
+                _reflect(targets, subtree_markers[f], origin, normal)
+                _reflect(moved, subtree_joints[f], origin, normal)
+            project_markers(targets, kind, P, K, dist, offset, raw)
+            proj = raw
+            if fuse_px > 0.0:
+                fuse_projections(raw, fuse_px, fused)
+                proj = fused
+            if eq5(proj, det, start, penalty, objective + tolerance) > objective + tolerance:
+                continue
+            reached = refine(q, lower, upper, kin, views, offset, det, start, fuse_px, 1e9, 30, 1e-5,
+                             targets)
+            cand = refine(reached, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, 50,
+                          1e-5, NO_TARGETS)
+            e_cand = posture_error(cand, kin, views, offset, det, start, penalty, fuse_px)
+            if e_cand > objective + tolerance or not _distinct(cand, q, out_q, found):
+                continue
+            out_q[found] = cand
+            out_objective[found] = e_cand
+            found += 1
+            if found == out_q.shape[0]:
+                return found
+    return found
+
+
+@njit(cache=True)
+def _distinct(cand, q, kept, n) -> bool:
+    """True if some DOF of ``cand`` is more than 1 (degree, model unit) from ``q`` and each kept."""
+    if np.max(np.abs(cand - q)) <= 1.0:
+        return False
+    for k in range(n):  # noqa: SIM110 (numba compiles no generator for all())
+        if np.max(np.abs(cand - kept[k])) <= 1.0:
+            return False
+    return True

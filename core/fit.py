@@ -28,12 +28,13 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
 
 from core import _kernels
+from core.ambiguity import Candidate, FlipGeometry, choose_candidates, flip_alternatives
 from core.anneal import AnnealParams, SearchSpace, search_space
 from core.error import (
     DEFAULT_EMPTY_VIEW_PENALTY_PX,
@@ -84,6 +85,11 @@ class FitParams:
     restarts : within one attempt, SA runs again (from a posture drawn from the
         histograms) at most this many times while the objective stays >= ε: SA's
         own convergence test says it is in a local minimum, whatever the threshold.
+    alternative_tolerance_px : depth-flipped postures scoring within this of an
+        image's fit are kept as its alternatives, and the best-scoring one becomes
+        the fit (``core.ambiguity``); 0 turns the search off.
+    choose_by_continuity : at the end of a sequence, choose each image's posture
+        among its alternatives by continuity with its neighbours (``core.ambiguity``).
     """
 
     anneal: AnnealParams = field(default_factory=AnnealParams)
@@ -93,6 +99,8 @@ class FitParams:
     empty_view_penalty_px: float = DEFAULT_EMPTY_VIEW_PENALTY_PX
     fusion_px: float = 0.0
     restarts: int = 2
+    alternative_tolerance_px: float = 0.5
+    choose_by_continuity: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.error_threshold_px) and self.error_threshold_px > 0):
@@ -113,6 +121,9 @@ class FitParams:
             0 <= self.restarts <= 100
         ):
             raise ValueError(f"restarts must be a whole number in 0..100, got {self.restarts!r}")
+        tolerance = self.alternative_tolerance_px
+        if not (math.isfinite(tolerance) and tolerance >= 0):
+            raise ValueError(f"alternative_tolerance_px must be a number >= 0, got {tolerance!r}")
 
 
 @dataclass(frozen=True)
@@ -127,6 +138,8 @@ class ImageFit:
     status : ok, over_threshold or no_detections.
     iterations : SA iterations over all attempts.
     detections : number of detected points in each view.
+    alternatives : other postures the image supports almost as well (depth flips,
+        ``core.ambiguity``), worse objective first excluded: sorted by objective.
     """
 
     sample: int
@@ -137,6 +150,7 @@ class ImageFit:
     status: Status
     iterations: int
     detections: tuple[int, ...]
+    alternatives: tuple[Candidate, ...] = ()
 
     def to_record(self) -> dict:
         """The fit as JSON-safe values (None for NaN), for a database row or a message.
@@ -150,6 +164,11 @@ class ImageFit:
             "error": _json_float(self.error), "objective": _json_float(self.objective),
             "attempts": self.attempts, "status": self.status.value,
             "iterations": self.iterations, "detections": list(self.detections),
+            "alternatives": [
+                {"dofs": [_json_float(v) for v in c.dofs], "error": _json_float(c.error),
+                 "objective": _json_float(c.objective)}
+                for c in self.alternatives
+            ],
         }
 
     @classmethod
@@ -157,12 +176,16 @@ class ImageFit:
         """Inverse of :meth:`to_record`."""
         return cls(
             sample=int(record["sample"]),
-            dofs=np.array([math.nan if v is None else v for v in record["dofs"]], dtype=np.float64),
-            error=math.nan if record["error"] is None else float(record["error"]),
-            objective=math.nan if record["objective"] is None else float(record["objective"]),
+            dofs=_float_array(record["dofs"]),
+            error=_float(record["error"]),
+            objective=_float(record["objective"]),
             attempts=int(record["attempts"]), status=Status(record["status"]),
             iterations=int(record["iterations"]),
             detections=tuple(int(c) for c in record["detections"]),
+            alternatives=tuple(
+                Candidate(_float_array(c["dofs"]), _float(c["error"]), _float(c["objective"]))
+                for c in record.get("alternatives", ())
+            ),
         )
 
 
@@ -269,6 +292,7 @@ def fit_chunk(
     working = histograms.copy()
     observed = Histograms.empty(model, bins=histograms.bins)
     rot = model.rotational
+    geometry = FlipGeometry.of(model, rig)
     offset_iter = iter(offsets) if offsets is not None else None
     fits = []
     for k, det in enumerate(images):
@@ -276,7 +300,7 @@ def fit_chunk(
             break
         sample = first_sample + k
         off = next(offset_iter) if offset_iter is not None else None
-        fit = _first_attempt(det, sample, off, model, rig, working, params, seed)
+        fit = _first_attempt(det, sample, off, model, rig, working, params, seed, geometry)
         if fit.status is Status.OK:
             working.update(fit.dofs[rot])
             observed.update(fit.dofs[rot])
@@ -286,17 +310,36 @@ def fit_chunk(
     return ChunkResult(fits, observed)
 
 
-def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed) -> ImageFit:
+def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed, geometry) -> ImageFit:
     counts = tuple(int(c) for c in det.counts)
     if not any(counts):
         nan = np.full(len(model.dofs), np.nan)
         return ImageFit(sample, nan, math.nan, math.nan, 0, Status.NO_DETECTIONS, 0, counts)
-    space = search_space(model, histograms)
-    dofs, error, objective, its = fit_image(
-        det, model=model, rig=rig, space=space, params=params,
-        stream=image_stream(seed, sample, 1), offsets=offsets,
+    best, alternatives, its = _attempt(
+        det, model, rig, search_space(model, histograms), params, image_stream(seed, sample, 1),
+        False, offsets, geometry,
     )
-    return ImageFit(sample, dofs, error, objective, 1, _status(error, params), its, counts)
+    return ImageFit(sample, best.dofs, best.error, best.objective, 1, _status(best.error, params),
+                    its, counts, alternatives)
+
+
+def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry):
+    """fit_image, then its depth-flip alternatives: (best candidate, the others, SA iterations)."""
+    dofs, error, objective, its = fit_image(
+        det, model=model, rig=rig, space=space, params=params, stream=stream,
+        draw_start=draw_start, offsets=offsets,
+    )
+    fit = Candidate(dofs, error, objective)
+    others = []
+    if params.alternative_tolerance_px > 0:
+        others = flip_alternatives(
+            fit, det, model=model, rig=rig, geometry=geometry,
+            tolerance_px=params.alternative_tolerance_px, fusion_px=params.fusion_px,
+            empty_view_penalty_px=params.empty_view_penalty_px, huber_px=params.anneal.huber_px,
+            offsets=offsets,
+        )
+    ranked = sorted([fit, *others], key=lambda c: c.objective)
+    return ranked[0], tuple(ranked[1:]), its
 
 
 def reanalyse_image(
@@ -315,21 +358,21 @@ def reanalyse_image(
     The attempt starts from a posture drawn from ``histograms`` (the merged
     constraints), so that it does not retrace the first attempt's path, and
     uses the stream :func:`image_stream` ``(seed, sample, attempts + 1)``.
+    The kept attempt brings its alternatives along.
     """
     attempt = previous.attempts + 1
     if previous.status is not Status.OVER_THRESHOLD or attempt > params.max_attempts:
         return previous
-    space = search_space(model, histograms)
-    dofs, error, objective, its = fit_image(
-        detections, model=model, rig=rig, space=space, params=params,
-        stream=image_stream(seed, previous.sample, attempt), draw_start=True, offsets=offsets,
+    best, alternatives, its = _attempt(
+        detections, model, rig, search_space(model, histograms), params,
+        image_stream(seed, previous.sample, attempt), True, offsets, FlipGeometry.of(model, rig),
     )
-    if not objective < previous.objective:
-        dofs, error, objective = previous.dofs, previous.error, previous.objective
-    status = _status(error, params)
-    iterations = previous.iterations + its
-    return ImageFit(previous.sample, dofs, error, objective, attempt, status, iterations,
-                    previous.detections)
+    if not best.objective < previous.objective:
+        best = Candidate(previous.dofs, previous.error, previous.objective)
+        alternatives = previous.alternatives
+    return ImageFit(previous.sample, best.dofs, best.error, best.objective, attempt,
+                    _status(best.error, params), previous.iterations + its, previous.detections,
+                    alternatives)
 
 
 def plan_chunks(n_images: int, chunk_size: int | None) -> list[tuple[int, int]]:
@@ -351,20 +394,40 @@ def needs_reanalysis(fit: ImageFit, params: FitParams) -> bool:
 
 
 def finish_sequence(
-    prior: Histograms, fits: Sequence[ImageFit], *, model: KinematicModel
+    prior: Histograms, fits: Sequence[ImageFit], *, model: KinematicModel, params: FitParams
 ) -> SequenceResult:
     """Step 5: the fits in sample order and the prior updated by every image within the threshold.
 
-    Eq. 4 counts do not depend on the order of the measurements, so this equals
-    updating the prior image by image; it also equals the chunks' merge plus the
-    images that re-analysis brought under the threshold.
+    With ``params.choose_by_continuity``, each image's posture is first chosen
+    among its alternatives (``core.ambiguity.choose_candidates``). Eq. 4 counts
+    do not depend on the order of the measurements, so the histograms equal
+    updating the prior image by image with the final postures.
     """
     ordered = sorted(fits, key=lambda f: f.sample)
+    if params.choose_by_continuity:
+        ordered = _chosen_by_continuity(ordered, params)
     observed = Histograms.empty(model, bins=prior.bins)
     for fit in ordered:
         if fit.status is Status.OK:
             observed.update(fit.dofs[model.rotational])
     return SequenceResult(ordered, prior.merge(observed), observed)
+
+
+def _chosen_by_continuity(fits: list[ImageFit], params: FitParams) -> list[ImageFit]:
+    candidates = [
+        [] if f.status is Status.NO_DETECTIONS
+        else [Candidate(f.dofs, f.error, f.objective), *f.alternatives]
+        for f in fits
+    ]
+    out = []
+    for fit, cands, k in zip(fits, candidates, choose_candidates(candidates), strict=True):
+        if k:
+            chosen = cands[k]
+            fit = replace(fit, dofs=chosen.dofs, error=chosen.error, objective=chosen.objective,
+                          status=_status(chosen.error, params),
+                          alternatives=tuple(c for i, c in enumerate(cands) if i != k))
+        out.append(fit)
+    return out
 
 
 def fit_sequence(
@@ -409,7 +472,7 @@ def fit_sequence(
                 offsets=None if offsets is None else offsets[i],
             )
         fits[i] = fit
-    return finish_sequence(histograms, fits, model=model)
+    return finish_sequence(histograms, fits, model=model, params=params)
 
 
 def _fit_range(images, model, rig, histograms, params, seed, offsets, progress, bounds) -> ChunkResult:
@@ -423,6 +486,14 @@ def _fit_range(images, model, rig, histograms, params, seed, offsets, progress, 
 
 def _json_float(value: float) -> float | None:
     return None if not math.isfinite(value) else float(value)
+
+
+def _float(value: float | None) -> float:
+    return math.nan if value is None else float(value)
+
+
+def _float_array(values: Sequence[float | None]) -> np.ndarray:
+    return np.array([_float(v) for v in values], dtype=np.float64)
 
 
 def _status(error: float, params: FitParams) -> Status:

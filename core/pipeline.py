@@ -208,7 +208,7 @@ def reanalyse(
 
 def finish(job: FitJob, prior: Histograms, fits: Sequence[ImageFit]) -> SequenceResult:
     """The fits in sample order and the prior updated by every image within the threshold."""
-    return finish_sequence(prior, fits, model=job.model)
+    return finish_sequence(prior, fits, model=job.model, params=job.params)
 
 
 @dataclass(frozen=True)

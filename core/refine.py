@@ -59,5 +59,5 @@ def refine(
     return _kernels.refine(
         q, model.lower, model.upper, model.arrays, rig.arrays, view_offsets(offsets, rig),
         detections.points, detections.start, check_fusion(fusion_px), float(huber_px),
-        int(max_iter), 1e-5,
+        int(max_iter), 1e-5, _kernels.NO_TARGETS,
     )

@@ -1,0 +1,217 @@
+"""Ambiguous postures: finding the ones that image alike, and choosing among them.
+
+A view does not see depth. With one view, or where the views happen to agree,
+a leg and its reflection through a plane normal to a viewing direction image
+identically (the paper's Fig. 6 arrows and Fig. 9): for known segment lengths
+each segment can flip forwards or backwards (Sminchisescu & Triggs, "Kinematic
+jump processes for monocular 3D human tracking", CVPR 2003). SA lands in one of
+these minima at random, and stops there once its error is below ε.
+
+Two steps deal with it, neither of which gives up fitting every image alone:
+
+1. :func:`flip_alternatives` (per image, after its fit): every view's depth
+   flips of every subtree below a joint with DOFs are tried; those the model can
+   reach within its ranges and that score within a tolerance of the fit are the
+   image's alternatives, and the best-scoring of all becomes the fit.
+2. :func:`choose_postures` (per sequence, after re-analysis): among each image's
+   candidates, one per image is chosen to minimise, over the sequence, how much
+   worse than the image's best candidate it scores plus how far the posture
+   moves from one image to the next (a Viterbi pass). This is the paper's
+   proposal (§4) to "exploit a plausible motion continuity property" without
+   relying on the angles of previous frames: it only arbitrates between
+   postures each image supports equally.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from itertools import pairwise
+
+import numpy as np
+
+from core import _kernels
+from core.error import Detections, view_offsets
+from core.model import KinematicModel, _topological_order
+from core.rig import Rig
+
+__all__ = ["Candidate", "FlipGeometry", "choose_candidates", "flip_alternatives"]
+
+MAX_ALTERNATIVES = 8
+_MAX_FULL_SUBSETS = 4  # flip joints up to which every subset is tried; beyond, one at a time
+_MIN_STEP = 0.5  # degrees (model units) per image: the smallest movement scale assumed
+_MIN_ERROR_SCALE_PX = 0.05
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One posture an image supports: (D,) DOFs, plain Eq. 5 error, minimised objective (pixels)."""
+
+    dofs: np.ndarray
+    error: float
+    objective: float
+
+
+@dataclass(frozen=True)
+class FlipGeometry:
+    """What the depth flips of a model seen by a rig need, computed once per model and rig.
+
+    flip_joints : (F,) topological indices of the joints with rotational DOFs.
+    subtree_joints, subtree_markers : (F, J), (F, M) bool, what lies at or below each.
+    depth : (V, 3) unit viewing direction, or the camera centre where ``perspective`` (V,).
+    masks : subsets of flip joints to try (bit f: flip joint f).
+    """
+
+    flip_joints: np.ndarray
+    subtree_joints: np.ndarray
+    subtree_markers: np.ndarray
+    depth: np.ndarray
+    perspective: np.ndarray
+    masks: np.ndarray
+
+    @classmethod
+    def of(cls, model: KinematicModel, rig: Rig) -> FlipGeometry:
+        """The geometry of ``model`` seen through ``rig`` (build once per chunk, not per image)."""
+        return _build_geometry(model, rig)
+
+
+def _build_geometry(model: KinematicModel, rig: Rig) -> FlipGeometry:
+    order = _topological_order(model.joints)
+    topo = {model.joints[i].name: k for k, i in enumerate(order)}
+    parent = model.arrays.parent
+    J, M = len(order), len(model.markers)
+    flip = [topo[d.joint] for d in model.dofs if d.rotational]
+    flip_joints = np.array(sorted(set(flip)), dtype=np.int64)
+    below = np.zeros((J, J), dtype=bool)  # below[j, k]: k is j or a descendant of j
+    for k in range(J):  # parents come first in topological order
+        below[k, k] = True
+        if parent[k] >= 0:
+            below[:, k] |= below[:, parent[k]]
+    marker_joint = model.arrays.marker_joint
+    subtree_joints = below[flip_joints]
+    subtree_markers = subtree_joints[:, marker_joint].reshape(len(flip_joints), M)
+    F = len(flip_joints)
+    masks = (np.arange(1, 1 << F, dtype=np.int64) if F <= _MAX_FULL_SUBSETS
+             else (1 << np.arange(F, dtype=np.int64)))
+    depth, perspective = _view_depths(rig)
+    return FlipGeometry(flip_joints, subtree_joints, subtree_markers, depth, perspective, masks)
+
+
+def _view_depths(rig: Rig) -> tuple[np.ndarray, np.ndarray]:
+    """Per view: the unit direction it cannot see (affine), or its camera centre."""
+    a = rig.arrays
+    depth = np.zeros((len(rig.views), 3))
+    perspective = np.zeros(len(rig.views), dtype=bool)
+    for v in range(len(rig.views)):
+        P = a.P[v]
+        if a.kind[v] == _kernels.AFFINE:
+            n = np.cross(P[0, :3], P[1, :3])
+            depth[v] = n / np.linalg.norm(n)
+        elif a.kind[v] == _kernels.PINHOLE:  # P holds [R | t]
+            depth[v] = -P[:, :3].T @ P[:, 3]
+            perspective[v] = True
+        else:  # DLT: the centre is P's null vector
+            centre = np.linalg.svd(P)[2][-1]
+            depth[v] = centre[:3] / centre[3] if abs(centre[3]) > 1e-12 else centre[:3] * 1e9
+            perspective[v] = True
+    return depth, perspective
+
+
+def flip_alternatives(
+    fit: Candidate,
+    detections: Detections,
+    *,
+    model: KinematicModel,
+    rig: Rig,
+    geometry: FlipGeometry,
+    tolerance_px: float,
+    fusion_px: float,
+    empty_view_penalty_px: float,
+    huber_px: float,
+    offsets: np.ndarray | None = None,
+) -> list[Candidate]:
+    """Postures scoring within ``tolerance_px`` of ``fit`` reached by depth flips (step 1).
+
+    Returns up to :data:`MAX_ALTERNATIVES` candidates, distinct from ``fit`` and
+    from each other (some DOF more than 1 degree or model unit apart).
+    """
+    geo = geometry
+    if len(geo.flip_joints) == 0 or not math.isfinite(fit.objective):
+        return []
+    out_q = np.empty((MAX_ALTERNATIVES, len(model.dofs)))
+    out_objective = np.empty(MAX_ALTERNATIVES)
+    off = view_offsets(offsets, rig)
+    n = _kernels.flip_alternatives(
+        fit.dofs, fit.objective, float(tolerance_px), model.lower, model.upper, model.arrays,
+        rig.arrays, off, detections.points, detections.start, float(empty_view_penalty_px),
+        float(fusion_px), float(huber_px), geo.flip_joints, geo.subtree_joints, geo.subtree_markers,
+        geo.depth, geo.perspective, geo.masks, out_q, out_objective,
+    )
+    return [
+        Candidate(out_q[k].copy(), _plain_error(out_q[k], detections, model, rig, off,
+                                                empty_view_penalty_px), float(out_objective[k]))
+        for k in range(n)
+    ]
+
+
+def _plain_error(q, detections, model, rig, offsets, penalty) -> float:
+    return float(_kernels.posture_error(q, model.arrays, rig.arrays, offsets, detections.points,
+                                        detections.start, float(penalty), 0.0))
+
+
+def choose_candidates(candidates: Sequence[Sequence[Candidate]]) -> list[int]:
+    """Index of the chosen candidate of every image (step 2), by one Viterbi pass.
+
+    ``candidates[t]``: image t's candidates, its fit first; an empty list (no
+    detections) breaks the sequence. Cost of a choice: how much worse than the
+    image's best it scores, in units of the sequence's typical objective, plus
+    half the squared move from the previous image's choice in units of the
+    sequence's typical per-image movement of each DOF (capped: a sequence may
+    jump). Images with a single candidate keep it.
+    """
+    n = len(candidates)
+    choice = [0] * n
+    if all(len(c) <= 1 for c in candidates):
+        return choice
+    error_scale, step = _scales(candidates)
+    t = 0
+    while t < n:
+        end = t
+        while end < n and candidates[end]:
+            end += 1
+        choice[t:end] = _viterbi(candidates[t:end], error_scale, step)
+        t = end + 1
+    return choice
+
+
+def _scales(candidates: Sequence[Sequence[Candidate]]) -> tuple[float, np.ndarray]:
+    """Typical objective of a fit, and typical per-image move of each DOF (closest pairs)."""
+    objectives = [c[0].objective for c in candidates if c]
+    error_scale = max(_MIN_ERROR_SCALE_PX, float(np.median(objectives)))
+    moves = []
+    for prev, cur in pairwise(candidates):
+        if prev and cur:
+            diffs = np.array([[np.abs(a.dofs - b.dofs) for b in cur] for a in prev])
+            flat = diffs.reshape(-1, diffs.shape[-1])
+            moves.append(flat[np.argmin(flat.sum(axis=1))])
+    dim = len(next(c for c in candidates if c)[0].dofs)
+    step = (1.4826 * np.median(np.array(moves), axis=0) if moves else np.zeros(dim))
+    return error_scale, np.maximum(step, _MIN_STEP)
+
+
+def _viterbi(run: Sequence[Sequence[Candidate]], error_scale: float, step: np.ndarray) -> list[int]:
+    unary = [np.array([(c.objective - min(x.objective for x in cands)) / error_scale for c in cands])
+             for cands in run]
+    cost, back = unary[0], []
+    for prev, cur, u in zip(run[:-1], run[1:], unary[1:], strict=True):
+        a = np.array([c.dofs for c in prev])
+        b = np.array([c.dofs for c in cur])
+        move = np.log1p(((b[None, :, :] - a[:, None, :]) / step) ** 2).sum(axis=2)
+        total = cost[:, None] + move
+        back.append(np.argmin(total, axis=0))
+        cost = total.min(axis=0) + u
+    path = [int(np.argmin(cost))]
+    for pointers in reversed(back):
+        path.append(int(pointers[path[-1]]))
+    return path[::-1]
