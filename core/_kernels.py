@@ -576,7 +576,7 @@ def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_
 
 @njit(cache=True)
 def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start, penalty, fuse_px,
-           n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, huber_c, state):
+           n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience, huber_c, state):
     """Simulated Annealing of Eq. 5 over the DOFs (paper Eq. 6 and §2.3).
 
     Proposals by :func:`_propose`; Metropolis acceptance at temperature ``tau``;
@@ -592,6 +592,12 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
     passing through counts even when SA has not sampled near its bottom.
     0 is the paper's plain SA.
 
+    ``patience`` > 0 (with polishing): SA also stops after that many polish
+    rounds in a row without lowering the best error by 1 % (the
+    ``niter_success`` of scipy's basin-hopping). An image whose minimum stays
+    above ``eps`` (a lost marker; any real model mismatch) otherwise runs all
+    ``n_end`` iterations for nothing.
+
     Returns (best posture, best error, iterations run).
     """
     D = q0.shape[0]
@@ -604,6 +610,7 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
     e_cur = e_best = np.inf  # the first pass evaluates q0 itself and always accepts it
     tau, step = tau0, l0
     it = -1
+    e_mark, stale = np.inf, 0
     while it < n_end and e_best >= eps:
         it += 1
         limit = np.inf
@@ -635,6 +642,12 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
                 if e_hop < e_best:
                     best[:] = cand
                     e_best = e_hop
+            if e_best < e_mark * 0.99:
+                e_mark, stale = e_best, 0
+            else:
+                stale += 1
+                if 0 < patience <= stale:
+                    break
     return best, e_best, it
 
 
@@ -695,16 +708,20 @@ def draw_posture(lower, upper, hist, state, out) -> None:
 
 @njit(cache=True)
 def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
-                penalty, fuse_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, huber_c,
-                refine_result, restarts, state):
+                penalty, fuse_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience,
+                huber_c, refine_result, restarts, state):
     """One attempt on one image: SA, restarted while above ``eps``, each result refined.
 
     The first run starts from ``start_q`` (the histogram means), or from a posture
     drawn from the histograms when ``draw_start`` (re-analysis); restarts, up to
     ``restarts`` while the best objective is still >= ``eps``, from drawn postures.
-    With ``refine_result``, each run's posture is refined and kept if that does
-    not raise the objective. Returns (posture, plain Eq. 5 error, objective,
-    SA iterations); the objective is Eq. 5 with fusion below ``fuse_px``.
+    A restart that does not find a minimum 1 % lower than the best so far says
+    that minimum is the image's own (a lost marker, a model that does not quite
+    fit keep it above ``eps``), and ends the restarts. With ``refine_result``,
+    each run's posture is refined
+    and kept if that does not raise the objective. Returns (posture, plain Eq. 5
+    error, objective, SA iterations); the objective is Eq. 5 with fusion below
+    ``fuse_px``.
     """
     q0, best = start_q.copy(), start_q.copy()
     objective, iterations = np.inf, 0
@@ -715,7 +732,7 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
             draw_posture(lower, upper, hist, state, q0)
         q, value, its = anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
                                penalty, fuse_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps,
-                               polish_every, huber_c, state)
+                               polish_every, patience, huber_c, state)
         iterations += its
         if refine_result:
             polished = refine(q, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, 50,
@@ -723,6 +740,8 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
             e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px)
             if e_pol <= value:
                 q, value = polished, e_pol
+        if run > 0 and value >= 0.99 * objective:
+            break
         if value < objective:
             best[:] = q
             objective = value
@@ -880,3 +899,128 @@ def _distinct(cand, q, kept, n) -> bool:
         if np.max(np.abs(cand - kept[k])) <= 1.0:
             return False
     return True
+
+
+# ---- marker regions and centroids (core.detect) -------------------------------------------------
+
+
+@njit(cache=True, inline="always")
+def _find(parent, i):
+    """Root of ``i`` in a union-find forest, halving the path on the way."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True, inline="always")
+def _rank_at(binary, ranks, y, x):
+    """Kept-region number of pixel (y, x), 0 for background or a dropped region."""
+    return ranks[y * binary.shape[1] + x] if binary[y, x] else 0
+
+
+@njit(cache=True, inline="always")
+def _max_rank(binary, ranks, y, x, r):
+    """Largest kept-region number in the (2r+1)² window around (y, x), 0 if none."""
+    H, W = binary.shape
+    best = 0
+    for yy in range(max(y - r, 0), min(y + r + 1, H)):
+        for xx in range(max(x - r, 0), min(x + r + 1, W)):
+            k = _rank_at(binary, ranks, yy, xx)
+            best = k if k > best else best
+    return best
+
+
+@njit(cache=True)
+def detect_regions(image, binary, pixels, min_area, max_area, index):
+    """Marker centroids of one view: regions of bright pixels, then weighted centroids.
+
+    ``binary`` (h,w) uint8 0/1 is the filtered, thresholded image, ``pixels``
+    its non-zero flat indices in raster order. Regions are 8-connected
+    components found by union-find over the bright pixels alone (a view holds a
+    few hundred of them, so this beats labelling the whole image), numbered in
+    raster order of their first pixel; those of ``min_area``..``max_area``
+    pixels are kept. ``index`` (h·w,) int32 is scratch, read only where
+    ``binary`` is set: the caller keeps one per image size (allocating 400 kB
+    per call costs more than the whole labelling).
+
+    Centroid of kept region k: the region grown by one pixel (pixels whose 3×3
+    window's largest kept-region number is k) weighted by ``intensity -
+    background``; the background is the mean of its ring (pixels with no kept
+    region in their 3×3 window and k the largest in their 5×5), or the image's
+    median when it has none; a region whose weights do not sum to a positive
+    number gets its plain centroid. Returns (K, 2) pixels (u, v), centres at +0.5.
+    """
+    H, W = binary.shape
+    n = pixels.shape[0]
+    parent = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        p = pixels[i]
+        parent[i] = i
+        index[p] = i
+        y, x = p // W, p % W
+        for dy, dx in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):  # neighbours already visited
+            yy, xx = y + dy, x + dx
+            if yy >= 0 and 0 <= xx < W and binary[yy, xx]:
+                a, b = _find(parent, i), _find(parent, index[yy * W + xx])
+                if a != b:
+                    parent[max(a, b)] = min(a, b)
+    region = np.full(n, -1, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        root = _find(parent, i)
+        if region[root] < 0:
+            region[root] = count
+            count += 1
+        region[i] = region[root]
+    area = np.zeros(count, dtype=np.int64)
+    box = np.empty((count, 4), dtype=np.int64)  # x0, y0, x1, y1 (inclusive)
+    box[:, 0], box[:, 1], box[:, 2], box[:, 3] = W, H, -1, -1
+    for i in range(n):
+        c, y, x = region[i], pixels[i] // W, pixels[i] % W
+        area[c] += 1
+        box[c, 0], box[c, 1] = min(box[c, 0], x), min(box[c, 1], y)
+        box[c, 2], box[c, 3] = max(box[c, 2], x), max(box[c, 3], y)
+    rank_of = np.zeros(count, dtype=np.int64)
+    K = 0
+    for c in range(count):
+        if min_area <= area[c] <= max_area:
+            K += 1
+            rank_of[c] = K
+    ranks = index  # reuse: flat kept-region number of every bright pixel
+    for i in range(n):
+        ranks[pixels[i]] = rank_of[region[i]]
+    out = np.empty((K, 2))
+    fallback = np.nan
+    for c in range(count):
+        k = rank_of[c]
+        if k == 0:
+            continue
+        y0, y1 = max(box[c, 1] - 2, 0), min(box[c, 3] + 3, H)
+        x0, x1 = max(box[c, 0] - 2, 0), min(box[c, 2] + 3, W)
+        ring, n_ring = 0.0, 0
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                if _max_rank(binary, ranks, y, x, 1) == 0 and _max_rank(binary, ranks, y, x, 2) == k:
+                    ring += image[y, x]
+                    n_ring += 1
+        if n_ring == 0 and np.isnan(fallback):
+            fallback = np.median(image[::4, ::4].copy())
+        background = ring / n_ring if n_ring else fallback
+        total = su = sv = own = ou = ov = 0.0
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                if _max_rank(binary, ranks, y, x, 1) == k:
+                    w = image[y, x] - background
+                    total += w
+                    su += w * (x + 0.5)
+                    sv += w * (y + 0.5)
+                if _rank_at(binary, ranks, y, x) == k:
+                    own += 1.0
+                    ou += x + 0.5
+                    ov += y + 0.5
+        if total > 0.0:
+            out[k - 1, 0], out[k - 1, 1] = su / total, sv / total
+        else:
+            out[k - 1, 0], out[k - 1, 1] = ou / own, ov / own
+    return out

@@ -23,6 +23,7 @@ pixels (FORMATS §2).
 
 from __future__ import annotations
 
+import functools
 import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -30,6 +31,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from core import _kernels
 from core.error import Detections
 from core.rig import Rig
 
@@ -38,7 +40,6 @@ __all__ = ["CHANNELS", "DetectorParams", "detect"]
 CHANNELS = ("grey", "red", "green", "blue")
 _BGR_INDEX = {"blue": 0, "green": 1, "red": 2}
 _KERNEL3 = np.ones((3, 3), dtype=np.uint8)
-_KERNEL5 = np.ones((5, 5), dtype=np.uint8)
 
 
 def _check_int(name: str, value: object, minimum: int) -> None:
@@ -144,13 +145,15 @@ def detect(
 
 
 def _view_image(frames: list[np.ndarray], rig: Rig, index: int, channel: str) -> np.ndarray:
-    """The roi of a view's frame in the selected channel: (h, w) uint8, C-contiguous."""
+    """The roi of a view's frame in the selected channel: (h, w) uint8, C-contiguous.
+
+    The roi is converted, not the frame: rois often cover a fraction of it.
+    """
     view = rig.views[index]
     frame = frames[view.video]
     height, width = frame.shape[:2]
-    if view.roi is None:
-        crop = frame
-    else:
+    crop = frame
+    if view.roi is not None:
         x, y, w, h = view.roi
         if x + w > width or y + h > height:
             raise ValueError(
@@ -166,7 +169,7 @@ def _view_image(frames: list[np.ndarray], rig: Rig, index: int, channel: str) ->
             )
         return np.ascontiguousarray(crop)
     if channel == "grey":
-        return cv2.cvtColor(np.ascontiguousarray(crop), cv2.COLOR_BGR2GRAY)
+        return cv2.cvtColor(crop, cv2.COLOR_BGR2GRAY)
     return np.ascontiguousarray(crop[:, :, _BGR_INDEX[channel]])
 
 
@@ -175,7 +178,6 @@ def _detect_view(image: np.ndarray, params: DetectorParams, rig: Rig, index: int
     work = image
     if params.blur > 1:
         work = cv2.GaussianBlur(work, (params.blur, params.blur), 0)
-    # A 0/1 binary image: its bool view gives fast np.flatnonzero.
     if params.threshold == "otsu":
         _, binary = cv2.threshold(work, 0, 1, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
     else:
@@ -184,95 +186,19 @@ def _detect_view(image: np.ndarray, params: DetectorParams, rig: Rig, index: int
         binary = cv2.erode(binary, _KERNEL3, iterations=params.erode)
     if params.dilate:
         binary = cv2.dilate(binary, _KERNEL3, iterations=params.dilate)
-    h, w = binary.shape
-    # 16-bit labels when no image can hold more components (8-connected: one per 2×2 cell).
-    small = ((h + 1) // 2) * ((w + 1) // 2) < 65535
-    n, labels = cv2.connectedComponents(
-        binary, connectivity=8, ltype=cv2.CV_16U if small else cv2.CV_32S
-    )
-    if n == 1:
-        return np.zeros((0, 2))
-    pix = np.flatnonzero(binary.view(bool))
-    area = np.bincount(labels.ravel()[pix], minlength=n)
-    keep = (area >= params.min_area) & (area <= params.max_area)
-    keep[0] = False
-    if not keep.any():
-        return np.zeros((0, 2))
-    if keep[1:].all():
-        region = binary
-    else:
-        kept_labels = np.zeros(n, dtype=labels.dtype)
-        kept_labels[keep] = np.arange(1, np.count_nonzero(keep) + 1)
-        labels = np.take(kept_labels, labels)
-        region = (labels != 0).view(np.uint8)
-    centroids = _weighted_centroids(image, labels, region, np.count_nonzero(keep))
+    pixels = np.flatnonzero(binary.view(bool))
+    centroids = _kernels.detect_regions(image, binary, pixels, params.min_area, params.max_area,
+                                        _scratch(binary.size))
     roi = rig.views[index].roi
     if roi is not None:
         centroids += (roi[0], roi[1])
     return centroids
 
 
-def _weighted_centroids(
-    image: np.ndarray, labels: np.ndarray, region: np.ndarray, K: int
-) -> np.ndarray:
-    """Background-subtracted intensity centroids of the regions labelled 1..K.
-
-    Each region is grown by one pixel (a region pixel's 3×3 neighbourhood holds
-    no other region, so grey dilation of the labels keeps its label); the ring
-    one pixel further out gives the region's local background (its mean).
-
-    Parameters
-    ----------
-    image : ndarray of shape (h, w), uint8, channel intensities.
-    labels : ndarray of shape (h, w), uint16 or int32, regions 1..K, 0 elsewhere.
-    region : ndarray of shape (h, w), uint8, 1 where ``labels`` is non-zero, else 0.
-    K : int, number of regions.
-
-    Returns
-    -------
-    ndarray of shape (K, 2), float64, roi pixels (u, v), pixel centres at +0.5. A
-    region whose weights do not sum to a positive number gets its plain centroid.
-    """
-    if labels.dtype != np.uint16:  # OpenCV dilates 16-bit or float labels, not int32
-        labels = labels.astype(np.float32)
-    grown = cv2.dilate(labels, _KERNEL3)
-    outer = cv2.dilate(grown, _KERNEL3)
-    near = cv2.dilate(region, _KERNEL5)  # 0/1: region, grown rim and ring
-    pix = np.flatnonzero(near.view(bool))
-    grown_label = grown.ravel()[pix].astype(np.int64)
-    flat_image = image.ravel()
-    in_region = grown_label != 0
-    ring = pix[~in_region]
-    ring_label = outer.ravel()[ring].astype(np.int64)
-    ring_count = np.bincount(ring_label, minlength=K + 1)
-    ring_sum = np.bincount(ring_label, weights=flat_image[ring], minlength=K + 1)
-    ring_count[0] = 1  # label 0 is the background, not a region
-    if np.any(ring_count == 0):  # a region without ring: fall back to the image's median
-        ring_sum[ring_count == 0] = float(np.median(image[::4, ::4]))
-        ring_count[ring_count == 0] = 1
-    background = ring_sum / ring_count
-
-    pix, label = pix[in_region], grown_label[in_region]
-    weight = flat_image[pix] - background[label]
-    width = image.shape[1]
-    x = (pix % width) + 0.5
-    y = (pix // width) + 0.5
-    total = np.bincount(label, weights=weight, minlength=K + 1)[1:]
-    out = np.column_stack(
-        [np.bincount(label, weights=weight * x, minlength=K + 1)[1:],
-         np.bincount(label, weights=weight * y, minlength=K + 1)[1:]]
-    )
-    good = total > 0
-    out[good] /= total[good, None]
-    if not good.all():
-        own = region.ravel()[pix].view(bool)
-        count = np.bincount(label[own], minlength=K + 1)[1:]
-        plain = np.column_stack(
-            [np.bincount(label[own], weights=x[own], minlength=K + 1)[1:],
-             np.bincount(label[own], weights=y[own], minlength=K + 1)[1:]]
-        ) / np.maximum(count, 1)[:, None]
-        out[~good] = plain[~good]
-    return out
+@functools.lru_cache(maxsize=8)
+def _scratch(size: int) -> np.ndarray:
+    """Per-size scratch for the labelling kernel (one process fits one rig's few roi sizes)."""
+    return np.empty(size, dtype=np.int32)
 
 
 # ---- validation ----------------------------------------------------------------------------

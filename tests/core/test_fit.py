@@ -290,7 +290,7 @@ def test_fused_markers_are_predicted_at_their_common_centroid(locust):
 
 
 def test_restarts_rescue_a_local_minimum(locust):
-    """A one-iteration SA cannot converge; restarts run SA again while the objective >= eps."""
+    """A one-iteration SA cannot converge; restarts run SA again while they find lower minima."""
     model, rig = locust
     det = _detections(model, rig, _postures(model, 1, seed=10))[0]
     tiny = replace(FAST, n_end=1, polish_every=0)
@@ -299,5 +299,34 @@ def test_restarts_rescue_a_local_minimum(locust):
     with_restarts = fit_chunk([det], model=model, rig=rig, histograms=Histograms.uniform(model),
                               params=FitParams(anneal=tiny, refine=False, restarts=5), seed=0)
     assert no_restart.fits[0].iterations == 1
-    assert with_restarts.fits[0].iterations == 6
-    assert with_restarts.fits[0].objective <= no_restart.fits[0].objective
+    assert 2 <= with_restarts.fits[0].iterations <= 6
+    assert with_restarts.fits[0].objective < no_restart.fits[0].objective
+
+
+def test_a_restart_that_finds_the_same_minimum_ends_the_restarts(locust):
+    """A displaced detection keeps the minimum above eps: restarting finds it again, and stops."""
+    model, rig = locust
+    q = np.array([170.0, 10.0, 0.0, 20.0, 90.0])
+    proj = rig.project(model.marker_positions(q))
+    proj[1, 3] += (3.0, 0.0)  # the top view's tarsus detection is 3 px off
+    det = Detections.from_views(list(proj))
+    fits = fit_chunk([det], model=model, rig=rig, histograms=Histograms.uniform(model),
+                     params=FitParams(anneal=replace(FAST, patience=0), restarts=5), seed=0).fits
+    assert fits[0].objective > FAST.eps
+    assert np.abs(fits[0].dofs - q).max() < 1.0
+    assert fits[0].iterations <= 2 * FAST.n_end
+
+
+def test_patience_stops_annealing_once_the_best_stops_improving(locust):
+    model, rig = locust
+    q = np.array([170.0, 10.0, 0.0, 20.0, 90.0])
+    proj = rig.project(model.marker_positions(q))
+    proj[1, 3] += (3.0, 0.0)
+    det = Detections.from_views(list(proj))
+    space = search_space(model, Histograms.uniform(model))
+    common = dict(model=model, rig=rig, space=space, rng=np.random.default_rng(1))
+    patient = anneal(det, params=replace(FAST, patience=3), **common)
+    endless = anneal(det, params=replace(FAST, patience=0), **common)
+    assert endless.iterations == FAST.n_end
+    assert patient.iterations < FAST.n_end
+    assert patient.error == pytest.approx(endless.error, rel=0.05)
