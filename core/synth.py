@@ -41,6 +41,7 @@ __all__ = [
 
 TRUTH_FIXED_COLUMNS = ("sample", "frame", "field", "time_s")
 VIDEO_SUFFIXES = (".avi", ".mkv")
+VIDEO_CODECS = ("FFV1", "MJPG", "dvsd")
 
 # Background noise: a uniform 16-bit draw mapped through the inverse CDF of the
 # rounded, clipped Gaussian (exact up to a CDF step of 2**-16), ~5x faster than
@@ -335,8 +336,10 @@ def _roi_rect(rig: Rig, index: int, width: int, height: int) -> tuple[int, int, 
 # ---- video and truth files -------------------------------------------------------------------
 
 
-def write_video(path: str | Path, frames: Iterable[np.ndarray], *, fps: float) -> int:
-    """Write frames to a lossless FFV1 video that OpenCV reads back bit-exactly.
+def write_video(
+    path: str | Path, frames: Iterable[np.ndarray], *, fps: float, codec: str = "FFV1"
+) -> int:
+    """Write frames to a video: lossless FFV1 by default, which OpenCV reads back bit-exactly.
 
     Frames are streamed: memory does not grow with the length of the video.
 
@@ -349,6 +352,10 @@ def write_video(path: str | Path, frames: Iterable[np.ndarray], *, fps: float) -
         ``cv2.VideoCapture`` returns grey videos as BGR with three equal channels.
     fps : float
         Frame rate stored in the file, > 0.
+    codec : {'FFV1', 'MJPG', 'dvsd'}
+        FFV1 (lossless), Motion JPEG (machine-vision cameras) or DV (the paper's
+        PAL camcorder format; 720×576 frames only). The lossy ones are for
+        measuring what labs' footage costs, not for ground truth.
 
     Returns
     -------
@@ -364,7 +371,9 @@ def write_video(path: str | Path, frames: Iterable[np.ndarray], *, fps: float) -
     """
     path = Path(path)
     if path.suffix.lower() not in VIDEO_SUFFIXES:
-        raise ValueError(f"path must end in .avi or .mkv (lossless FFV1), got {str(path)!r}")
+        raise ValueError(f"path must end in .avi or .mkv, got {str(path)!r}")
+    if codec not in VIDEO_CODECS:
+        raise ValueError(f"codec must be one of {', '.join(VIDEO_CODECS)}, got {codec!r}")
     rate = _positive("fps", fps)
     writer = None
     shape = None
@@ -382,13 +391,13 @@ def write_video(path: str | Path, frames: Iterable[np.ndarray], *, fps: float) -
                     )
                 shape = frame.shape
                 writer = cv2.VideoWriter(
-                    str(path), cv2.VideoWriter_fourcc(*"FFV1"), rate,
+                    str(path), cv2.VideoWriter_fourcc(*codec), rate,
                     (shape[1], shape[0]), isColor=frame.ndim == 3,
                 )
                 if not writer.isOpened():
                     raise OSError(
-                        f"OpenCV cannot open an FFV1 video writer for {str(path)!r} "
-                        "(does the directory exist? is FFmpeg with FFV1 available?)"
+                        f"OpenCV cannot open a {codec} video writer for {str(path)!r} "
+                        f"(does the directory exist? a frame size {codec} accepts?)"
                     )
             elif frame.shape != shape or frame.dtype != np.uint8:
                 raise ValueError(
