@@ -1,7 +1,54 @@
 """The science of model-based motion capture, with no web and no database.
 
-Kinematic model (``model``), camera rig (``rig``), joint-angle histograms
-(``histogram``, Eq. 4), the Eq. 5 error (``error``), Simulated Annealing
-(``anneal``, Eq. 6) with local refinement (``refine``), per-image and
-per-sequence fitting (``fit``) and a synthetic renderer (``synth``).
+One concept per module, named as the paper names it: the kinematic model
+(``model``, §2.1), the camera rig (``rig``, Eq. 3), joint-angle histograms
+(``histogram``, Eq. 4), the error function (``error``, Eq. 5), Simulated
+Annealing (``anneal``, Eq. 6) with local refinement (``refine``), depth
+ambiguities (``ambiguity``), fitting images and sequences (``fit``, §3.2),
+marker detection (``detect``), de-interlacing (``fields``), video input
+(``video``), root tracking (``track``), the job steps shared by ``mocap fit``
+and the workers (``pipeline``), results files (``results``) and the synthetic
+renderer (``synth``). The names below are the public ones; compiled kernels
+live in ``_kernels``.
 """
+
+from core.anneal import AnnealParams, anneal
+from core.detect import DetectorParams, detect
+from core.error import Detections, view_error
+from core.fields import detect_fields
+from core.fit import FitParams, ImageFit, Status, fit_chunk, fit_sequence, reanalyse_image
+from core.histogram import HistogramError, Histograms
+from core.model import KinematicModel, ModelError
+from core.pipeline import FitJob, VideoSource, run_fit
+from core.rig import Rig, RigError
+from core.track import RootTracking
+from core.video import VideoError, VideoSet, probe
+
+__all__ = [
+    "AnnealParams",
+    "Detections",
+    "DetectorParams",
+    "FitJob",
+    "FitParams",
+    "HistogramError",
+    "Histograms",
+    "ImageFit",
+    "KinematicModel",
+    "ModelError",
+    "Rig",
+    "RigError",
+    "RootTracking",
+    "Status",
+    "VideoError",
+    "VideoSet",
+    "VideoSource",
+    "anneal",
+    "detect",
+    "detect_fields",
+    "fit_chunk",
+    "fit_sequence",
+    "probe",
+    "reanalyse_image",
+    "run_fit",
+    "view_error",
+]

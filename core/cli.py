@@ -109,7 +109,8 @@ def fit(
     seed: Annotated[int, Opt(help="random seed: same seed, same result")] = 0,
     histograms: Annotated[Path | None, Opt("--histograms", help="starting histograms.xml")] = None,
     jobs: Annotated[int, Opt(min=1, max=256, help="processes fitting chunks in parallel")] = 1,
-    chunk_size: Annotated[int | None, Opt(min=1, help="images per chunk (default: a share per job)")] = None,
+    chunk_size: Annotated[
+        int | None, Opt(min=1, help="images per chunk (default: 4 per process with --jobs)")] = None,
     marker_diameter_px: Annotated[
         float, Opt(min=0.0, help="markers closer than this are one blob (0: plain Eq. 5)")] = 0.0,
     threshold: Annotated[str, Opt(help="detection threshold: grey level 0..255 or 'otsu'")] = "100",

@@ -211,6 +211,9 @@ def finish(job: FitJob, prior: Histograms, fits: Sequence[ImageFit]) -> Sequence
     return finish_sequence(prior, fits, model=job.model, params=job.params)
 
 
+CHUNKS_PER_PROCESS = 4
+
+
 @dataclass(frozen=True)
 class FitOutcome:
     """What :func:`run_fit` measured besides the fits themselves."""
@@ -230,15 +233,18 @@ def run_fit(
     """Fit every image of ``job`` in this process, or its chunks in ``jobs`` processes.
 
     With several processes and no ``job.chunk_size``, the sequence is split into
-    one chunk per process; chunks are fitted from ``histograms`` and merged by
-    counts, exactly as distributed workers do. ``progress`` then reports the
+    :data:`CHUNKS_PER_PROCESS` chunks per process, handed out as processes free
+    up (images differ in cost: equal halves left one process idle for 20 % of
+    the time); chunks are fitted from ``histograms`` and merged by counts,
+    exactly as distributed workers do. ``progress`` then reports the
     re-analysed images only.
     """
     if jobs < 1:
         raise ValueError(f"jobs must be at least 1, got {jobs}")
     t0 = time.perf_counter()
     if jobs > 1 and job.chunk_size is None:
-        job = replace(job, chunk_size=max(1, math.ceil(len(job.source) / jobs)))
+        chunks = jobs * CHUNKS_PER_PROCESS
+        job = replace(job, chunk_size=max(1, math.ceil(len(job.source) / chunks)))
     steps = plan(job)
     kwargs: dict[str, Any] = dict(
         model=job.model, rig=job.source.rig, histograms=histograms, params=job.params,
