@@ -9,6 +9,9 @@ and the CLI (``mocap synth``, ``mocap fit [--deinterlace]``, which detects field
 and why the bound; measurements were taken with this module's helpers (sweeps over more
 seeds with scripts doing the same) on a 2-core x86-64 machine. Results are deterministic
 for a seed; every bound leaves margin and can fail.
+
+Tests marked ``xfail(strict=True)`` demonstrate a defect found here: frames that went
+wrong but are reported ``ok``. They assert what should hold, and fail today.
 """
 
 from __future__ import annotations
@@ -160,9 +163,10 @@ def test_ghost_markers_in_every_frame_keep_the_fit_within_bounds(ghosts):
     than 1° off; median error_px 0.07 px; frames with error_px < 0.5 px within 0.11°.
     The worst frames are those where a ghost lands on a marker and the detector merges
     them, shifting that blob's centroid by up to ~2 px (the fit follows the data), and,
-    rarely, a ghost that holds SA in a local minimum (seed 14: 5.7° off at 7.7 px);
-    error_px of frames > 0.5° off: 0.7–7.8 px. Over 30 seeds (1800 frames): all ok, worst
-    8.9°, 1 % of frames > 1°, frames with error_px < 0.5 px within 0.15°.
+    rarely, a ghost that holds SA in a local minimum (seed 14: 5.7° off at 7.7 px; see
+    the last test); error_px of frames > 0.5° off: 0.7–7.8 px. Over 30 seeds (1800
+    frames): all ok, worst 8.9°, 1 % of frames > 1°, frames with error_px < 0.5 px
+    within 0.15°.
     Bounds: pooled RMSE < 1°, every frame < 10°, ≤ 5 % of frames > 1°, frames with
     error_px < 0.5 px within 0.3°, median error_px < 0.15 px, all ok.
     """
@@ -236,6 +240,60 @@ def test_overlapping_markers_are_fitted_as_one_blob(seed):
     assert plain.max() > 1.0
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    "fusion_px = marker diameter (FitParams' advice, core.demo's value) is smaller than the "
+    "distance up to which core.detect merges two 4 px markers into one blob (always up to "
+    "4.5 px, 55 % at 5.0 px, 13 % at 5.25 px): markers 4-5 px apart are one blob in the "
+    "image but two points in the objective, which moves them closer; measured 13 of 40 "
+    "merged frames > 1° off (worst 2.4°), all ok with error_px 4.1-6.1 px"))
+def test_markers_the_detector_merges_just_beyond_fusion_px_are_fitted_as_one_blob():
+    """Top-view pairs 4–5 px apart (discs just apart, one blob to the detector): the frames
+    with 3 blobs in the top view should meet the bound of overlapping markers (< 1°).
+
+    Measured (seeds 0, 1): 40 of 48 frames merged; 3 and 10 of them > 1°, worst 1.95° and
+    2.36°. With other rendering streams, 10 seeds: 67 of 208 merged frames > 1°, worst 3.1°.
+    The same happens in natural movement: frames 414, 415 and 583, the three worst of
+    the 668-frame benchmark (seed 2004), are such pairs (4.3–4.6 px), 1.0–1.85° off.
+    fusion_px = 5 does not cure it: then pairs 4–5 px apart that the detector does *not*
+    merge are fitted 9.8° off at worst; no single distance fits both sides.
+    """
+    off = []
+    for seed in (0, 1):
+        truth = _top_view_pair_postures(seed, MARKER_PX, 5.0)
+        detections = _detections(LOCUST, truth, np.random.default_rng(seed))
+        err = _abs_errors(_fit(LOCUST, detections, seed), truth)
+        merged = _blobs(detections, TOP) == 3
+        off += [(seed, int(t), round(float(err[t].max()), 2)) for t in np.flatnonzero(merged)
+                if err[t].max() >= 1.0]
+    assert off == []
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "Eq. 5 does not charge a detection no model marker is near: with two blobs 5-6 px apart "
+    "the fit can put both model markers on one blob and leave the other unexplained, a local "
+    "minimum at 0.3-0.8 px (the truth scores 0.12 px) that SA accepts as converged "
+    "(below eps = 1 px); measured seed 4 frame 16: 4.24° off, error_px 0.88, ok; seed 7 "
+    "frame 21: 2.21° off, error_px 3.04, ok (the paper's Fig. 9, posture B)"))
+def test_two_separate_blobs_close_together_are_not_explained_by_one():
+    """Top-view pairs 5–6 px apart that the detector sees as two blobs: no frame should be
+    more than 2° off yet reported ok.
+
+    Measured over 10 seeds (228 such frames): 2 frames, both shown here (seeds 4 and 7).
+    Fitted with fusion_px = 0 the same frames are 4.3° and 4.2° off (same assignment of
+    markers to blobs), so the marker-fusion objective is not the cause; with ε = 0.2 px
+    SA goes on and finds both (≤ 0.14°).
+    """
+    wrong = []
+    for seed in (4, 7):
+        truth = _top_view_pair_postures(seed, 5.0, 6.0)
+        detections = _detections(LOCUST, truth, np.random.default_rng(seed))
+        result = _fit(LOCUST, detections, seed)
+        separate = _blobs(detections, TOP) == 4
+        wrong += [(seed, *w) for w in _wrong_but_ok(result, _abs_errors(result, truth))
+                  if separate[w[0]]]
+    assert wrong == []
+
+
 # ---- 3. a marker missing from one view for a few frames --------------------------------------
 
 
@@ -261,7 +319,7 @@ def test_a_marker_missing_from_one_view_is_survived_or_flagged(view, marker, out
     outcomes, worst accurate gap frame 0.67° (top M1), outside the gap 0.13°.
     Bounds: every gap frame within 1° or over_threshold; "accurate": every gap frame
     within 1°; "flagged": every gap frame over_threshold, error_px > 10 px, 5 attempts;
-    frames outside the gap ok and within 0.3°.
+    frames outside the gap ok and within 0.3°. Missing M1 in the side view: see below.
     """
     rest = np.setdiff1d(np.arange(30), GAP)
     for seed in range(3):
@@ -278,6 +336,28 @@ def test_a_marker_missing_from_one_view_is_survived_or_flagged(view, marker, out
         else:
             assert all(fits[t].status is Status.OVER_THRESHOLD and fits[t].error > 10.0
                        and fits[t].attempts == PARAMS.max_attempts for t in GAP), seed
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "a marker missing from one view is charged its distance to the nearest other blob; for "
+    "the trochanter marker M1 in the side view that is M0, 6.4-13 px away, often below "
+    "error_threshold_px = 10, and the fit trades posture for a smaller charge: measured "
+    "seed 2 frames 10-14 5.5-5.9° off and seed 9 frames 12-15 4.0-8.1° off, all ok with "
+    "error_px 9.1-9.8"))
+def test_a_missing_trochanter_marker_in_the_side_view_is_flagged_when_the_fit_goes_wrong():
+    """As above for M1 in the side view: no gap frame may be > 2° off and ok.
+
+    Measured over seeds 0–9: 47 of 60 gap frames over_threshold; of the 13 ok, 9 are
+    4.0–8.1° off, all in seeds 2 and 9, the two fitted here.
+    """
+    wrong = []
+    for seed in (2, 9):
+        truth, rng = _movement(LOCUST, 30, seed)
+        drop = np.zeros((30, 2, 4), dtype=bool)
+        drop[GAP, SIDE, 1] = True
+        result = _fit(LOCUST, _detections(LOCUST, truth, rng, drop=drop), seed)
+        wrong += [(seed, *w) for w in _wrong_but_ok(result, _abs_errors(result, truth))]
+    assert wrong == []
 
 
 # ---- 4. concatenated sequences with jumps ----------------------------------------------------
@@ -488,3 +568,24 @@ def test_frames_without_detections_get_empty_cells_through_the_cli(tmp_path):
     assert np.abs(fitted - np.delete(truth, [8, 9], axis=0)).max() < 0.3
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["status"] == {"ok": 22, "over_threshold": 0, "no_detections": 2}
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "a fit that ends in a local minimum is reported ok whenever its error is below "
+    "error_threshold_px = 10, although SA itself judged it unconverged (objective >= eps "
+    "after every restart) and clean fits score ~0.1 px: measured on clean footage seed 9 "
+    "frame 21 11.7° off (error_px 9.63, objective 7.2; the truth scores 0.09 px), seed 16 "
+    "frame 24 12.6° (6.91 px), seed 26 frame 39 15.2° (7.16 px), all ok, 1 attempt; "
+    "re-analysed (threshold 2 px) each is fitted within 0.06° at the second attempt"))
+def test_a_frame_fitted_in_a_local_minimum_is_flagged():
+    """Clean two-view footage (60 frames, 4 sequences): no frame may be > 2° off and ok.
+
+    Measured over 60 seeds (3600 frames): SA ended above 1 px where the truth scores
+    below 0.5 px in exactly these 3 frames (0.08 %); all three ok, 1 attempt.
+    """
+    wrong = []
+    for seed in (9, 16, 26):
+        truth, rng = _movement(LOCUST, 60, seed, n_sequences=4)
+        result = _fit(LOCUST, _detections(LOCUST, truth, rng), seed)
+        wrong += [(seed, *w) for w in _wrong_but_ok(result, _abs_errors(result, truth))]
+    assert wrong == []
