@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from core.demo import (
     FPS,
-    MARKER_DIAMETER_PX,
+    FUSION_PX,
     detection_rms_px,
     locust_benchmark,
     single_view,
@@ -50,7 +50,7 @@ def rmse_row(fitted: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 
 def run(name, rig, detections, bench, seed) -> tuple[np.ndarray, dict]:
-    params = FitParams(fusion_px=MARKER_DIAMETER_PX)
+    params = FitParams(fusion_px=FUSION_PX)
     fit_sequence(detections[:1], model=bench.model, rig=rig,  # compile outside the timing
                  histograms=Histograms.uniform(bench.model), params=params, seed=seed)
     t0 = time.perf_counter()

@@ -37,7 +37,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from core.anneal import AnnealParams
-from core.demo import EXAMPLE, MARKER_DIAMETER_PX, locust_benchmark
+from core.demo import EXAMPLE, FUSION_PX, MARKER_DIAMETER_PX, locust_benchmark
 from core.detect import detect
 from core.fit import FitParams, fit_sequence
 from core.histogram import Histograms
@@ -79,7 +79,7 @@ def fit_rates(bench, repeats: int, plain_samples: int) -> None:
     images = bench.detections
     n = len(images)
     for label, params, count in (
-        ("fit, Table 1 + refinement", FitParams(fusion_px=MARKER_DIAMETER_PX), n),
+        ("fit, Table 1 + refinement", FitParams(fusion_px=FUSION_PX), n),
         ("fit, the paper's plain SA", FitParams(anneal=replace(AnnealParams(), polish_every=0),
                                                 restarts=0, alternative_tolerance_px=0.0),
          min(n, plain_samples)),
@@ -116,7 +116,7 @@ def decode_rate(path: Path, repeats: int) -> float:
 def pipeline_rate(path: Path, model, rig, *, interlaced: bool, jobs: int, repeats: int) -> float:
     """Images per second of decode + de-interlace + detect + fit of the whole video (run_fit)."""
     source = VideoSource((path,), rig, deinterlace=interlaced)
-    job = FitJob(source, model, FitParams(fusion_px=MARKER_DIAMETER_PX), seed=1)
+    job = FitJob(source, model, FitParams(fusion_px=FUSION_PX), seed=1)
     hist = Histograms.uniform(model)
     return len(source) / best_time(lambda: run_fit(job, hist, jobs=jobs), repeats)
 

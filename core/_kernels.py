@@ -33,6 +33,7 @@ AFFINE, PINHOLE, MATRIX = 0, 1, 2
 BEHIND_CAMERA = 1.0e9  # pixel coordinate given to points behind a pinhole camera
 FRAME = 12  # numbers per joint frame: rotation (row-major 3×3), then origin (3)
 NO_TARGETS = np.zeros((0, 3))  # refine in image mode
+NO_UNSEEN = np.zeros((0, 0), dtype=np.bool_)  # every marker may be seen
 
 # ---- rotations -----------------------------------------------------------------------------
 
@@ -276,41 +277,40 @@ def fuse_projections(raw, fuse_px, out) -> None:
 
 
 @njit(cache=True)
-def workspace(kin, views, D):
-    """Scratch arrays for :func:`imaged_markers`: frames, sines/cosines, world, raw, fused."""
+def workspace(kin, views, D, N):
+    """Scratch arrays: frames, sines/cosines, world, raw and fused projections (V,M,2), and
+    for :func:`blob_error` each marker's detection and distance (M) and the claims on each
+    detection (N)."""
     J, M, V = kin[0].shape[0], kin[6].shape[0], views[0].shape[0]
     return (np.empty(FRAME * J), np.empty(2 * D), np.empty((M, 3)), np.empty((V, M, 2)),
-            np.empty((V, M, 2)))
+            np.empty((V, M, 2)), np.empty(M, dtype=np.int64), np.empty(M), np.empty(N, dtype=np.int64))
 
 
 @njit(cache=True, inline="always")
-def imaged_markers(q, kin, views, offset, fuse_px, work):
-    """Pixel positions (V,M,2) at which the camera shows the markers of posture ``q``.
-
-    Returns the raw projections, or the fused ones when ``fuse_px > 0``.
-    """
-    fr, sc, world, raw, fused = work
+def project_posture(q, kin, views, offset, fuse_px, work) -> None:
+    """Raw projections (V,M,2) of posture ``q`` into ``work[3]``, fused ones into ``work[4]``."""
+    fr, sc, world, raw, fused = work[0], work[1], work[2], work[3], work[4]
     kind, P, K, dist = views
     joint_frames(q, kin, fr, sc)
     world_markers(fr, kin, world)
     project_markers(world, kind, P, K, dist, offset, raw)
-    if fuse_px <= 0.0:
-        return raw
-    fuse_projections(raw, fuse_px, fused)
-    return fused
+    if fuse_px > 0.0:
+        fuse_projections(raw, fuse_px, fused)
 
 
 # ---- Eq. 5 -------------------------------------------------------------------------------
 
 
 @njit(cache=True, inline="always")
-def eq5(proj, det, start, penalty, limit):
+def eq5(proj, det, start, penalty, limit, unseen):
     """Eq. 5: sum over views and markers of the distance to the nearest detection.
 
-    proj (V,M,2) pixels; det (N,2) detections of all views, view v in
-    ``det[start[v]:start[v+1]]``. A view without detections adds ``penalty`` per
-    marker. Stops summing after a view once the sum exceeds ``limit`` and returns
-    the partial sum: the SA only needs to know that a proposal is rejected.
+    proj (V,M,2) pixels; det (N,3) detections of all views (u, v, and the merged
+    flag :func:`blob_error` reads), view v in ``det[start[v]:start[v+1]]``. A view
+    without detections adds ``penalty`` per marker, and so does a marker
+    ``unseen`` (V,M) marks (empty: none). Stops
+    summing after a view once the sum exceeds ``limit`` and returns the partial
+    sum: the SA only needs to know that a proposal is rejected.
     """
     total = 0.0
     for v in range(proj.shape[0]):
@@ -319,6 +319,9 @@ def eq5(proj, det, start, penalty, limit):
             total += penalty * proj.shape[1]
             continue
         for m in range(proj.shape[1]):
+            if unseen.shape[0] > 0 and unseen[v, m]:
+                total += penalty
+                continue
             pu, pv = proj[v, m, 0], proj[v, m, 1]
             best = np.inf
             for c in range(a, b):
@@ -331,11 +334,139 @@ def eq5(proj, det, start, penalty, limit):
     return total
 
 
+@njit(cache=True, inline="always")
+def _nearest(u, w, det, a, b):
+    """(squared distance, index) of the detection of ``det[a:b]`` nearest to (u, w)."""
+    best, index = np.inf, -1
+    for c in range(a, b):
+        du, dv = u - det[c, 0], w - det[c, 1]
+        d2 = du * du + dv * dv
+        nearer = d2 < best
+        best = d2 if nearer else best
+        index = c if nearer else index
+    return best, index
+
+
+@njit(cache=True, inline="always")
+def _match_view(proj, v, det, a, b, index, dist, unseen, penalty) -> float:
+    """Each marker's nearest detection in view v (``index``, ``dist``); returns their sum.
+
+    A marker ``unseen`` marks claims nothing (index -1) and costs ``penalty``.
+    """
+    total = 0.0
+    for m in range(proj.shape[1]):
+        if unseen.shape[0] > 0 and unseen[v, m]:
+            index[m], dist[m] = -1, penalty
+        else:
+            d2, c = _nearest(proj[v, m, 0], proj[v, m, 1], det, a, b)
+            index[m], dist[m] = c, math.sqrt(d2)
+        total += dist[m]
+    return total
+
+
+@njit(cache=True, inline="always")
+def _unexplained(raw, proj, v, det, a, b, index, claims, reach2) -> float:
+    """Charge of the detections of view v no marker claims, next to markers that share a blob.
+
+    Two markers put on one blob leave a neighbouring blob unexplained (the paper's
+    Fig. 9, posture B; or a merged reading that squeezes two markers onto one
+    blob): such a detection, within ``sqrt(reach2)`` (``fuse_px``) of where a
+    marker sharing a blob projects itself (``raw``), is charged its distance to
+    the nearest marker of the reading (``proj``). Other unclaimed detections
+    (ghosts) cost nothing, as in Eq. 5.
+    """
+    for c in range(a, b):
+        claims[c] = 0
+    for m in range(proj.shape[1]):
+        if index[m] >= 0:
+            claims[index[m]] += 1
+    total = 0.0
+    for c in range(a, b):
+        if claims[c] > 0:
+            continue
+        for m in range(raw.shape[1]):
+            if index[m] < 0 or claims[index[m]] < 2:
+                continue
+            du, dv = det[c, 0] - raw[v, m, 0], det[c, 1] - raw[v, m, 1]
+            if du * du + dv * dv < reach2:
+                total += math.sqrt(_nearest(det[c, 0], det[c, 1], proj[v], 0, proj.shape[1])[0])
+                break
+    return total
+
+
+@njit(cache=True, inline="always")
+def _lose_worst(total, dist, lost_px):
+    """``total`` with the largest of ``dist`` charged ``lost_px`` instead, if that is less."""
+    worst = np.max(dist)
+    return total - (worst - lost_px) if 0.0 < lost_px < worst else total
+
+
+@njit(cache=True, inline="always")
+def _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, lost_px, unseen, work):
+    """(cost, merged?) of view v: its markers imaged apart, or merged where closer than ``fuse_px``.
+
+    Whether the detector merged two close markers depends on their distance, size
+    and the threshold; the view is read the way that explains it better, merged
+    only if it shows a detection large enough to be merged markers (``det[:, 2]``,
+    ``core.error.Detections.kernel_points``): with one view, merging would
+    otherwise let a wrong posture squeeze two markers onto one blob. With
+    ``lost_px`` > 0 either reading may lose its worst marker, charged ``lost_px``
+    instead of its distance (an occluded marker).
+    """
+    index, dist, claims = work[5], work[6], work[7]
+    reach2 = fuse_px * fuse_px
+    apart = _lose_worst(_match_view(raw, v, det, a, b, index, dist, unseen, penalty), dist, lost_px)
+    apart += _unexplained(raw, raw, v, det, a, b, index, claims, reach2)
+    differs = large = False
+    for m in range(raw.shape[1]):
+        differs = differs or fused[v, m, 0] != raw[v, m, 0] or fused[v, m, 1] != raw[v, m, 1]
+    for c in range(a, b):
+        large = large or det[c, 2] > 0.0
+    if not (differs and large):
+        return apart, False
+    merged = _lose_worst(_match_view(fused, v, det, a, b, index, dist, unseen, penalty), dist,
+                         lost_px)
+    merged += _unexplained(raw, fused, v, det, a, b, index, claims, reach2)
+    return (merged, True) if merged < apart else (apart, False)
+
+
+@njit(cache=True, inline="always")
+def blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, work, unseen):
+    """The objective: Eq. 5, or with ``fuse_px`` > 0 Eq. 5 read as the blobs a camera shows.
+
+    ``fuse_px`` <= 0: exactly :func:`eq5` on the raw projections (the paper).
+    ``fuse_px`` > 0: every view is read as its markers imaged apart, or with those
+    closer than ``fuse_px`` merged into one blob at their centroid, whichever
+    explains the view better (a detector merges two discs up to ~1.3 diameters
+    apart, depending on the threshold); each reading is Eq. 5 plus the charge of
+    :func:`_unexplained` detections. A view without detections adds ``penalty``
+    per marker, and so does a marker ``unseen`` (V,M) marks (empty: none);
+    ``lost_px`` > 0 lets every view lose one marker (:func:`_view_reading`).
+    ``work`` from :func:`workspace`. Stops summing once above ``limit`` (between
+    views), as :func:`eq5`.
+    """
+    if fuse_px <= 0.0:
+        return eq5(raw, det, start, penalty, limit, unseen)
+    total = 0.0
+    for v in range(raw.shape[0]):
+        a, b = start[v], start[v + 1]
+        if a == b:
+            total += penalty * raw.shape[1]
+            continue
+        total += _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, lost_px, unseen,
+                               work)[0]
+        if total > limit:
+            return total
+    return total
+
+
 @njit(cache=True)
-def posture_error(q, kin, views, offset, det, start, penalty, fuse_px):
-    """Eq. 5 for one posture: FK, projection (fused below ``fuse_px``), nearest detections."""
-    work = workspace(kin, views, q.shape[0])
-    return eq5(imaged_markers(q, kin, views, offset, fuse_px, work), det, start, penalty, np.inf)
+def posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px=0.0):
+    """The objective (:func:`blob_error`) of one posture; plain Eq. 5 with ``fuse_px`` 0."""
+    work = workspace(kin, views, q.shape[0], det.shape[0])
+    project_posture(q, kin, views, offset, fuse_px, work)
+    return blob_error(work[3], work[4], det, start, penalty, fuse_px, lost_px, np.inf, work,
+                      unseen)
 
 
 # ---- random numbers -------------------------------------------------------------------------
@@ -364,13 +495,15 @@ def next_uniform(s) -> float:
 
 
 @njit(cache=True)
-def _residuals(q, kin, views, offset, det, start, fuse_px, targets, work, res, valid):
+def _residuals(q, kin, views, offset, det, start, penalty, fuse_px, unseen, targets, work, res,
+               valid):
     """Residual groups ``res`` of posture ``q`` and which count, ``valid`` (G,).
 
-    Image mode (no ``targets``, ``res`` (V·M, 2)): group v·M + m is imaged marker
-    m of view v minus its nearest detection; a view without detections does not
-    count. Target mode (``targets`` and ``res`` (M, 3)): group m is world marker
-    m minus its target (inverse kinematics).
+    Image mode (no ``targets``, ``res`` (V·M, 2)): group v·M + m is marker m's
+    position in view v (raw, or merged where :func:`blob_error` reads the view so)
+    minus its nearest detection; a view without detections does not count, nor
+    does a marker ``unseen`` marks. Target mode (``targets`` and ``res`` (M, 3)): group m is world
+    marker m minus its target (inverse kinematics).
     """
     if targets.shape[0] > 0:
         fr, sc, world = work[0], work[1], work[2]
@@ -381,23 +514,25 @@ def _residuals(q, kin, views, offset, det, start, fuse_px, targets, work, res, v
                 res[m, a] = world[m, a] - targets[m, a]
             valid[m] = True
         return
-    proj = imaged_markers(q, kin, views, offset, fuse_px, work)
-    V, M = proj.shape[0], proj.shape[1]
+    project_posture(q, kin, views, offset, fuse_px, work)
+    raw, fused, index = work[3], work[4], work[5]
+    V, M = raw.shape[0], raw.shape[1]
     for v in range(V):
         a, b = start[v], start[v + 1]
+        if a == b:
+            for m in range(M):
+                res[v * M + m, 0], res[v * M + m, 1], valid[v * M + m] = 0.0, 0.0, False
+            continue
+        pos = raw
+        if fuse_px > 0.0 and _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, 0.0,
+                                           unseen, work)[1]:
+            pos = fused
+        _match_view(pos, v, det, a, b, index, work[6], unseen, penalty)
         for m in range(M):
-            pu, pv = proj[v, m, 0], proj[v, m, 1]
-            best, bu, bv = np.inf, 0.0, 0.0
-            for c in range(a, b):
-                du, dv = pu - det[c, 0], pv - det[c, 1]
-                d2 = du * du + dv * dv
-                nearer = d2 < best
-                best = d2 if nearer else best
-                bu = du if nearer else bu
-                bv = dv if nearer else bv
             g = v * M + m
-            res[g, 0], res[g, 1] = bu, bv
-            valid[g] = b > a
+            valid[g] = index[m] >= 0
+            res[g, 0] = pos[v, m, 0] - det[index[m], 0] if valid[g] else 0.0
+            res[g, 1] = pos[v, m, 1] - det[index[m], 1] if valid[g] else 0.0
 
 
 @njit(cache=True, inline="always")
@@ -457,8 +592,8 @@ def _cholesky_solve(A, b, L, x) -> None:
 
 
 @njit(cache=True)
-def refine(q0, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, max_iter, h_fd,
-           targets):
+def refine(q0, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen, huber_c,
+           max_iter, h_fd, targets):
     """Levenberg–Marquardt on the Huber loss of residual groups (:func:`_residuals`), within bounds.
 
     Image mode (``targets`` of shape (0, 3)): nearest detections are re-chosen at
@@ -474,13 +609,13 @@ def refine(q0, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, m
     M, D = kin[6].shape[0], q0.shape[0]
     G, C = (M, 3) if targets.shape[0] > 0 else (views[0].shape[0] * M, 2)
     q, trial = q0.copy(), q0.copy()
-    work = workspace(kin, views, D)
+    work = workspace(kin, views, D, det.shape[0])
     res, res2 = np.empty((G, C)), np.empty((G, C))
     valid = np.empty(G, dtype=np.bool_)
     jac = np.empty((G, C, D))
     A, H, L = np.empty((D, D)), np.empty((D, D)), np.empty((D, D))
     g, delta = np.empty(D), np.empty(D)
-    _residuals(q, kin, views, offset, det, start, fuse_px, targets, work, res, valid)
+    _residuals(q, kin, views, offset, det, start, penalty, fuse_px, unseen, targets, work, res, valid)
     cost = _huber_cost(res, valid, huber_c)
     lam = 1e-3
     step, gain = np.inf, np.inf
@@ -488,7 +623,8 @@ def refine(q0, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, m
         for i in range(D):
             trial[:] = q
             trial[i] += h_fd
-            _residuals(trial, kin, views, offset, det, start, fuse_px, targets, work, res2, valid)
+            _residuals(trial, kin, views, offset, det, start, penalty, fuse_px, unseen, targets, work, res2,
+                       valid)
             for k in range(G):
                 for a in range(C):
                     jac[k, a, i] = (res2[k, a] - res[k, a]) / h_fd
@@ -512,7 +648,8 @@ def refine(q0, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, m
             _cholesky_solve(H, g, L, delta)
             for i in range(D):
                 trial[i] = min(max(q[i] + delta[i], lower[i]), upper[i])
-            _residuals(trial, kin, views, offset, det, start, fuse_px, targets, work, res2, valid)
+            _residuals(trial, kin, views, offset, det, start, penalty, fuse_px, unseen, targets, work, res2,
+                       valid)
             new_cost = _huber_cost(res2, valid, huber_c)
             if new_cost < cost:
                 step = np.max(np.abs(trial - q))
@@ -561,12 +698,13 @@ def _propose(cur, cand, step, sigma, lower, upper, hist, turns, bins_per_degree,
 
 
 @njit(cache=True)
-def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, huber_c,
-            out) -> float:
+def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, lost_px,
+            huber_c, out) -> float:
     """Refine ``q`` (20 LM steps) into ``out`` if that lowers its error; return the error of ``out``."""
-    polished = refine(q, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, 20, 1e-5,
-                      NO_TARGETS)
-    e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px)
+    polished = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, NO_UNSEEN,
+                      huber_c, 20, 1e-5, NO_TARGETS)
+    e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px, NO_UNSEEN,
+                          lost_px)
     if e_pol < e_q:
         out[:] = polished
         return e_pol
@@ -576,7 +714,8 @@ def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_
 
 @njit(cache=True)
 def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start, penalty, fuse_px,
-           n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience, huber_c, state):
+           lost_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience, huber_c,
+           state):
     """Simulated Annealing of Eq. 5 over the DOFs (paper Eq. 6 and §2.3).
 
     Proposals by :func:`_propose`; Metropolis acceptance at temperature ``tau``;
@@ -605,7 +744,7 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
     turns = np.empty(D)
     for i in range(D):
         turns[i] = -1.0 if np.isnan(hist[i, 0]) else np.floor(lower[i] / 360.0)
-    work = workspace(kin, views, D)
+    work = workspace(kin, views, D, det.shape[0])
     cur, cand, best = q0.copy(), q0.copy(), q0.copy()
     e_cur = e_best = np.inf  # the first pass evaluates q0 itself and always accepts it
     tau, step = tau0, l0
@@ -617,10 +756,12 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
         if it > 0:
             _propose(cur, cand, step, sigma, lower, upper, hist, turns, bins_per_degree, h_min, state)
             # Metropolis: accept iff e_new <= e_cur - tau*ln(u); drawing u first lets
-            # eq5 stop summing as soon as the proposal is certainly rejected.
+            # the error stop summing as soon as the proposal is certainly rejected.
             u = next_uniform(state)
             limit = e_cur - tau * math.log(u) if u > 0.0 else np.inf
-        e_new = eq5(imaged_markers(cand, kin, views, offset, fuse_px, work), det, start, penalty, limit)
+        project_posture(cand, kin, views, offset, fuse_px, work)
+        e_new = blob_error(work[3], work[4], det, start, penalty, fuse_px, lost_px, limit, work,
+                           NO_UNSEEN)
         if e_new <= limit:
             cur[:] = cand
             e_cur = e_new
@@ -635,10 +776,10 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
             step *= c_l
         if polish_every > 0 and it % polish_every == 0:
             e_best = _polish(best, e_best, lower, upper, kin, views, offset, det, start, penalty,
-                             fuse_px, huber_c, best)
+                             fuse_px, lost_px, huber_c, best)
             if e_best >= eps:
                 e_hop = _polish(cur, np.inf, lower, upper, kin, views, offset, det, start, penalty,
-                                fuse_px, huber_c, cand)
+                                fuse_px, lost_px, huber_c, cand)
                 if e_hop < e_best:
                     best[:] = cand
                     e_best = e_hop
@@ -707,6 +848,46 @@ def draw_posture(lower, upper, hist, state, out) -> None:
 
 
 @njit(cache=True)
+def _refit_unseen(q, objective, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
+                  huber_c):
+    """Refit ``q`` (in place) without the markers that look lost; return the objective kept.
+
+    A marker the camera lost (occluded) is charged its distance to some other
+    blob, and the fit leans towards it. After an attempt, in every view the worst
+    matched marker farther than ``penalty`` (what an unseen marker costs) is
+    taken as not seen: the posture is refined without those markers, and kept if
+    its objective, with them charged ``penalty``, is lower than ``objective``.
+    Images whose markers are all within ``penalty`` are left as they are.
+    """
+    V, M = views[0].shape[0], kin[6].shape[0]
+    work = workspace(kin, views, q.shape[0], det.shape[0])
+    project_posture(q, kin, views, offset, fuse_px, work)
+    raw, fused, index, dist = work[3], work[4], work[5], work[6]
+    unseen = np.zeros((V, M), dtype=np.bool_)
+    lost = False
+    for v in range(V):
+        a, b = start[v], start[v + 1]
+        if a == b:
+            continue
+        merged = fuse_px > 0.0 and _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, 0.0,
+                                                  NO_UNSEEN, work)[1]
+        _match_view(fused if merged else raw, v, det, a, b, index, dist, NO_UNSEEN, penalty)
+        worst = np.argmax(dist)
+        if dist[worst] > penalty:
+            unseen[v, worst] = True
+            lost = True
+    if not lost:
+        return objective
+    refit = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen,
+                   huber_c, 50, 1e-5, NO_TARGETS)
+    e_refit = posture_error(refit, kin, views, offset, det, start, penalty, fuse_px, unseen)
+    if e_refit < objective:
+        q[:] = refit
+        return e_refit
+    return objective
+
+
+@njit(cache=True)
 def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
                 penalty, fuse_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience,
                 huber_c, refine_result, restarts, state):
@@ -717,7 +898,13 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
     ``restarts`` while the best objective is still >= ``eps``, from drawn postures.
     A restart that does not find a minimum 1 % lower than the best so far says
     that minimum is the image's own (a lost marker, a model that does not quite
-    fit keep it above ``eps``), and ends the restarts. With ``refine_result``,
+    fit keep it above ``eps``), and ends the restarts. Each run's result is refit
+    without a marker that looks lost (:func:`_refit_unseen`). Restarts search an
+    objective that lets every view lose one marker (charged ``penalty``): an
+    image that stays above ``eps`` is where a marker may be occluded, and its
+    distance to some other blob would otherwise lead the search astray; runs
+    are compared, and the objective returned, in that objective (the same as the
+    first run's wherever every marker is within ``penalty``). With ``refine_result``,
     each run's posture is refined
     and kept if that does not raise the objective. Returns (posture, plain Eq. 5
     error, objective, SA iterations); the objective is Eq. 5 with fusion below
@@ -730,22 +917,29 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
             break
         if run > 0 or draw_start:
             draw_posture(lower, upper, hist, state, q0)
+        lost_px = penalty if run > 0 else 0.0
         q, value, its = anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
-                               penalty, fuse_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps,
-                               polish_every, patience, huber_c, state)
+                               penalty, fuse_px, lost_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau,
+                               eps, polish_every, patience, huber_c, state)
         iterations += its
         if refine_result:
-            polished = refine(q, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, 50,
-                              1e-5, NO_TARGETS)
-            e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px)
+            polished = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
+                              NO_UNSEEN, huber_c, 50, 1e-5, NO_TARGETS)
+            e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px,
+                                  NO_UNSEEN, lost_px)
             if e_pol <= value:
-                q, value = polished, e_pol
+                q = polished
+        value = posture_error(q, kin, views, offset, det, start, penalty, fuse_px, NO_UNSEEN,
+                              penalty)
+        if refine_result:
+            value = _refit_unseen(q, value, lower, upper, kin, views, offset, det, start, penalty,
+                                  fuse_px, huber_c)
         if run > 0 and value >= 0.99 * objective:
             break
         if value < objective:
             best[:] = q
             objective = value
-    error = posture_error(best, kin, views, offset, det, start, penalty, 0.0)
+    error = posture_error(best, kin, views, offset, det, start, penalty, 0.0, NO_UNSEEN)
     return best, error, objective, iterations
 
 
@@ -837,9 +1031,10 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
     ``perspective``; ``subtree_joints`` (F,J) and ``subtree_markers`` (F,M): what
     lies below each flip joint. Returns how many alternatives were written.
     """
-    J, M, V, D = kin[0].shape[0], kin[6].shape[0], views[0].shape[0], q.shape[0]
-    work = workspace(kin, views, D)
-    fr, sc = work[0], work[1]
+    J, M, D = kin[0].shape[0], kin[6].shape[0], q.shape[0]
+    V = views[0].shape[0]
+    work = workspace(kin, views, D, det.shape[0])
+    fr, sc, raw, fused = work[0], work[1], work[3], work[4]
     joint_frames(q, kin, fr, sc)
     world = np.empty((M, 3))
     world_markers(fr, kin, world)
@@ -848,7 +1043,6 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
         for a in range(3):
             joints[k, a] = fr[FRAME * k + 9 + a]
     targets, moved = np.empty((M, 3)), np.empty((J, 3))
-    raw, fused = np.empty((V, M, 2)), np.empty((V, M, 2))
     normal = np.empty(3)
     kind, P, K, dist = views
     found = 0
@@ -869,17 +1063,17 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
                 _reflect(targets, subtree_markers[f], origin, normal)
                 _reflect(moved, subtree_joints[f], origin, normal)
             project_markers(targets, kind, P, K, dist, offset, raw)
-            proj = raw
             if fuse_px > 0.0:
                 fuse_projections(raw, fuse_px, fused)
-                proj = fused
-            if eq5(proj, det, start, penalty, objective + tolerance) > objective + tolerance:
+            limit = objective + tolerance
+            if blob_error(raw, fused, det, start, penalty, fuse_px, 0.0, limit, work,
+                          NO_UNSEEN) > limit:
                 continue
-            reached = refine(q, lower, upper, kin, views, offset, det, start, fuse_px, 1e9, 30, 1e-5,
-                             targets)
-            cand = refine(reached, lower, upper, kin, views, offset, det, start, fuse_px, huber_c, 50,
-                          1e-5, NO_TARGETS)
-            e_cand = posture_error(cand, kin, views, offset, det, start, penalty, fuse_px)
+            reached = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
+                             NO_UNSEEN, 1e9, 30, 1e-5, targets)
+            cand = refine(reached, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
+                          NO_UNSEEN, huber_c, 50, 1e-5, NO_TARGETS)
+            e_cand = posture_error(cand, kin, views, offset, det, start, penalty, fuse_px, NO_UNSEEN)
             if e_cand > objective + tolerance or not _distinct(cand, q, out_q, found):
                 continue
             out_q[found] = cand
@@ -949,7 +1143,8 @@ def detect_regions(image, binary, pixels, min_area, max_area, index):
     background``; the background is the mean of its ring (pixels with no kept
     region in their 3×3 window and k the largest in their 5×5), or the image's
     median when it has none; a region whose weights do not sum to a positive
-    number gets its plain centroid. Returns (K, 2) pixels (u, v), centres at +0.5.
+    number gets its plain centroid. Returns the (K, 2) centroids (u, v) in pixels,
+    centres at +0.5, and the (K,) areas in pixels of the kept regions.
     """
     H, W = binary.shape
     n = pixels.shape[0]
@@ -991,11 +1186,13 @@ def detect_regions(image, binary, pixels, min_area, max_area, index):
     for i in range(n):
         ranks[pixels[i]] = rank_of[region[i]]
     out = np.empty((K, 2))
+    kept_area = np.empty(K)
     fallback = np.nan
     for c in range(count):
         k = rank_of[c]
         if k == 0:
             continue
+        kept_area[k - 1] = area[c]
         y0, y1 = max(box[c, 1] - 2, 0), min(box[c, 3] + 3, H)
         x0, x1 = max(box[c, 0] - 2, 0), min(box[c, 2] + 3, W)
         ring, n_ring = 0.0, 0
@@ -1023,4 +1220,4 @@ def detect_regions(image, binary, pixels, min_area, max_area, index):
             out[k - 1, 0], out[k - 1, 1] = su / total, sv / total
         else:
             out[k - 1, 0], out[k - 1, 1] = ou / own, ov / own
-    return out
+    return out, kept_area

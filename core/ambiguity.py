@@ -144,7 +144,7 @@ def flip_alternatives(
     off = view_offsets(offsets, rig)
     n = _kernels.flip_alternatives(
         fit.dofs, fit.objective, float(tolerance_px), model.lower, model.upper, model.arrays,
-        rig.arrays, off, detections.points, detections.start, float(empty_view_penalty_px),
+        rig.arrays, off, detections.kernel_points, detections.start, float(empty_view_penalty_px),
         float(fusion_px), float(huber_px), geo.flip_joints, geo.subtree_joints, geo.subtree_markers,
         geo.depth, geo.perspective, geo.masks, out_q, out_objective,
     )
@@ -156,8 +156,8 @@ def flip_alternatives(
 
 
 def _plain_error(q, detections, model, rig, offsets, penalty) -> float:
-    return float(_kernels.posture_error(q, model.arrays, rig.arrays, offsets, detections.points,
-                                        detections.start, float(penalty), 0.0))
+    return float(_kernels.posture_error(q, model.arrays, rig.arrays, offsets, detections.kernel_points,
+                                        detections.start, float(penalty), 0.0, _kernels.NO_UNSEEN))
 
 
 def choose_candidates(candidates: Sequence[Sequence[Candidate]]) -> list[int]:

@@ -164,8 +164,8 @@ def anneal(
     p = params
     best, err, it = _kernels.anneal(
         q0, model.lower, model.upper, space.sigma, space.table, float(p.plausibility_threshold),
-        model.arrays, rig.arrays, view_offsets(offsets, rig), detections.points,
-        detections.start, float(empty_view_penalty_px), check_fusion(fusion_px), p.n_end, p.n_l, p.n_tau,
+        model.arrays, rig.arrays, view_offsets(offsets, rig), detections.kernel_points,
+        detections.start, float(empty_view_penalty_px), check_fusion(fusion_px), 0.0, p.n_end, p.n_l, p.n_tau,
         float(p.tau0), float(p.l0), float(p.c_l), float(p.c_tau), float(p.eps), int(p.polish_every),
         int(p.patience),
         float(p.huber_px), state,

@@ -20,8 +20,9 @@ from rich.progress import Progress
 from typer.exceptions import TyperException
 
 from core.anneal import AnnealParams
-from core.demo import MARKER_DIAMETER_PX, locust_benchmark
+from core.demo import FUSION_PX, locust_benchmark
 from core.detect import DetectorParams
+from core.error import fusion_distance
 from core.fit import FitParams, Status, fit_sequence
 from core.histogram import HistogramError, Histograms
 from core.model import KinematicModel, ModelError
@@ -79,7 +80,7 @@ def demo(
     t0 = time.perf_counter()
     result = fit_sequence(bench.detections, model=bench.model, rig=bench.rig,
                           histograms=Histograms.uniform(bench.model),
-                          params=FitParams(fusion_px=MARKER_DIAMETER_PX), seed=seed)
+                          params=FitParams(fusion_px=FUSION_PX), seed=seed)
     seconds = time.perf_counter() - t0
     fitted = np.array([f.dofs for f in result.fits])
     rmse = np.sqrt(np.nanmean((fitted - bench.truth) ** 2, axis=0))
@@ -112,7 +113,8 @@ def fit(
     chunk_size: Annotated[
         int | None, Opt(min=1, help="images per chunk (default: 4 per process with --jobs)")] = None,
     marker_diameter_px: Annotated[
-        float, Opt(min=0.0, help="markers closer than this are one blob (0: plain Eq. 5)")] = 0.0,
+        float, Opt(min=0.0, help="marker diameter: close markers may image as one blob "
+                   "(0: the paper's plain Eq. 5)")] = 0.0,
     threshold: Annotated[str, Opt(help="detection threshold: grey level 0..255 or 'otsu'")] = "100",
     channel: Annotated[str, Opt(help="grey, red, green or blue")] = "grey",
     blur: Annotated[int, Opt(help="Gaussian blur kernel before the threshold (0: none, odd)")] = 0,
@@ -137,7 +139,7 @@ def fit(
                  else Histograms.uniform(kinematic, prior_weight=prior_weight))
         params = FitParams(
             anneal=scaled_iterations(iterations), error_threshold_px=error_threshold_px,
-            max_attempts=max_attempts, fusion_px=marker_diameter_px,
+            max_attempts=max_attempts, fusion_px=fusion_distance(marker_diameter_px),
         )
         detector = DetectorParams(channel=channel, threshold=_threshold(threshold), erode=erode,
                                   dilate=dilate, blur=blur, min_area=min_area, max_area=max_area)

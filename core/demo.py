@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from core.detect import detect
-from core.error import Detections
+from core.error import Detections, fusion_distance
 from core.model import KinematicModel
 from core.rig import Rig
 from core.synth import natural_movements, render_frames
@@ -23,7 +23,8 @@ from core.synth import natural_movements, render_frames
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "locust_hind_leg"
 N_SAMPLES = 668
 FPS = 50.0
-MARKER_DIAMETER_PX = 4.0  # as rendered; closer markers image as one blob (FitParams.fusion_px)
+MARKER_DIAMETER_PX = 4.0  # as rendered
+FUSION_PX = fusion_distance(MARKER_DIAMETER_PX)  # FitParams.fusion_px for these markers
 
 
 @dataclass
@@ -55,7 +56,7 @@ def locust_benchmark(seed: int = 2004, n_samples: int = N_SAMPLES) -> Benchmark:
 def single_view(rig: Rig, detections: list[Detections], view: int) -> tuple[Rig, list[Detections]]:
     """The same benchmark seen by one view only."""
     sub = Rig((rig.views[view],))
-    return sub, [Detections.from_views([d.view(view)]) for d in detections]
+    return sub, [d.views([view]) for d in detections]
 
 
 def detection_rms_px(bench: Benchmark) -> float:

@@ -135,10 +135,9 @@ def detect(
     if not isinstance(params, DetectorParams):
         raise ValueError(f"params must be a DetectorParams, got {type(params).__name__}")
     frames = _validate_frames(frames, rig)
-    return Detections.from_views(
-        [_detect_view(_view_image(frames, rig, v, params.channel), params, rig, v)
-         for v in range(len(rig.views))]
-    )
+    found = [_detect_view(_view_image(frames, rig, v, params.channel), params, rig, v)
+             for v in range(len(rig.views))]
+    return Detections.from_views([f[0] for f in found], [f[1] for f in found])
 
 
 # ---- per view ------------------------------------------------------------------------------
@@ -173,8 +172,11 @@ def _view_image(frames: list[np.ndarray], rig: Rig, index: int, channel: str) ->
     return np.ascontiguousarray(crop[:, :, _BGR_INDEX[channel]])
 
 
-def _detect_view(image: np.ndarray, params: DetectorParams, rig: Rig, index: int) -> np.ndarray:
-    """(N, 2) float64 full-frame centroids of the marker regions of one view's image."""
+def _detect_view(
+    image: np.ndarray, params: DetectorParams, rig: Rig, index: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) float64 full-frame centroids of the marker regions of one view's image, and
+    their (N,) areas in pixels."""
     work = image
     if params.blur > 1:
         work = cv2.GaussianBlur(work, (params.blur, params.blur), 0)
@@ -187,12 +189,12 @@ def _detect_view(image: np.ndarray, params: DetectorParams, rig: Rig, index: int
     if params.dilate:
         binary = cv2.dilate(binary, _KERNEL3, iterations=params.dilate)
     pixels = np.flatnonzero(binary.view(bool))
-    centroids = _kernels.detect_regions(image, binary, pixels, params.min_area, params.max_area,
-                                        _scratch(binary.size))
+    centroids, areas = _kernels.detect_regions(image, binary, pixels, params.min_area,
+                                               params.max_area, _scratch(binary.size))
     roi = rig.views[index].roi
     if roi is not None:
         centroids += (roi[0], roi[1])
-    return centroids
+    return centroids, areas
 
 
 @functools.lru_cache(maxsize=8)

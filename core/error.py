@@ -10,17 +10,23 @@ so that the total stays finite, never NaN, does not steer the search, and an
 image that lost a whole view is flagged by the error threshold instead of
 being reported as a confident fit.
 
-Marker fusion (``fusion_px`` > 0, about the marker diameter in pixels): model
-markers that project closer than ``fusion_px`` are compared as the single blob
-a camera shows, at their common centroid. Otherwise the true posture of a
-frame with fused markers is not a minimum of Eq. 5, and the fit is pulled
-several degrees off. ``fusion_px = 0`` is the paper's Eq. 5 exactly.
+Blobs (``fusion_px`` > 0; :func:`fusion_distance` of the marker diameter): a
+camera shows two markers closer than about 1.3 diameters as one blob at their
+centroid, so every view is read both ways, the markers apart or those closer
+than ``fusion_px`` merged, whichever explains it better; and a detection no
+marker claims, next to markers that share a blob, is charged (two markers put
+on one blob leave it unexplained: the paper's Fig. 9). Otherwise the true
+posture of a frame with fused markers is not a minimum, and a wrong one that
+collapses two markers onto one blob can be (``core._kernels.blob_error``).
+``fusion_px = 0`` is the paper's Eq. 5 exactly; the reported ``error_px`` is
+always the plain Eq. 5.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -28,9 +34,28 @@ from core import _kernels
 from core.model import KinematicModel
 from core.rig import Rig
 
-__all__ = ["DEFAULT_EMPTY_VIEW_PENALTY_PX", "Detections", "view_error"]
+__all__ = ["DEFAULT_EMPTY_VIEW_PENALTY_PX", "Detections", "fusion_distance", "view_error"]
 
 DEFAULT_EMPTY_VIEW_PENALTY_PX = 5.0
+# fusion_px in marker diameters: reading every view both ways makes a generous distance
+# safe, and it must cover what the detector merges (up to ~1.3 diameters). Measured on
+# the locust benchmark (668 images): 1 diameter, 3 frames 1.0-1.6 deg off (merged pairs
+# read apart); 1.5, one frame 4.7 deg; 2, every frame within 0.13 deg.
+FUSION_DIAMETERS = 2.0
+
+
+def fusion_distance(marker_diameter_px: float) -> float:
+    """The ``fusion_px`` for markers of this diameter in pixels.
+
+    >>> fusion_distance(4.0)
+    8.0
+    """
+    return FUSION_DIAMETERS * float(marker_diameter_px)
+
+
+# A detection this many times the image's median area is large enough to be markers the
+# detector merged: one 4 px marker covers 12-16 pixels, two merged 16-28 (median 13).
+MERGED_AREA_RATIO = 1.2
 
 
 @dataclass(frozen=True)
@@ -39,14 +64,20 @@ class Detections:
 
     points : ndarray of shape (N, 2), float64, full-frame pixels (u, v).
     start : ndarray of shape (V + 1,), int64; view v owns ``points[start[v]:start[v+1]]``.
+    areas : ndarray of shape (N,), float64, pixels of each detection's region, or None
+        when unknown (detections made by hand): then any detection may be merged markers.
     """
 
     points: np.ndarray
     start: np.ndarray
+    areas: np.ndarray | None = None
 
     @classmethod
-    def from_views(cls, views: Sequence[np.ndarray]) -> Detections:
-        """Build from one (N_v, 2) array of pixel coordinates per view (N_v may be 0)."""
+    def from_views(
+        cls, views: Sequence[np.ndarray], areas: Sequence[np.ndarray] | None = None
+    ) -> Detections:
+        """Build from one (N_v, 2) array of pixel coordinates per view (N_v may be 0),
+        and optionally one (N_v,) array of region areas per view."""
         arrays = [np.asarray(v, dtype=np.float64).reshape(-1, 2) for v in views]
         for i, a in enumerate(arrays):
             if not np.all(np.isfinite(a)):
@@ -54,7 +85,22 @@ class Detections:
         start = np.zeros(len(arrays) + 1, dtype=np.int64)
         start[1:] = np.cumsum([len(a) for a in arrays])
         points = np.concatenate(arrays) if arrays else np.zeros((0, 2))
-        return cls(np.ascontiguousarray(points), start)
+        flat = None
+        if areas is not None:
+            flat = np.concatenate([np.asarray(a, dtype=np.float64).reshape(-1) for a in areas])
+            if flat.shape != (len(points),):
+                raise ValueError(f"{flat.size} areas for {len(points)} detections")
+        return cls(np.ascontiguousarray(points), start, flat)
+
+    @cached_property
+    def kernel_points(self) -> np.ndarray:
+        """(N, 3) float64 for the kernels: u, v, and 1.0 where the detection may be merged
+        markers (its area at least ``MERGED_AREA_RATIO`` times the median, or unknown)."""
+        out = np.ones((len(self.points), 3))
+        out[:, :2] = self.points
+        if self.areas is not None and len(self.areas):
+            out[:, 2] = self.areas >= MERGED_AREA_RATIO * np.median(self.areas)
+        return out
 
     @property
     def n_views(self) -> int:
@@ -68,6 +114,12 @@ class Detections:
     def view(self, v: int) -> np.ndarray:
         return self.points[self.start[v] : self.start[v + 1]]
 
+    def views(self, indices: Sequence[int]) -> Detections:
+        """The detections of these views only, in this order, areas included."""
+        areas = None if self.areas is None else [
+            self.areas[self.start[v] : self.start[v + 1]] for v in indices]
+        return Detections.from_views([self.view(v) for v in indices], areas)
+
 
 def view_error(
     dofs: np.ndarray,
@@ -79,7 +131,7 @@ def view_error(
     empty_view_penalty_px: float = DEFAULT_EMPTY_VIEW_PENALTY_PX,
     fusion_px: float = 0.0,
 ) -> float:
-    """Eq. 5 for one posture, in pixels (with marker fusion when ``fusion_px`` > 0).
+    """Eq. 5 for one posture, in pixels (read as blobs when ``fusion_px`` > 0).
 
     Parameters
     ----------
@@ -92,8 +144,9 @@ def view_error(
     check_views(detections, rig)
     return float(
         _kernels.posture_error(
-            q, model.arrays, rig.arrays, view_offsets(offsets, rig), detections.points,
+            q, model.arrays, rig.arrays, view_offsets(offsets, rig), detections.kernel_points,
             detections.start, float(empty_view_penalty_px), check_fusion(fusion_px),
+            _kernels.NO_UNSEEN,
         )
     )
 

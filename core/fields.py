@@ -76,5 +76,5 @@ def detect_fields(
         det = detect([f[parity::2] for f in frames], rig=per_parity[parity], params=params)
         points = det.points.copy()
         points[:, 1] = 2.0 * points[:, 1] - 0.5 + parity
-        out.append(Detections(points, det.start))
+        out.append(Detections(points, det.start, det.areas))
     return out[0], out[1]

@@ -12,7 +12,7 @@ local run (:func:`run_fit`) and the distributed workers both call:
 - :func:`plan`: the number of images, the chunks, and the root-tracking offsets
   (tracking is sequential, so it runs once over the whole sequence here);
 - :func:`fit_range`: fit one chunk (``core.fit.fit_chunk`` on its frames);
-- :func:`reanalyse`: one more attempt on one over-threshold image;
+- :func:`reanalyse`: one more attempt on one image picked for re-analysis;
 - :func:`finish`: the final histograms of the sequence.
 
 :func:`write_outputs` writes ``angles.csv``, ``histograms.xml`` and ``report.json``.
@@ -194,15 +194,22 @@ def fit_range(
 
 
 def reanalyse(
-    job: FitJob, previous: ImageFit, histograms: Histograms, *, offsets: np.ndarray | None = None
+    job: FitJob,
+    previous: ImageFit,
+    histograms: Histograms,
+    *,
+    typical: float,
+    offsets: np.ndarray | None = None,
 ) -> ImageFit:
-    """One more attempt on an over-threshold image, against the merged ``histograms``.
+    """One more attempt on an image ``core.fit.needs_reanalysis`` picks, against the merged
+    ``histograms``.
 
+    typical : the sequence's ``core.fit.typical_objective`` of the first attempts.
     offsets : this image's (V, 2) offsets from the plan, or None.
     """
     return reanalyse_image(
         job.source[previous.sample], previous, model=job.model, rig=job.source.rig,
-        histograms=histograms, params=job.params, seed=job.seed, offsets=offsets,
+        histograms=histograms, params=job.params, seed=job.seed, offsets=offsets, typical=typical,
     )
 
 

@@ -14,7 +14,13 @@ from __future__ import annotations
 import numpy as np
 
 from core import _kernels
-from core.error import Detections, check_fusion, check_views, view_offsets
+from core.error import (
+    DEFAULT_EMPTY_VIEW_PENALTY_PX,
+    Detections,
+    check_fusion,
+    check_views,
+    view_offsets,
+)
 from core.model import KinematicModel
 from core.rig import Rig
 
@@ -31,6 +37,7 @@ def refine(
     huber_px: float = 1.0,
     max_iter: int = 50,
     fusion_px: float = 0.0,
+    empty_view_penalty_px: float = DEFAULT_EMPTY_VIEW_PENALTY_PX,
 ) -> np.ndarray:
     """Refine a posture by bounded, robust least squares.
 
@@ -44,7 +51,10 @@ def refine(
     max_iter : int
         Levenberg–Marquardt iterations at most.
     fusion_px : float
-        Markers projecting closer than this are one blob (``core.error``); 0: off.
+        Markers projecting closer than this may be one blob (``core.error``); 0: off.
+    empty_view_penalty_px : float
+        The charge of a marker the camera does not show: with ``fusion_px`` > 0, a
+        marker the objective treats as not seen is left out of the least squares.
 
     Returns
     -------
@@ -58,6 +68,7 @@ def refine(
     q = np.clip(model._check_postures(dofs)[0], model.lower, model.upper)
     return _kernels.refine(
         q, model.lower, model.upper, model.arrays, rig.arrays, view_offsets(offsets, rig),
-        detections.points, detections.start, check_fusion(fusion_px), float(huber_px),
-        int(max_iter), 1e-5, _kernels.NO_TARGETS,
+        detections.kernel_points, detections.start, float(empty_view_penalty_px),
+        check_fusion(fusion_px),
+        _kernels.NO_UNSEEN, float(huber_px), int(max_iter), 1e-5, _kernels.NO_TARGETS,
     )

@@ -11,7 +11,16 @@ import pytest
 
 from core.anneal import AnnealParams, StopReason, anneal, search_space
 from core.error import Detections, view_error
-from core.fit import FitParams, Status, fit_chunk, fit_sequence, reanalyse_image
+from core.fit import (
+    FitParams,
+    ImageFit,
+    Status,
+    fit_chunk,
+    fit_sequence,
+    needs_reanalysis,
+    reanalyse_image,
+    typical_objective,
+)
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.refine import refine
@@ -330,3 +339,73 @@ def test_patience_stops_annealing_once_the_best_stops_improving(locust):
     assert endless.iterations == FAST.n_end
     assert patient.iterations < FAST.n_end
     assert patient.error == pytest.approx(endless.error, rel=0.05)
+
+
+# ---- blobs, lost markers, outliers ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("gap_px", [3.0, 6.0])
+def test_a_view_is_read_merged_or_apart_whichever_explains_it(locust, gap_px):
+    """Markers 3 px apart show as one blob at their centroid, 6 px apart as two blobs: the
+    blob reading scores both images 0; plain Eq. 5 charges the merged one 1.5 px a marker."""
+    model, rig = locust
+    side, top = rig.project(model.marker_positions(np.array([170.0, 0.0, 0.0, 10.0, 90.0])))
+    top = top.copy()
+    centre = top[2:].mean(axis=0)
+    half = np.array([0.0, gap_px / 2])
+    top[2], top[3] = centre - half, centre + half
+    blobs = top if gap_px >= 5 else np.vstack([top[:2], centre])
+    det = Detections.from_views([side, blobs])
+    assert _eq5_at(side, top, det, fusion_px=8.0) == pytest.approx(0.0, abs=1e-9)
+    assert _eq5_at(side, top, det) == pytest.approx(gap_px if gap_px < 5 else 0.0)
+
+
+def _eq5_at(side, top, det, fusion_px=0.0):
+    """The objective of imaged markers (side, top) against ``det``, through the kernel."""
+    from core import _kernels
+
+    raw = np.ascontiguousarray(np.stack([side, top]))
+    fused = np.empty_like(raw)
+    if fusion_px > 0:
+        _kernels.fuse_projections(raw, fusion_px, fused)
+    work = (np.empty(0), np.empty(0), np.empty((4, 3)), raw, fused, np.empty(4, dtype=np.int64),
+            np.empty(4), np.empty(len(det.points), dtype=np.int64))
+    return _kernels.blob_error(raw, fused, det.kernel_points, det.start, 5.0, fusion_px, 0.0, np.inf, work,
+                               _kernels.NO_UNSEEN)
+
+
+def test_a_blob_left_unexplained_beside_two_markers_on_one_blob_is_charged(locust):
+    """Two markers put on one blob 6 px from another that nobody claims: the blob reading
+    charges the lone blob its distance (6 px); plain Eq. 5 charges nothing."""
+    model, rig = locust
+    side = rig.project(model.marker_positions(np.array([170.0, 0.0, 0.0, 10.0, 90.0])))[0]
+    top = np.array([[240.0, 438.0], [227.0, 438.0], [160.0, 440.0], [160.0, 440.5]])
+    blobs = np.array([[240.0, 438.0], [227.0, 438.0], [160.0, 440.25], [160.0, 446.25]])
+    det = Detections.from_views([side, blobs])
+    assert _eq5_at(side, top, det) == pytest.approx(0.5)
+    assert _eq5_at(side, top, det, fusion_px=8.0) == pytest.approx(6.0, abs=0.3)
+
+
+def test_a_lost_marker_does_not_drag_the_posture(locust):
+    """The trochanter marker M1 missing from the side view (charged its ~10 px to M0's blob):
+    the refit without it puts the leg where the other markers and the top view say."""
+    model, rig = locust
+    q = np.array([150.0, 20.0, 0.0, 20.0, 90.0])
+    proj = rig.project(model.marker_positions(q))
+    det = Detections.from_views([proj[0][[0, 2, 3]], proj[1]])
+    fits = fit_chunk([det], model=model, rig=rig, histograms=Histograms.uniform(model),
+                     params=FitParams(fusion_px=8.0), seed=1).fits
+    assert np.abs(fits[0].dofs - q).max() < 0.2
+    assert fits[0].objective == pytest.approx(5.0, abs=0.2)  # the lost marker's flat charge
+
+
+def test_outliers_are_reanalysed_as_if_over_the_threshold():
+    params = FitParams()
+    fit = ImageFit(0, np.zeros(5), 6.0, 6.0, 1, Status.OK, 500, (4, 4))
+    assert typical_objective([fit, replace(fit, objective=0.1), replace(fit, objective=0.2)]) == 0.2
+    assert needs_reanalysis(fit, params, typical=0.1)  # 60x the typical objective
+    assert not needs_reanalysis(fit, params, typical=1.0)  # 6x
+    assert not needs_reanalysis(fit, replace(params, outlier_factor=0.0), typical=0.1)
+    assert not needs_reanalysis(replace(fit, objective=0.9), params, typical=0.01)  # below eps
+    assert not needs_reanalysis(replace(fit, attempts=params.max_attempts), params, typical=0.1)
+    assert needs_reanalysis(replace(fit, status=Status.OVER_THRESHOLD), params)
