@@ -23,9 +23,10 @@ from core.detect import DetectorParams, detect
 from core.error import Detections
 from core.rig import Rig
 
-__all__ = ["FIELD_ORDERS", "detect_fields", "field_rig"]
+__all__ = ["FIELD_ORDERS", "FIELD_ROW_PITCH", "detect_fields", "field_rig"]
 
 FIELD_ORDERS = ("even-first", "odd-first")
+FIELD_ROW_PITCH = 2.0  # a field's rows are this many frame rows apart
 
 
 def field_parities(field_order: str) -> tuple[int, int]:

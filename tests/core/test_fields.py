@@ -107,3 +107,19 @@ def test_field_centroids_are_unbiased_over_the_sub_pixel_position(parity):
     assert np.abs(errors[:, 0]).max() < 0.02
     assert np.abs(errors[:, 1]).max() < 0.29
     assert abs(errors[:, 1].mean()) < 0.005
+
+
+@pytest.mark.parametrize("deinterlace", [False, True])
+def test_sa_stops_at_epsilon_in_the_analysed_image_pixels(deinterlace):
+    """A field's rows are two frame rows apart: ε doubles in frame pixels, nothing else does."""
+    from core.anneal import AnnealParams
+    from core.fit import FitParams
+    from core.pipeline import FitJob, VideoSource
+
+    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
+    source = VideoSource((EXAMPLE / "never-opened.avi",), Rig.from_json(EXAMPLE / "rig.json"),
+                         deinterlace=deinterlace)
+    params = FitParams(anneal=AnnealParams(eps=0.75), error_threshold_px=7.0)
+    applied = FitJob(source, model, params).fit_params
+    assert applied.anneal.eps == (1.5 if deinterlace else 0.75)
+    assert applied.error_threshold_px == 7.0 and applied.anneal.n_end == params.anneal.n_end
