@@ -6,6 +6,7 @@ line on stderr saying what is wrong.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from collections.abc import Iterator
@@ -26,7 +27,7 @@ from core.error import fusion_distance
 from core.fit import FitParams, Status, fit_sequence
 from core.histogram import HistogramError, Histograms
 from core.model import KinematicModel, ModelError
-from core.pipeline import FitJob, VideoSource, run_fit, write_outputs
+from core.pipeline import FitJob, VideoSource, estimate_marker_diameter, run_fit, write_outputs
 from core.rig import Rig, RigError
 from core.synth import natural_movements, read_truth_csv, render_frames, write_truth_csv, write_video
 from core.track import RootTracking
@@ -113,8 +114,9 @@ def fit(
     chunk_size: Annotated[
         int | None, Opt(min=1, help="images per chunk (default: 4 per process with --jobs)")] = None,
     marker_diameter_px: Annotated[
-        float, Opt(min=0.0, help="marker diameter: close markers may image as one blob "
-                   "(0: the paper's plain Eq. 5)")] = 0.0,
+        str, Opt(help="marker diameter in pixels, close markers may image as one blob: a number, "
+                 "'auto' (from the detected blobs of the first images) or 0 (the paper's plain "
+                 "Eq. 5)")] = "auto",
     threshold: Annotated[str, Opt(help="detection threshold: grey level 0..255 or 'otsu'")] = "100",
     channel: Annotated[str, Opt(help="grey, red, green or blue")] = "grey",
     blur: Annotated[int, Opt(help="Gaussian blur kernel before the threshold (0: none, odd)")] = 0,
@@ -137,13 +139,16 @@ def fit(
             raise ValueError(f"the rig expects {camera_rig.n_videos} video(s), got {len(videos)}")
         start = (Histograms.from_xml(histograms, kinematic) if histograms is not None
                  else Histograms.uniform(kinematic, prior_weight=prior_weight))
-        params = FitParams(
-            anneal=scaled_iterations(iterations), error_threshold_px=error_threshold_px,
-            max_attempts=max_attempts, fusion_px=fusion_distance(marker_diameter_px),
-        )
+        diameter = _diameter(marker_diameter_px)
         detector = DetectorParams(channel=channel, threshold=_threshold(threshold), erode=erode,
                                   dilate=dilate, blur=blur, min_area=min_area, max_area=max_area)
         source = VideoSource(tuple(videos), camera_rig, detector, deinterlace, field_order)
+        if diameter is None:
+            diameter = estimate_marker_diameter(source) or 0.0
+        params = FitParams(
+            anneal=scaled_iterations(iterations), error_threshold_px=error_threshold_px,
+            max_attempts=max_attempts, fusion_px=fusion_distance(diameter),
+        )
         root = None if root_marker is None else RootTracking(
             root_marker, _positions(root_start), root_max_jump_px)
         job = FitJob(source, kinematic, params, seed, chunk_size, root)
@@ -166,6 +171,19 @@ def _positions(text: str | None) -> tuple[tuple[float, float], ...] | None:
     if any(len(p) != 2 for p in pairs):
         raise ValueError(f"--root-start must be 'u,v;u,v', one pair per view, got {text!r}")
     return pairs  # type: ignore[return-value]
+
+
+def _diameter(text: str) -> float | None:
+    """--marker-diameter-px: 'auto' (None) or a number of pixels >= 0."""
+    if text == "auto":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"--marker-diameter-px must be 'auto' or a number >= 0, got {text!r}")
+    return value
 
 
 def _threshold(text: str) -> float | str:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import functools
 import numbers
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -35,7 +35,7 @@ from core import _kernels
 from core.error import Detections
 from core.rig import Rig
 
-__all__ = ["CHANNELS", "DetectorParams", "detect"]
+__all__ = ["CHANNELS", "DetectorParams", "detect", "marker_diameter"]
 
 CHANNELS = ("grey", "red", "green", "blue")
 _BGR_INDEX = {"blue": 0, "green": 1, "red": 2}
@@ -141,6 +141,24 @@ def detect(
 
 
 # ---- per view ------------------------------------------------------------------------------
+
+
+def marker_diameter(images: Iterable[Detections]) -> float | None:
+    """Typical marker diameter in pixels: a disc of the median detected region's area.
+
+    The median, over every detection of every image, ignores the few fused blobs and
+    ghosts. The diameter sets how close two markers' projections must be to image as
+    one blob (``core.error.fusion_distance``); a lab knows its marker size in
+    millimetres, rarely in pixels. None when no image has detections with areas.
+
+    >>> one = Detections.from_views([np.zeros((3, 2))], areas=[np.array([12.0, 13.0, 30.0])])
+    >>> round(marker_diameter([one]), 3)
+    4.068
+    """
+    areas = [d.areas for d in images if d.areas is not None and len(d.areas)]
+    if not areas:
+        return None
+    return 2.0 * float(np.sqrt(np.median(np.concatenate(areas)) / np.pi))
 
 
 def _view_image(frames: list[np.ndarray], rig: Rig, index: int, channel: str) -> np.ndarray:

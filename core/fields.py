@@ -77,5 +77,6 @@ def detect_fields(
         det = detect([f[parity::2] for f in frames], rig=per_parity[parity], params=params)
         points = det.points.copy()
         points[:, 1] = 2.0 * points[:, 1] - 0.5 + parity
-        out.append(Detections(points, det.start, det.areas))
+        areas = None if det.areas is None else det.areas * FIELD_ROW_PITCH  # frame pixels
+        out.append(Detections(points, det.start, areas))
     return out[0], out[1]

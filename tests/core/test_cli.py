@@ -12,9 +12,12 @@ import pytest
 from typer.testing import CliRunner
 
 from core.cli import app
+from core.error import fusion_distance
 from core.histogram import Histograms
 from core.model import KinematicModel
+from core.pipeline import VideoSource, estimate_marker_diameter
 from core.results import read_angles_csv
+from core.rig import Rig
 from core.synth import read_truth_csv
 
 EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
@@ -92,10 +95,28 @@ def test_deinterlaced_fit_reports_fields(interlaced_clip, tmp_path):
     assert np.median(np.abs(table.dofs - truth)) < 0.5
 
 
+@pytest.mark.parametrize(("name", "deinterlace"), [("clip", False), ("interlaced_clip", True)])
+def test_marker_diameter_is_estimated_in_frame_pixels_by_default(request, name, deinterlace, tmp_path):
+    """Rendered 4 px markers: the default 'auto' finds 3.5-4.5 px (fields: areas in frame pixels)
+    and fits with the fusion distance of that diameter."""
+    clip = request.getfixturevalue(name)
+    source = VideoSource((clip / "video0.avi",), Rig.from_json(EXAMPLE / "rig.json"),
+                         deinterlace=deinterlace)
+    diameter = estimate_marker_diameter(source)
+    assert 3.5 < diameter < 4.5
+    args = ["--deinterlace"] if deinterlace else []
+    result = _invoke("fit", clip / "video0.avi", "--model", EXAMPLE / "model.xml",
+                     "--rig", EXAMPLE / "rig.json", "--out", tmp_path, *args)
+    assert result.exit_code == 0, result.output
+    fusion = json.loads((tmp_path / "report.json").read_text())["settings"]["fit"]["fusion_px"]
+    assert fusion == pytest.approx(fusion_distance(diameter))
+
+
 @pytest.mark.parametrize(
     ("case", "match"),
     [("missing_model", "cannot read model"), ("bad_rig", "rig"), ("text_video", "video"),
-     ("two_videos", "expects 1 video"), ("bad_histograms", "histogram")],
+     ("two_videos", "expects 1 video"), ("bad_histograms", "histogram"),
+     ("bad_diameter", "--marker-diameter-px")],
 )
 def test_bad_input_exits_2_with_one_line(clip, tmp_path, case, match):
     model, rig, video = EXAMPLE / "model.xml", EXAMPLE / "rig.json", clip / "video0.avi"
@@ -111,6 +132,8 @@ def test_bad_input_exits_2_with_one_line(clip, tmp_path, case, match):
         videos[0].write_text("not a video")
     elif case == "two_videos":
         videos = [video, video]
+    elif case == "bad_diameter":
+        extra = ["--marker-diameter-px", "-3"]
     else:
         bad = tmp_path / "h.xml"
         bad.write_text('<histograms model="x" bins="360"></histograms>')
