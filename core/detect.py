@@ -135,7 +135,7 @@ def detect(
     if not isinstance(params, DetectorParams):
         raise ValueError(f"params must be a DetectorParams, got {type(params).__name__}")
     frames = _validate_frames(frames, rig)
-    found = [_detect_view(_view_image(frames, rig, v, params.channel), params, rig, v)
+    found = [_detect_view(view_image(frames, rig, v, params.channel), params, rig, v)
              for v in range(len(rig.views))]
     return Detections.from_views([f[0] for f in found], [f[1] for f in found])
 
@@ -161,7 +161,7 @@ def marker_diameter(images: Iterable[Detections]) -> float | None:
     return 2.0 * float(np.sqrt(np.median(np.concatenate(areas)) / np.pi))
 
 
-def _view_image(frames: list[np.ndarray], rig: Rig, index: int, channel: str) -> np.ndarray:
+def view_image(frames: Sequence[np.ndarray], rig: Rig, index: int, channel: str) -> np.ndarray:
     """The roi of a view's frame in the selected channel: (h, w) uint8, C-contiguous.
 
     The roi is converted, not the frame: rois often cover a fraction of it.

@@ -34,7 +34,7 @@ import numpy as np
 
 from core.detect import DetectorParams, detect, marker_diameter
 from core.error import Detections
-from core.fields import FIELD_ROW_PITCH, detect_fields, field_parities, field_rig
+from core.fields import detect_fields, field_parities, field_rig
 from core.fit import (
     ChunkResult,
     FitParams,
@@ -161,23 +161,6 @@ class FitJob:
     def clock(self) -> SampleClock:
         return SampleClock(self.source.fps, self.source.deinterlace, self.source.field_order)
 
-    @cached_property
-    def fit_params(self) -> FitParams:
-        """``params`` as applied to this source's images: SA's ε in the analysed image's pixels.
-
-        Eq. 5 is measured in full-frame pixels (FORMATS §2), but a field's rows are
-        :data:`FIELD_ROW_PITCH` frame rows apart, so its centroids are half as precise
-        vertically: on the locust benchmark's DV fields a correct posture's error sits at
-        1.1 px (median; 0.13 px on frames), above Table 1's ε = 1 px, and SA ran to its
-        patience and restarted on every image, 12x slower for the same postures. The paper
-        fitted fields in their own pixels; ε times the row pitch is that same stop rule.
-        The error threshold, a gross-failure flag, is not scaled.
-        """
-        if not self.source.deinterlace:
-            return self.params
-        anneal = replace(self.params.anneal, eps=self.params.anneal.eps * FIELD_ROW_PITCH)
-        return replace(self.params, anneal=anneal)
-
 
 @dataclass(frozen=True)
 class Plan:
@@ -215,7 +198,7 @@ def fit_range(
     """
     return fit_chunk(
         job.source[first:last], model=job.model, rig=job.source.rig, histograms=histograms,
-        params=job.fit_params, seed=job.seed, first_sample=first, offsets=offsets,
+        params=job.params, seed=job.seed, first_sample=first, offsets=offsets,
         should_stop=should_stop, progress=progress,
     )
 
@@ -236,13 +219,13 @@ def reanalyse(
     """
     return reanalyse_image(
         job.source[previous.sample], previous, model=job.model, rig=job.source.rig,
-        histograms=histograms, params=job.fit_params, seed=job.seed, offsets=offsets, typical=typical,
+        histograms=histograms, params=job.params, seed=job.seed, offsets=offsets, typical=typical,
     )
 
 
 def finish(job: FitJob, prior: Histograms, fits: Sequence[ImageFit]) -> SequenceResult:
     """The fits in sample order and the prior updated by every image within the threshold."""
-    return finish_sequence(prior, fits, model=job.model, params=job.fit_params)
+    return finish_sequence(prior, fits, model=job.model, params=job.params)
 
 
 CHUNKS_PER_PROCESS = 4
@@ -281,7 +264,7 @@ def run_fit(
         job = replace(job, chunk_size=max(1, math.ceil(len(job.source) / chunks)))
     steps = plan(job)
     kwargs: dict[str, Any] = dict(
-        model=job.model, rig=job.source.rig, histograms=histograms, params=job.fit_params,
+        model=job.model, rig=job.source.rig, histograms=histograms, params=job.params,
         seed=job.seed, chunk_size=job.chunk_size, offsets=steps.offsets,
     )
     if jobs == 1:
@@ -333,7 +316,7 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
             "chunk_size": job.chunk_size,
             "field_order": job.source.field_order if job.source.deinterlace else None,
             "root_tracking": None if job.root is None else asdict(job.root),
-            "fit": asdict(job.fit_params),
+            "fit": asdict(job.params),
             "detector": asdict(job.source.detector),
         },
     }

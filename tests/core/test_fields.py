@@ -51,7 +51,7 @@ def test_field_detections_are_the_markers_of_their_own_field_in_frame_pixels():
             pts = det.view(v)
             assert len(pts) == 4
             d = np.linalg.norm(proj[sample, v][:, None] - pts[None], axis=2).min(axis=1)
-            assert d.max() < 0.4, (sample, v, d)  # sampling every other row: see below
+            assert d.max() < 0.1, (sample, v, d)
 
 
 def test_odd_first_swaps_the_order_of_the_two_images():
@@ -91,7 +91,8 @@ def test_the_clock_gives_field_names_frames_and_times_of_pal_fields(order, field
 
 @pytest.mark.parametrize("parity", [0, 1])
 def test_field_centroids_are_unbiased_over_the_sub_pixel_position(parity):
-    """A 4 px disc seen on every other row: error within ±0.29 px, zero on average over phase."""
+    """A 4 px disc seen on every other row: its disc-model centre within 0.01 px at every
+    sub-pixel position (the weighted centroid alone: ±0.28 px)."""
     rig = Rig.from_dict(
         {"views": [{"projection": {"type": "affine", "matrix": [[1, 0, 0, 0], [0, 1, 0, 0]]}}]})
     errors = []
@@ -104,22 +105,6 @@ def test_field_centroids_are_unbiased_over_the_sub_pixel_position(parity):
         assert detections.counts.tolist() == [1]
         errors.append(detections.points[0] - (30.3, v))
     errors = np.array(errors)
-    assert np.abs(errors[:, 0]).max() < 0.02
-    assert np.abs(errors[:, 1]).max() < 0.29
-    assert abs(errors[:, 1].mean()) < 0.005
+    assert np.abs(errors[:, 0]).max() < 0.01
+    assert np.abs(errors[:, 1]).max() < 0.01
 
-
-@pytest.mark.parametrize("deinterlace", [False, True])
-def test_sa_stops_at_epsilon_in_the_analysed_image_pixels(deinterlace):
-    """A field's rows are two frame rows apart: ε doubles in frame pixels, nothing else does."""
-    from core.anneal import AnnealParams
-    from core.fit import FitParams
-    from core.pipeline import FitJob, VideoSource
-
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    source = VideoSource((EXAMPLE / "never-opened.avi",), Rig.from_json(EXAMPLE / "rig.json"),
-                         deinterlace=deinterlace)
-    params = FitParams(anneal=AnnealParams(eps=0.75), error_threshold_px=7.0)
-    applied = FitJob(source, model, params).fit_params
-    assert applied.anneal.eps == (1.5 if deinterlace else 0.75)
-    assert applied.error_threshold_px == 7.0 and applied.anneal.n_end == params.anneal.n_end
