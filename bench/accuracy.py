@@ -1,6 +1,6 @@
 """Accuracy benchmark: paper §3.2 / Table 2 replicated on a rendered locust leg.
 
-    python bench/accuracy.py [--seed 2004] [--samples 668]
+    python bench/accuracy.py [--seed 2004] [--samples 668] [--interlaced]
 
 Prints RMSE per DOF, α+β and the mean view error (Eq. 5, summed over the
 markers of the views used) for both views, the side view only and the top view
@@ -76,10 +76,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=2004)
     parser.add_argument("--samples", type=int, default=668)
+    parser.add_argument("--interlaced", action="store_true",
+                        help="the samples are the fields of PAL DV frames, read back de-interlaced")
     args = parser.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
-    bench = locust_benchmark(args.seed, args.samples)
-    print(f"locust benchmark: {len(bench.detections)} images, seed {args.seed}, 4 px markers, "
+    bench = locust_benchmark(args.seed, args.samples, interlaced=args.interlaced)
+    kind = "PAL DV fields" if args.interlaced else "frames"
+    print(f"locust benchmark: {len(bench.detections)} images ({kind}), seed {args.seed}, 4 px markers, "
           f"detection RMS error {detection_rms_px(bench):.3f} px (paper 0.43 px)")
     configs = {
         "both": (bench.rig, bench.detections),
