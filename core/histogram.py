@@ -170,9 +170,9 @@ class Histograms:
     def from_xml(cls, source: str | bytes | Path, model: KinematicModel) -> Histograms:
         """Read ``histograms.xml`` for ``model``: one ``<dof>`` per rotational DOF of the model."""
         try:
-            root = _parse_xml(source)
+            root = _parse_xml(source, "histogram file")
         except ModelError as exc:
-            raise HistogramError(str(exc).replace("model file", "histogram file")) from exc
+            raise HistogramError(str(exc)) from exc
         if root.tag != "histograms":
             raise HistogramError(f"root element is <{root.tag}>, expected <histograms>")
         raw_bins = root.get("bins", str(DEFAULT_BINS)).strip()
