@@ -10,6 +10,8 @@ docstring (2-core EPYC, 2026-11-22).
 
 from __future__ import annotations
 
+import copy
+import json
 import os
 import time
 from collections.abc import Callable
@@ -19,6 +21,7 @@ import pytest
 
 from core import model as model_module
 from core.model import MAX_JOINTS, KinematicModel, ModelError
+from core.rig import Rig, RigError
 
 HANG_GUARD_S = 5.0
 
@@ -180,3 +183,150 @@ def test_numbers_at_the_limit_load_and_give_finite_positions():
     model = KinematicModel.from_xml(_model("".join(joints) + f'<marker name="m" joint="j999" {big}/>'))
     assert np.all(np.isfinite(model.marker_positions(model.upper)))
 
+
+
+# ---- rig JSON (FORMATS §2) -----------------------------------------------------------------------
+
+AFFINE = {"type": "affine", "matrix": [[3.0, 0, 0, 240], [0, -3.0, 0, 184]]}
+PINHOLE = {"type": "pinhole", "K": [[800.0, 0, 320], [0, 700.0, 240], [0, 0, 1]],
+           "dist": [0.01, -0.02, 0.001, 0.002, 0.003], "rvec": [0.1, -0.2, 0.05], "tvec": [0.3, -0.1, 5.0]}
+AFFINE_JSON = '{"type": "affine", "matrix": [[3.0, 0, 0, 240], [0, -3.0, 0, 184]]}'
+
+
+def _view(name: str = "cam", video: int = 0, projection: dict = AFFINE, **extra: object) -> dict:
+    return {"name": name, "video": video, "projection": projection, **extra}
+
+
+def _rig_json(*views: dict) -> str:
+    return json.dumps({"views": list(views)})
+
+
+def _with(projection: dict, **changes: object) -> dict:
+    return {**copy.deepcopy(projection), **changes}
+
+
+def _nested(depth: int) -> list:
+    """A list nested ``depth`` deep, built without recursion."""
+    outer: list = []
+    inner = outer
+    for _ in range(depth - 1):
+        inner.append([])
+        inner = inner[0]
+    return outer
+
+
+HOSTILE_RIG_TEXT = {
+    "nan_token": (lambda: AFFINE_JSON.replace("240", "NaN").join(['{"views": [{"projection": ', "}]}"]),
+                  "rig contains NaN, which is not a number"),
+    "infinity_token": (lambda: _rig_json(_view()).replace("240", "Infinity"), "rig contains Infinity"),
+    "minus_infinity_token": (lambda: _rig_json(_view()).replace("184", "-Infinity"),
+                             "rig contains -Infinity"),
+    "overflowing_number": (lambda: _rig_json(_view()).replace("240", "1e999"),
+                           "view 'cam' affine matrix contains a value that is not a finite number"),
+    "integer_of_5000_digits": (lambda: _rig_json(_view()).replace('"video": 0', '"video": ' + "9" * 5000),
+                               "view 'cam': 'video' must be a non-negative integer index, got inf"),
+    "integer_of_400_digits_in_a_matrix": (lambda: _rig_json(_view()).replace("240", "9" * 400),
+                                          "affine matrix contains a value that is not a finite number"),
+    "deeply_nested_json": (lambda: "[" * 100_000 + "]" * 100_000, "rig JSON is nested too deeply"),
+    "deeply_nested_matrix": (lambda: _rig_json(_view()).replace('[[3.0', "[" * 100_000 + "[3.0", 1)
+                             + "]" * 100_000, "rig JSON is nested too deeply"),
+    "string_of_10_MB": (lambda: _rig_json(_view(name="x" * TEN_MB)), "rig file is larger than 1048576 bytes"),
+    "top_level_list": (lambda: "[]", "rig must be an object with a list 'views'"),
+    "top_level_string": (lambda: '"views"', "rig must be an object with a list 'views'"),
+    "top_level_null": (lambda: "null", "rig must be an object with a list 'views'"),
+    "empty_document": (lambda: "", "rig is not valid JSON"),
+    "not_utf8": (lambda: b'{"views": [{"name": "\xff"}]}', "cannot read rig file"),
+}
+
+
+@pytest.mark.parametrize(("make", "match"), HOSTILE_RIG_TEXT.values(), ids=HOSTILE_RIG_TEXT.keys())
+def test_hostile_rig_json_is_refused_fast(make, match):
+    """Measured: 10 MB string 0.03 s (refused by size before parsing), all others < 1 ms."""
+    text = make()
+    _raises_fast(lambda: Rig.from_json(text), RigError, match)
+
+
+@pytest.mark.parametrize(("make", "match"), HOSTILE_RIG_TEXT.values(), ids=HOSTILE_RIG_TEXT.keys())
+def test_hostile_rig_file_is_refused_too(tmp_path, make, match):
+    text = make()
+    path = tmp_path / "rig.json"
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    _raises_fast(lambda: Rig.from_json(path), RigError, match)
+
+
+HOSTILE_RIG_DOCS = {
+    "singular_dlt": ({"views": [_view(projection={"type": "matrix",
+                                                  "P": [[1, 0, 0, 0], [0, 1, 0, 0], [1, 1, 0, 1]]})]},
+                     r"view 'cam': P is singular \(its 3×3 part has rank < 3\)"),
+    "rank_deficient_dlt": ({"views": [_view(projection={"type": "matrix",
+                                                        "P": [[1, 2, 3, 4], [2, 4, 6, 8], [0, 0, 1, 1]]})]},
+                           "view 'cam': P is singular"),
+    "all_zero_dlt": ({"views": [_view(projection={"type": "matrix", "P": [[0] * 4] * 3})]},
+                     "view 'cam': P is singular"),
+    "zero_focal_length": ({"views": [_view(projection=_with(PINHOLE, K=[[0, 0, 3], [0, 7, 2], [0, 0, 1]]))]},
+                          r"view 'cam': K must be .* with fx, fy > 0"),
+    "nan_distortion": ({"views": [_view(projection=_with(PINHOLE, dist=[float("nan"), 0, 0, 0]))]},
+                       "view 'cam' dist contains a value that is not a finite number"),
+    "infinite_distortion": ({"views": [_view(projection=_with(PINHOLE, dist=[0, float("inf"), 0, 0, 0]))]},
+                            "view 'cam' dist contains a value that is not a finite number"),
+    "missing_views": ({"cameras": [_view()]}, "rig must be an object with a list 'views'"),
+    "zero_views": ({"views": []}, "rig has no views"),
+    "video_index_beyond_the_views": ({"views": [_view(video=3)]},
+                                     r"views use video indices \[3\]: no view uses video 0"),
+    "video_index_skipped": ({"views": [_view("a", 0), _view("b", 2)]},
+                            r"views use video indices \[0, 2\]: no view uses video 1"),
+    "negative_video_index": ({"views": [_view(video=-1)]}, "'video' must be a non-negative integer index"),
+    "negative_roi": ({"views": [_view(roi=[-1, 0, 10, 10])]}, r"roi must be \[x, y, width, height\]"),
+    "duplicate_view_names": ({"views": [_view("cam", 0), _view("cam", 0)]}, "duplicate view name 'cam'"),
+    "name_of_a_megabyte": ({"views": [_view("x" * 2**20)]}, "view 0: 'name' is 1048576 characters long"),
+    "list_nested_100000_deep": ({"views": [_view(projection={"type": "affine", "matrix": _nested(100_000)})]},
+                                "view 'cam' affine matrix must be a 2×4 array of numbers"),
+    "python_int_beyond_float": ({"views": [_view(projection={"type": "affine",
+                                                             "matrix": [[10**400, 0, 0, 0], [0, 1, 0, 0]]})]},
+                                "view 'cam' affine matrix must be a 2×4 array of numbers"),
+}
+
+
+@pytest.mark.parametrize(("doc", "match"), HOSTILE_RIG_DOCS.values(), ids=HOSTILE_RIG_DOCS.keys())
+def test_hostile_rig_document_is_refused_fast(doc, match):
+    """Measured: every case < 1 ms (the 100,000-deep list stops at depth 3)."""
+    _raises_fast(lambda: Rig.from_dict(doc), RigError, match)
+
+
+def _two_camera_rig() -> Rig:
+    return Rig.from_dict({"views": [_view("side", 0, roi=[0, 0, 360, 288]),
+                                    _view("top", 0, roi=[0, 288, 360, 288]),
+                                    _view("cam", 1, projection=PINHOLE)]})
+
+
+@pytest.mark.parametrize(
+    ("sizes", "match"),
+    [([], r"the rig expects 2 video\(s\), got 0"),
+     ([(720, 576)], r"the rig expects 2 video\(s\), got 1"),
+     ([(720, 576)] * 3, r"the rig expects 2 video\(s\), got 3"),
+     ([(720, 575), (640, 480)],
+      r"view 'top': roi \[0, 288, 360, 288\] lies outside the 720×575 frame of video 0"),
+     ([(359, 576), (640, 480)], r"view 'side': roi \[0, 0, 360, 288\] lies outside the 359×576 frame")],
+    ids=["no_video", "one_video_missing", "one_video_too_many", "roi_below_the_frame",
+         "roi_right_of_the_frame"],
+)
+def test_videos_that_do_not_fit_the_rig_are_refused(sizes, match):
+    with pytest.raises(RigError, match=match):
+        _two_camera_rig().check_videos(sizes)
+
+
+def test_videos_that_fit_the_rig_pass():
+    _two_camera_rig().check_videos([(720, 576), (640, 480)])
+
+
+def test_to_dict_is_a_deep_copy():
+    """Editing the document must not edit the rig (its projections nor its cached arrays)."""
+    rig = Rig.from_dict({"views": [_view("a", projection=AFFINE), _view("p", projection=PINHOLE)]})
+    before = rig.to_json()
+    doc = rig.to_dict()
+    doc["views"][0]["projection"]["matrix"][0][0] = 99.0
+    doc["views"][1]["projection"]["K"][0][0] = -1.0
+    doc["views"][1]["projection"]["type"] = "matrix"
+    assert rig.to_json() == before
+    assert rig.views[0].projection["matrix"][0][0] == 3.0
+    np.testing.assert_array_equal(rig.arrays.P[0, 0], [3.0, 0, 0, 240])
