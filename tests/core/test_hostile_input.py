@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from core import model as model_module
+from core.histogram import MAX_BINS, HistogramError, Histograms
 from core.model import MAX_JOINTS, KinematicModel, ModelError
 from core.rig import Rig, RigError
 
@@ -330,3 +331,86 @@ def test_to_dict_is_a_deep_copy():
     assert rig.to_json() == before
     assert rig.views[0].projection["matrix"][0][0] == 3.0
     np.testing.assert_array_equal(rig.arrays.P[0, 0], [3.0, 0, 0, 240])
+
+
+# ---- histogram XML (FORMATS §4) ------------------------------------------------------------------
+
+HINGES = KinematicModel.from_xml(_model(
+    '<joint name="a"><dof axis="z" name="p" min="0" max="180"/></joint>'
+    '<joint name="b" parent="a"><offset x="1"/><dof axis="z" name="q" min="-90" max="90"/></joint>'
+    '<marker name="m" joint="b"/>'
+))
+P = '<dof name="p" count="10">0.25 0.25 0.5 0</dof>'
+Q = '<dof name="q" count="10">1 0 0 0</dof>'
+
+
+def _hist(dofs: str = P + Q, head: str = "", attrs: str = 'model="t" bins="4"') -> str:
+    return f"{head}<histograms {attrs}>{dofs}</histograms>"
+
+
+HOSTILE_HISTOGRAMS = {
+    "external_entity": (lambda: XXE.replace("model", "histograms") + _hist(attrs='model="&x;" bins="4"'),
+                        r"refused unsafe XML \(DTDForbidden\)"),
+    "billion_laughs": (lambda: LAUGHS.replace("model", "histograms") + _hist(attrs='model="&i;" bins="4"'),
+                       r"refused unsafe XML \(DTDForbidden\)"),
+    "dtd_alone": (lambda: '<!DOCTYPE histograms SYSTEM "h.dtd">' + _hist(),
+                  "DTDs and entities are not allowed"),
+    "attribute_10_MB": (lambda: _hist(attrs=f'model="{"A" * TEN_MB}" bins="4"'),
+                        "<histograms> attribute 'model' is 10485760 characters long"),
+    "document_over_16_MB": (lambda: _hist(P + Q + " " * (16 * 2**20)),
+                            "histogram file is larger than 16777216"),
+    "nested_100000_deep": (lambda: _hist(P + Q + "<x>" * 100_000 + "</x>" * 100_000),
+                           "elements are nested more than 16 deep"),
+    "empty_document": (lambda: "", "not well-formed XML: no element found"),
+    "wrong_root": (lambda: _hist().replace("histograms", "model"),
+                   "root element is <model>, expected <histograms>"),
+    "too_few_bins": (lambda: _hist(P.replace("0.5 0", "0.5") + Q), "dof 'p': expected 4 values, got 3"),
+    "too_many_bins": (lambda: _hist(P + Q.replace("1 0", "1 0 0 0")), "dof 'q': expected 4 values, got 6"),
+    "millions_of_values": (lambda: _hist(P + Q.replace("1 0 0 0", "0 " * 5_000_000)),
+                           "dof 'q': expected 4 values, got 5000000"),
+    "bins_beyond_the_limit": (lambda: _hist(attrs='model="t" bins="100000000000"'),
+                              r"bins=100000000000 is more than 3600 \(MAX_BINS\)"),
+    "negative_probability": (lambda: _hist(P.replace("0.25 0.25", "0.75 -0.25") + Q),
+                             "dof 'p': values must be non-negative numbers"),
+    "nan_probability": (lambda: _hist(P.replace("0.5 0", "0.5 NaN") + Q),
+                        "dof 'p': values must be non-negative numbers"),
+    "infinite_probability": (lambda: _hist(P.replace("0.5 0", "0.5 inf") + Q),
+                             "dof 'p': values must be non-negative numbers"),
+    "negative_count": (lambda: _hist(P + Q.replace('count="10"', 'count="-10"')),
+                       "dof 'q': count must be a non-negative number"),
+    "nan_count": (lambda: _hist(P + Q.replace('count="10"', 'count="nan"')),
+                  "dof 'q': count must be a non-negative number"),
+    "dof_not_in_the_model": (lambda: _hist(P + Q + '<dof name="phi" count="1">1 0 0 0</dof>'),
+                             "dof 'phi' is not a rotational DOF of model 't'"),
+    "dof_missing": (lambda: _hist(P), r"no histogram for DOF\(s\) q"),
+}
+
+
+@pytest.mark.parametrize(("make", "match"), HOSTILE_HISTOGRAMS.values(), ids=HOSTILE_HISTOGRAMS.keys())
+def test_hostile_histograms_are_refused_fast(make, match):
+    """Measured: 5,000,000 values 0.3 s (counted, not converted), 10 MB attribute 0.07 s,
+    the others < 0.05 s."""
+    text = make()
+    _raises_fast(lambda: Histograms.from_xml(text, HINGES), HistogramError, match)
+
+
+def test_histograms_with_huge_bins_for_a_model_without_angles_are_refused():
+    """No rotational DOF means no <dof> whose values could contradict ``bins``: the limit alone
+    keeps the (bins,) tables of s(H) from being allocated."""
+    slider = KinematicModel.from_xml(
+        _model('<joint name="a"><dof axis="tx" name="t" min="0" max="1"/></joint>' + MARKER)
+    )
+    _raises_fast(lambda: Histograms.from_xml(_hist("", attrs='model="t" bins="1000000000000"'), slider),
+                 HistogramError, "bins=1000000000000 is more than 3600")
+
+
+def test_histograms_at_the_bin_limit_load():
+    uniform = Histograms.uniform(HINGES, bins=MAX_BINS)
+    again = Histograms.from_xml(uniform.to_xml(), HINGES)
+    np.testing.assert_allclose(again.probs, uniform.probs)
+
+
+def test_uniform_histograms_beyond_the_bin_limit_are_refused():
+    """A bins option from a user (a job setting) is bounded like a file's."""
+    _raises_fast(lambda: Histograms.uniform(HINGES, bins=10**9), HistogramError,
+                 "bins=1000000000 is more than")
