@@ -13,18 +13,25 @@ from __future__ import annotations
 import copy
 import json
 import os
+import struct
 import time
 from collections.abc import Callable
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from core import model as model_module
+from core import video as video_module
 from core.histogram import MAX_BINS, HistogramError, Histograms
 from core.model import MAX_JOINTS, KinematicModel, ModelError
+from core.pipeline import VideoSource
 from core.rig import Rig, RigError
+from core.video import VideoError, VideoSet, probe
 
 HANG_GUARD_S = 5.0
+DATA = Path(__file__).parents[1] / "data"
 
 
 def _raises_fast(call: Callable[[], object], error: type[ValueError], match: str) -> float:
@@ -414,3 +421,117 @@ def test_uniform_histograms_beyond_the_bin_limit_are_refused():
     """A bins option from a user (a job setting) is bounded like a file's."""
     _raises_fast(lambda: Histograms.uniform(HINGES, bins=10**9), HistogramError,
                  "bins=1000000000 is more than")
+
+
+# ---- video ---------------------------------------------------------------------------------------
+
+FRAME_W, FRAME_H = 64, 48
+
+
+def _avi(path: Path, n: int) -> Path:
+    """``n`` tiny MJPG frames, frame i a flat grey 16 + 4 i (so a frame tells its index)."""
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (FRAME_W, FRAME_H), False)
+    for i in range(n):
+        writer.write(np.full((FRAME_H, FRAME_W), 16 + 4 * i, dtype=np.uint8))
+    writer.release()
+    return path
+
+
+def _announce(path: Path, frames: int) -> Path:
+    """Rewrite the frame counts of an AVI's main header (avih) and stream header (strh)."""
+    data = bytearray(path.read_bytes())
+    avih, strh = data.find(b"avih"), data.find(b"strh")
+    struct.pack_into("<I", data, avih + 8 + 16, frames)  # dwTotalFrames
+    struct.pack_into("<I", data, strh + 8 + 32, frames)  # dwLength
+    path.write_bytes(bytes(data))
+    return path
+
+
+def _write(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path
+
+
+def _cut(source: Path, path: Path, keep: float) -> Path:
+    """The first ``keep`` (a fraction) of ``source``'s bytes, as ``path``."""
+    data = source.read_bytes()
+    return _write(path, data[: int(len(data) * keep)])
+
+
+def _fifo(path: Path) -> Path:
+    os.mkfifo(path)
+    return path
+
+
+HOSTILE_VIDEOS = {
+    "text_named_avi": (lambda d: _write(d / "trial.avi", b"frame 1: leg up\n" * 100),
+                       "not a video file FFmpeg can decode"),
+    "random_bytes": (lambda d: _write(d / "trial.avi", np.random.default_rng(5).bytes(50_000)),
+                     "not a video file FFmpeg can decode"),
+    "h264_cut_in_half": (lambda d: _cut(DATA / "frames_h264.mp4", d / "trial.mp4", 0.5),
+                         "not a video file FFmpeg can decode"),
+    "avi_cut_inside_its_header": (lambda d: _cut(_avi(d / "full.avi", 10), d / "trial.avi", 0.02),
+                                  "not a video file FFmpeg can decode"),
+    "zero_bytes": (lambda d: _write(d / "trial.avi", b""), "not a video file FFmpeg can decode"),
+    "zero_frames": (lambda d: _avi(d / "trial.avi", 0), "holds no decodable frame"),
+    "directory": (lambda d: d, "no such video file"),
+    "missing": (lambda d: d / "missing.avi", "no such video file"),
+    "fifo": (lambda d: _fifo(d / "trial.avi"), "no such video file"),
+    "nul_in_name": (lambda d: str(d / "tri\x00al.avi"), "a video path contains a NUL byte"),
+}
+
+
+@pytest.mark.parametrize(("make", "match"), HOSTILE_VIDEOS.values(), ids=HOSTILE_VIDEOS.keys())
+def test_hostile_video_is_refused_fast(tmp_path, make, match):
+    """Measured: every case < 20 ms."""
+    path = make(tmp_path)
+    _raises_fast(lambda: probe(path), VideoError, match)
+
+
+@pytest.mark.parametrize("announced", [3, 1_000_000, 2**32 - 1], ids=["fewer", "a_million", "uint32_max"])
+def test_a_container_that_lies_about_its_frame_count_gives_the_real_one(tmp_path, announced):
+    """The AVI headers announce ``announced`` frames; the file holds 10. probe finds 10 by
+    decoding, and reading every frame returns frames 0..9 (measured < 5 ms)."""
+    path = _announce(_avi(tmp_path / "trial.avi", 10), announced)
+    capture = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    assert capture.get(cv2.CAP_PROP_FRAME_COUNT) == announced  # the lie reaches OpenCV
+    capture.release()
+    start = time.perf_counter()
+    info = probe(path)
+    assert time.perf_counter() - start < HANG_GUARD_S
+    assert info.frames == 10
+    greys = [int(frames[0][0, 0, 0]) for frames in VideoSet([path]).read(0, 10)]
+    assert greys == pytest.approx([16 + 4 * i for i in range(10)], abs=2)
+    with pytest.raises(ValueError, match=r"frame range \[0, 11\) is not within 0..10"):
+        list(VideoSet([path]).read(0, 11))
+
+
+def _source(videos: list[Path], *views: dict) -> VideoSource:
+    return VideoSource(tuple(videos), Rig.from_dict({"views": list(views)}))
+
+
+def test_a_job_whose_roi_lies_outside_the_video_fails_before_any_frame(tmp_path):
+    video = _avi(tmp_path / "trial.avi", 3)
+    source = _source([video], _view("side", roi=[0, 0, FRAME_W, FRAME_H + 1]))
+    with pytest.raises(RigError, match=r"view 'side': roi \[0, 0, 64, 49\] lies outside the 64×48 frame"):
+        len(source)
+
+
+def test_a_job_with_fewer_videos_than_the_rig_needs_fails_before_any_frame(tmp_path):
+    video = _avi(tmp_path / "trial.avi", 3)
+    source = _source([video], _view("a", 0), _view("b", 1))
+    with pytest.raises(RigError, match=r"the rig expects 2 video\(s\), got 1"):
+        len(source)
+
+
+def test_frames_larger_than_the_limit_are_refused_before_decoding(tmp_path, monkeypatch):
+    """The header's frame size is checked, not a decoded frame: lowered to one pixel less
+    than the tiny fixture's, the limit refuses it."""
+    monkeypatch.setattr(video_module, "MAX_FRAME_PIXELS", FRAME_W * FRAME_H - 1)
+    video = _avi(tmp_path / "trial.avi", 1)
+    _raises_fast(lambda: probe(video), VideoError, r"frames of 64×48 pixels are larger than 3071 pixels")
+
+
+def test_frames_at_the_limit_are_read(tmp_path, monkeypatch):
+    monkeypatch.setattr(video_module, "MAX_FRAME_PIXELS", FRAME_W * FRAME_H)
+    assert probe(_avi(tmp_path / "trial.avi", 1)).frames == 1
