@@ -301,6 +301,27 @@ def test_hostile_rig_document_is_refused_fast(doc, match):
     _raises_fast(lambda: Rig.from_dict(doc), RigError, match)
 
 
+EXTREME_BUT_FINITE = {
+    # 1 + k4 r² = 0 at r² = 1: OpenCV (and this kernel, before) divided by zero there.
+    "rational_distortion_pole": _with(PINHOLE, dist=[0, 0, 0, 0, 0, -1, 0, 0], rvec=[0, 0, 0],
+                                      tvec=[0, 0, 0]),
+    "distortion_of_1e300": _with(PINHOLE, dist=[1e300, 1e300, 0, 0, 1e300]),
+    "dlt_of_1e300": {"type": "matrix", "P": [[1e300, 0, 0, 0], [0, 1e300, 0, 0], [0, 0, 1e300, 1]]},
+    "affine_of_1e300": {"type": "affine", "matrix": [[1e300, 0, 0, 0], [0, 0, 1e300, 0]]},
+}
+
+
+@pytest.mark.parametrize("projection", EXTREME_BUT_FINITE.values(), ids=EXTREME_BUT_FINITE.keys())
+def test_extreme_but_finite_rigs_project_to_finite_pixels(projection):
+    """Finite rig numbers can still overflow or hit a pole; every projection must stay finite
+    (a NaN or inf would poison Eq. 5 and the Metropolis step), and far ones go far away."""
+    rig = Rig.from_dict({"views": [_view(projection=projection)]})
+    points = np.array([[0.0, 1.0, 1.0], [1.0, 0.0, 1.0], [1e9, -1e9, 1e9], [0.0, 1e7, 1e-11]])
+    got = rig.project(points)
+    assert np.all(np.isfinite(got))
+    assert np.all(np.abs(got[0, 2]) >= 1e6)
+
+
 def _two_camera_rig() -> Rig:
     return Rig.from_dict({"views": [_view("side", 0, roi=[0, 0, 360, 288]),
                                     _view("top", 0, roi=[0, 288, 360, 288]),
