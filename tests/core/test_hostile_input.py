@@ -34,14 +34,12 @@ HANG_GUARD_S = 5.0
 DATA = Path(__file__).parents[1] / "data"
 
 
-def _raises_fast(call: Callable[[], object], error: type[ValueError], match: str) -> float:
-    """Run ``call``, assert it raises ``error`` matching ``match`` within the hang guard; seconds taken."""
+def _raises_fast(call: Callable[[], object], error: type[ValueError], match: str) -> None:
+    """Run ``call``; assert it raises ``error`` matching ``match`` before the hang guard runs out."""
     start = time.perf_counter()
     with pytest.raises(error, match=match):
         call()
-    elapsed = time.perf_counter() - start
-    assert elapsed < HANG_GUARD_S
-    return elapsed
+    assert time.perf_counter() - start < HANG_GUARD_S
 
 
 # ---- model XML (FORMATS §1) ----------------------------------------------------------------------
@@ -199,7 +197,6 @@ def test_numbers_at_the_limit_load_and_give_finite_positions():
 AFFINE = {"type": "affine", "matrix": [[3.0, 0, 0, 240], [0, -3.0, 0, 184]]}
 PINHOLE = {"type": "pinhole", "K": [[800.0, 0, 320], [0, 700.0, 240], [0, 0, 1]],
            "dist": [0.01, -0.02, 0.001, 0.002, 0.003], "rvec": [0.1, -0.2, 0.05], "tvec": [0.3, -0.1, 5.0]}
-AFFINE_JSON = '{"type": "affine", "matrix": [[3.0, 0, 0, 240], [0, -3.0, 0, 184]]}'
 
 
 def _view(name: str = "cam", video: int = 0, projection: dict = AFFINE, **extra: object) -> dict:
@@ -225,7 +222,7 @@ def _nested(depth: int) -> list:
 
 
 HOSTILE_RIG_TEXT = {
-    "nan_token": (lambda: AFFINE_JSON.replace("240", "NaN").join(['{"views": [{"projection": ', "}]}"]),
+    "nan_token": (lambda: _rig_json(_view()).replace("240", "NaN"),
                   "rig contains NaN, which is not a number"),
     "infinity_token": (lambda: _rig_json(_view()).replace("240", "Infinity"), "rig contains Infinity"),
     "minus_infinity_token": (lambda: _rig_json(_view()).replace("184", "-Infinity"),
@@ -237,8 +234,8 @@ HOSTILE_RIG_TEXT = {
     "integer_of_400_digits_in_a_matrix": (lambda: _rig_json(_view()).replace("240", "9" * 400),
                                           "affine matrix contains a value that is not a finite number"),
     "deeply_nested_json": (lambda: "[" * 100_000 + "]" * 100_000, "rig JSON is nested too deeply"),
-    "deeply_nested_matrix": (lambda: _rig_json(_view()).replace('[[3.0', "[" * 100_000 + "[3.0", 1)
-                             + "]" * 100_000, "rig JSON is nested too deeply"),
+    "deeply_nested_matrix": (lambda: _rig_json(_view(projection={"type": "affine", "matrix": []})).replace(
+        "[]", "[" * 100_000 + "]" * 100_000), "rig JSON is nested too deeply"),
     "string_of_10_MB": (lambda: _rig_json(_view(name="x" * TEN_MB)), "rig file is larger than 1048576 bytes"),
     "top_level_list": (lambda: "[]", "rig must be an object with a list 'views'"),
     "top_level_string": (lambda: '"views"', "rig must be an object with a list 'views'"),
