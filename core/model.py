@@ -25,8 +25,8 @@ from defusedxml import DefusedXmlException
 from core import _kernels
 
 __all__ = [
-    "MAX_ABS_VALUE", "MAX_ATTRIBUTE_CHARS", "MAX_JOINTS", "MAX_MARKERS", "MAX_XML_BYTES",
-    "MAX_XML_DEPTH", "MAX_XML_ELEMENTS", "Dof", "Joint", "KinematicArrays", "KinematicModel",
+    "MAX_ABS_VALUE", "MAX_ATTRIBUTE_CHARS", "MAX_JOINTS", "MAX_MARKERS", "MAX_XML_ATTRIBUTES",
+    "MAX_XML_BYTES", "MAX_XML_DEPTH", "MAX_XML_ELEMENTS", "Dof", "Joint", "KinematicArrays", "KinematicModel",
     "Marker", "ModelError",
 ]
 
@@ -43,6 +43,7 @@ _TRANS_SLOT = {"tx": 0, "ty": 1, "tz": 2}
 MAX_XML_BYTES = 16 * 2**20  # bytes of a file or bytes object; characters of a str
 MAX_XML_DEPTH = 16  # a model nests three deep (model > joint > dof)
 MAX_XML_ELEMENTS = 100_000  # a 1000-joint model with three dofs per joint has ~7000
+MAX_XML_ATTRIBUTES = 200_000  # in the whole file; a 1000-joint model has ~25,000
 MAX_ATTRIBUTE_CHARS = 1024  # names, and numbers as to_xml writes them (1e-300 takes 302)
 # Defaults of the ``max_joints`` and ``max_markers`` options of ``from_xml``: ten times a
 # whole-body model with fingers. Fitting costs time per marker, so a service should not go
@@ -305,9 +306,24 @@ def _parse_bounded(data: str | bytes) -> Element:
     expat is not recursive, but a tree a million elements deep or wide costs memory
     and time in every later walk; :class:`_BoundedTreeBuilder` stops it while it is read.
     """
+    _check_attribute_count(data)
     parser = SafeET.DefusedXMLParser(target=_BoundedTreeBuilder(), forbid_dtd=True)
     parser.feed(data)
     return parser.close()
+
+
+def _check_attribute_count(data: str | bytes) -> None:
+    """Refuse more than :data:`MAX_XML_ATTRIBUTES` attributes before parsing.
+
+    expat hands an element's attributes over all at once: a million of them on one
+    element cost seconds and hundreds of MB before any callback could object. Every
+    attribute has one '=', so counting them (C speed) bounds the attributes from above.
+    """
+    equals = data.count(b"=" if isinstance(data, bytes) else "=")
+    if equals > MAX_XML_ATTRIBUTES:
+        raise ModelError(
+            f"more than {MAX_XML_ATTRIBUTES} attributes ({equals} '=' signs; MAX_XML_ATTRIBUTES)"
+        )
 
 
 class _BoundedTreeBuilder(TreeBuilder):
