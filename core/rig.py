@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import json
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -24,7 +25,7 @@ import numpy as np
 
 from core import _kernels
 
-__all__ = ["Rig", "RigArrays", "RigError", "View"]
+__all__ = ["MAX_NAME_CHARS", "MAX_RIG_BYTES", "MAX_VIEWS", "Rig", "RigArrays", "RigError", "View"]
 
 PROJECTION_TYPES = ("affine", "pinhole", "matrix")
 _KIND = {"affine": 0, "pinhole": _kernels.PINHOLE, "matrix": 2}
@@ -33,6 +34,9 @@ _KIND = {"affine": 0, "pinhole": _kernels.PINHOLE, "matrix": 2}
 # limits bound what a hostile file costs (parse time and memory, size of messages).
 MAX_RIG_BYTES = 2**20  # bytes of a file or bytes object; characters of a str
 MAX_NAME_CHARS = 1024
+# Views per rig: every view costs detection and projection in every image. Labs use up to
+# about 16 cameras (with mirrors, two views each); a 1 MiB file could otherwise hold 16,000.
+MAX_VIEWS = 256
 # Longer integer literals are read as floats: Python's int() is quadratic in the digits
 # and refuses more than 4300 with a plain ValueError; no index or pixel needs 20 digits.
 _MAX_INT_DIGITS = 19
@@ -91,9 +95,10 @@ class Rig:
             raise RigError("rig must be an object with a list 'views'")
         if not data["views"]:
             raise RigError("rig has no views")
+        if len(data["views"]) > MAX_VIEWS:
+            raise RigError(f"rig has {len(data['views'])} views; at most {MAX_VIEWS} are allowed (MAX_VIEWS)")
         views = tuple(_view_from_dict(v, i) for i, v in enumerate(data["views"]))
-        names = [v.name for v in views]
-        dup = {n for n in names if names.count(n) > 1}
+        dup = [name for name, n in Counter(v.name for v in views).items() if n > 1]
         if dup:
             raise RigError(f"duplicate view name '{sorted(dup)[0]}'")
         _check_video_indices(views)
