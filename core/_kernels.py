@@ -202,23 +202,24 @@ def marker_positions_many(Q, kin):
 
 @njit(cache=True, inline="always")
 def _distort(K, dist, v, x, y):
-    """OpenCV's pinhole model: normalised (x, y) → distorted → pixels through K (no skew)."""
+    """OpenCV's pinhole model: normalised (x, y) → distorted → pixels through K (no skew).
+
+    At or beyond a pole of the rational model (denominator ≤ 0, reachable with k4..k6 < 0)
+    the model means nothing: ``BEHIND_CAMERA``, where OpenCV would divide by zero.
+    """
     r2 = x * x + y * y
-    radial = (1.0 + r2 * (dist[v, 0] + r2 * (dist[v, 1] + r2 * dist[v, 4]))) / (
-        1.0 + r2 * (dist[v, 5] + r2 * (dist[v, 6] + r2 * dist[v, 7]))
-    )
+    denominator = 1.0 + r2 * (dist[v, 5] + r2 * (dist[v, 6] + r2 * dist[v, 7]))
+    if not denominator > 0.0:
+        return BEHIND_CAMERA, BEHIND_CAMERA
+    radial = (1.0 + r2 * (dist[v, 0] + r2 * (dist[v, 1] + r2 * dist[v, 4]))) / denominator
     xd = x * radial + 2.0 * dist[v, 2] * x * y + dist[v, 3] * (r2 + 2.0 * x * x)
     yd = y * radial + dist[v, 2] * (r2 + 2.0 * y * y) + 2.0 * dist[v, 3] * x * y
     return K[v, 0, 0] * xd + K[v, 0, 2], K[v, 1, 1] * yd + K[v, 1, 2]
 
 
 @njit(cache=True, inline="always")
-def project_point(kind, P, K, dist, v, X0, X1, X2):
-    """Pixel (u, v) of world point X in view v.
-
-    Points behind a pinhole camera (or at infinity for a DLT matrix) go to
-    ``BEHIND_CAMERA`` pixels: far from every detection, never NaN.
-    """
+def _project_raw(kind, P, K, dist, v, X0, X1, X2):
+    """(u, v) by the view's projection formula, unbounded (may overflow for extreme rigs)."""
     h0 = P[v, 0, 0] * X0 + P[v, 0, 1] * X1 + P[v, 0, 2] * X2 + P[v, 0, 3]
     h1 = P[v, 1, 0] * X0 + P[v, 1, 1] * X1 + P[v, 1, 2] * X2 + P[v, 1, 3]
     if kind[v] == AFFINE:  # third row [0, 0, 0, 1]
@@ -231,6 +232,21 @@ def project_point(kind, P, K, dist, v, X0, X1, X2):
     if abs(h2) < 1e-300:
         return BEHIND_CAMERA, BEHIND_CAMERA
     return h0 / h2, h1 / h2
+
+
+@njit(cache=True, inline="always")
+def project_point(kind, P, K, dist, v, X0, X1, X2):
+    """Pixel (u, v) of world point X in view v.
+
+    Points behind a pinhole camera (or at infinity for a DLT matrix), and any
+    projection at or beyond ``BEHIND_CAMERA`` pixels (an overflow, an inf or a
+    NaN from extreme but finite rig numbers), go to ``BEHIND_CAMERA``: far from
+    every detection, never inf or NaN, so Eq. 5 and the Metropolis step stay defined.
+    """
+    u, w = _project_raw(kind, P, K, dist, v, X0, X1, X2)
+    if abs(u) < BEHIND_CAMERA and abs(w) < BEHIND_CAMERA:
+        return u, w
+    return BEHIND_CAMERA, BEHIND_CAMERA
 
 
 @njit(cache=True, inline="always")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,9 +25,14 @@ import numpy as np
 from core import _kernels
 from core.model import KinematicModel, ModelError, _esc, _float, _num, _parse_xml
 
-__all__ = ["HistogramError", "Histograms"]
+__all__ = ["MAX_BINS", "HistogramError", "Histograms"]
 
 DEFAULT_BINS = 360
+# Most bins per distribution: 0.1° each. The search reads every bin of every DOF for
+# s(H) and the means of each image, and a file's ``bins`` must not decide how much
+# memory is allocated; a lab's 360 (1°) is far below.
+MAX_BINS = 3600
+_VALUE = re.compile(r"\S+")
 
 
 class HistogramError(ValueError):
@@ -78,6 +84,7 @@ class Histograms:
     @classmethod
     def empty(cls, model: KinematicModel, *, bins: int = DEFAULT_BINS) -> Histograms:
         """No measurements yet (count 0): the neutral element of :meth:`merge`."""
+        _check_bins_limit(bins)
         rot = [d for d in model.dofs if d.rotational]
         return cls(
             model=model.name,
@@ -170,9 +177,9 @@ class Histograms:
     def from_xml(cls, source: str | bytes | Path, model: KinematicModel) -> Histograms:
         """Read ``histograms.xml`` for ``model``: one ``<dof>`` per rotational DOF of the model."""
         try:
-            root = _parse_xml(source)
+            root = _parse_xml(source, "histogram file")
         except ModelError as exc:
-            raise HistogramError(str(exc).replace("model file", "histogram file")) from exc
+            raise HistogramError(str(exc)) from exc
         if root.tag != "histograms":
             raise HistogramError(f"root element is <{root.tag}>, expected <histograms>")
         raw_bins = root.get("bins", str(DEFAULT_BINS)).strip()
@@ -181,8 +188,7 @@ class Histograms:
         bins = int(raw_bins)
         if bins < 1:
             raise HistogramError(f"bins={bins} must be at least 1")
-        # Parse every <dof> before allocating (R, bins): ``bins`` comes from the file, and
-        # only the values actually present may decide how much memory is used.
+        _check_bins_limit(bins)
         names = tuple(d.name for d in model.dofs if d.rotational)
         parsed: dict[str, tuple[float, np.ndarray]] = {}
         for el in root.findall("dof"):
@@ -203,21 +209,30 @@ class Histograms:
 
 def _parse_dof(el, name: str, bins: int) -> tuple[float, np.ndarray]:
     where = f"dof '{name}'"
+    text = el.text or ""
+    tokens = text.split(maxsplit=bins)
+    if len(tokens) != bins:
+        # More than ``bins``: the last token holds the rest of the text; count, don't split it.
+        got = len(tokens) if len(tokens) < bins else bins + sum(1 for _ in _VALUE.finditer(tokens[-1]))
+        raise HistogramError(f"{where}: expected {bins} values, got {got}")
     try:
         count = _float(el.get("count", "nan"))
-        values = np.array([_float(v) for v in (el.text or "").split()], dtype=np.float64)
+        values = np.array([_float(v) for v in tokens], dtype=np.float64)
     except ValueError as exc:
         raise HistogramError(f"{where}: {exc}") from None
     if not (math.isfinite(count) and count >= 0):
         raise HistogramError(f"{where}: count must be a non-negative number")
-    if values.shape != (bins,):
-        raise HistogramError(f"{where}: expected {bins} values, got {values.size}")
     if not np.all(np.isfinite(values)) or np.any(values < 0):
         raise HistogramError(f"{where}: values must be non-negative numbers")
     total = values.sum()
     if count > 0 and abs(total - 1.0) > 1e-6:
         raise HistogramError(f"{where}: values sum to {total:.6g}, not 1")
     return count, (values / total if total > 0 else values)
+
+
+def _check_bins_limit(bins: int) -> None:
+    if bins > MAX_BINS:
+        raise HistogramError(f"bins={bins} is more than {MAX_BINS} (MAX_BINS)")
 
 
 @functools.cache

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import NamedTuple
-from xml.etree.ElementTree import Element
+from xml.etree.ElementTree import Element, TreeBuilder
 
 import defusedxml.ElementTree as SafeET
 import numpy as np
@@ -24,13 +24,35 @@ from defusedxml import DefusedXmlException
 
 from core import _kernels
 
-__all__ = ["Dof", "Joint", "KinematicArrays", "KinematicModel", "Marker", "ModelError"]
+__all__ = [
+    "MAX_ABS_VALUE", "MAX_ATTRIBUTE_CHARS", "MAX_JOINTS", "MAX_MARKERS", "MAX_XML_ATTRIBUTES",
+    "MAX_XML_BYTES", "MAX_XML_DEPTH", "MAX_XML_ELEMENTS", "Dof", "Joint", "KinematicArrays", "KinematicModel",
+    "Marker", "ModelError",
+]
 
 ROTATION_AXES = ("x", "y", "z")
 TRANSLATION_AXES = ("tx", "ty", "tz")
 # Column of an axis in KinematicArrays.rot_dof (composition order Ry·Rx·Rz).
 _ROT_SLOT = {"y": 0, "x": 1, "z": 2}
 _TRANS_SLOT = {"tx": 0, "ty": 1, "tz": 2}
+
+# Limits on XML that users upload (model files, FORMATS §1, and histogram files, §4). Real
+# files are far below them: a lab's model has tens of joints and takes a few kB; histograms
+# of 100 DOFs at 360 bins take about 1 MB. They bound what a hostile file can cost (time and
+# memory of the parse, size of error messages and of output column names).
+MAX_XML_BYTES = 16 * 2**20  # bytes of a file or bytes object; characters of a str
+MAX_XML_DEPTH = 16  # a model nests three deep (model > joint > dof)
+MAX_XML_ELEMENTS = 100_000  # a 1000-joint model with three dofs per joint has ~7000
+MAX_XML_ATTRIBUTES = 200_000  # in the whole file; a 1000-joint model has ~25,000
+MAX_ATTRIBUTE_CHARS = 1024  # names, and numbers as to_xml writes them (1e-300 takes 302)
+# Defaults of the ``max_joints`` and ``max_markers`` options of ``from_xml``: ten times a
+# whole-body model with fingers. Fitting costs time per marker, so a service should not go
+# much higher; forward kinematics and validation are iterative and work at any size.
+MAX_JOINTS = 1000
+MAX_MARKERS = 1000
+# Largest magnitude of a number in a model file: offsets and marker positions (model units),
+# angles (degrees). With it every world position stays finite whatever the posture.
+MAX_ABS_VALUE = 1e6
 
 
 class ModelError(ValueError):
@@ -109,11 +131,19 @@ class KinematicModel:
 
     # ---- reading and writing -------------------------------------------------
     @classmethod
-    def from_xml(cls, source: str | bytes | Path) -> KinematicModel:
-        """Parse and validate ``model.xml`` given as text, bytes or a path."""
+    def from_xml(
+        cls, source: str | bytes | Path, *, max_joints: int = MAX_JOINTS, max_markers: int = MAX_MARKERS
+    ) -> KinematicModel:
+        """Parse and validate ``model.xml`` given as text, bytes or a path.
+
+        ``max_joints`` and ``max_markers`` refuse models larger than a lab would use
+        (see :data:`MAX_JOINTS`); the XML itself is bounded by the ``MAX_XML_*`` limits.
+        """
         root = _parse_xml(source)
         if root.tag != "model":
             raise ModelError(f"root element is <{root.tag}>, expected <model>")
+        _check_count(root, "joint", max_joints)
+        _check_count(root, "marker", max_markers)
         joints, dofs = [], []
         for el in root.findall("joint"):
             joint, joint_dofs = _joint_from_element(el)
@@ -236,19 +266,108 @@ class KinematicModel:
 # ---- parsing helpers ---------------------------------------------------------------
 
 
-def _parse_xml(source: str | bytes | Path) -> Element:
+def _parse_xml(source: str | bytes | Path, what: str = "model file") -> Element:
+    """The root element of ``source``, refusing DTDs, entities and anything over the limits.
+
+    ``what`` names the file in messages ("model file", "histogram file").
+    """
+    data = _read_bounded(source, what)
     try:
-        if isinstance(source, Path):
-            return SafeET.parse(source, forbid_dtd=True).getroot()
-        return SafeET.fromstring(source, forbid_dtd=True)
+        return _parse_bounded(data)
     except DefusedXmlException as exc:
         raise ModelError(
             f"refused unsafe XML ({type(exc).__name__}): DTDs and entities are not allowed"
         ) from exc
     except SafeET.ParseError as exc:
         raise ModelError(f"not well-formed XML: {exc}") from exc
-    except OSError as exc:
-        raise ModelError(f"cannot read model file: {exc}") from exc
+
+
+def _read_bounded(source: str | bytes | Path, what: str) -> str | bytes:
+    """The document, read no further than :data:`MAX_XML_BYTES` + 1 so a huge file costs nothing.
+
+    Only a regular file is opened: a FIFO or a device would block or never end.
+    """
+    if isinstance(source, Path):
+        try:
+            if not source.is_file():
+                raise OSError(f"{source} is not a regular file")
+            with source.open("rb") as f:
+                source = f.read(MAX_XML_BYTES + 1)
+        except OSError as exc:
+            raise ModelError(f"cannot read {what}: {exc}") from exc
+    if len(source) > MAX_XML_BYTES:
+        raise ModelError(f"{what} is larger than {MAX_XML_BYTES} bytes (MAX_XML_BYTES)")
+    return source
+
+
+def _parse_bounded(data: str | bytes) -> Element:
+    """Parse ``data`` in one pass, stopping at the first element beyond a limit.
+
+    expat is not recursive, but a tree a million elements deep or wide costs memory
+    and time in every later walk; :class:`_BoundedTreeBuilder` stops it while it is read.
+    """
+    _check_attribute_count(data)
+    parser = SafeET.DefusedXMLParser(target=_BoundedTreeBuilder(), forbid_dtd=True)
+    parser.feed(data)
+    return parser.close()
+
+
+def _check_attribute_count(data: str | bytes) -> None:
+    """Refuse more than :data:`MAX_XML_ATTRIBUTES` attributes before parsing.
+
+    expat hands an element's attributes over all at once: a million of them on one
+    element cost seconds and hundreds of MB before any callback could object. Every
+    attribute has one '=', so counting them (C speed) bounds the attributes from above.
+    """
+    equals = data.count(b"=" if isinstance(data, bytes) else "=")
+    if equals > MAX_XML_ATTRIBUTES:
+        raise ModelError(
+            f"more than {MAX_XML_ATTRIBUTES} attributes ({equals} '=' signs; MAX_XML_ATTRIBUTES)"
+        )
+
+
+class _BoundedTreeBuilder(TreeBuilder):
+    """A TreeBuilder that refuses depth, element count and lengths beyond the ``MAX_XML_*`` limits."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._depth = self._elements = 0
+
+    def start(self, tag: str, attrs: dict[str, str]) -> Element:
+        self._depth += 1
+        self._elements += 1
+        if self._depth > MAX_XML_DEPTH:
+            raise ModelError(f"elements are nested more than {MAX_XML_DEPTH} deep (MAX_XML_DEPTH)")
+        if self._elements > MAX_XML_ELEMENTS:
+            raise ModelError(f"more than {MAX_XML_ELEMENTS} elements (MAX_XML_ELEMENTS)")
+        _check_lengths(tag, attrs)
+        return super().start(tag, attrs)
+
+    def end(self, tag: str) -> Element:
+        self._depth -= 1
+        return super().end(tag)
+
+
+def _check_lengths(tag: str, attrs: dict[str, str]) -> None:
+    """Refuse tag names, attribute names and values longer than :data:`MAX_ATTRIBUTE_CHARS`."""
+    if len(tag) > MAX_ATTRIBUTE_CHARS:
+        raise ModelError(
+            f"an element name is {len(tag)} characters long; at most {MAX_ATTRIBUTE_CHARS} "
+            "are allowed (MAX_ATTRIBUTE_CHARS)"
+        )
+    for key, value in attrs.items():
+        longest = max(len(key), len(value))
+        if longest > MAX_ATTRIBUTE_CHARS:
+            raise ModelError(
+                f"<{tag}> attribute {key[:40]!r} is {longest} characters long; at most "
+                f"{MAX_ATTRIBUTE_CHARS} are allowed (MAX_ATTRIBUTE_CHARS)"
+            )
+
+
+def _check_count(root: Element, tag: str, limit: int) -> None:
+    count = len(root.findall(tag))
+    if count > limit:
+        raise ModelError(f"model has {count} <{tag}> elements; at most {limit} are allowed (max_{tag}s)")
 
 
 def _number(el: Element, attr: str, where: str, default: float | None = None) -> float:
@@ -263,6 +382,8 @@ def _number(el: Element, attr: str, where: str, default: float | None = None) ->
         raise ModelError(f"{where}: attribute {attr}={raw!r} is not a number") from None
     if not math.isfinite(value):
         raise ModelError(f"{where}: attribute {attr}={raw!r} is not a finite number")
+    if abs(value) > MAX_ABS_VALUE:
+        raise ModelError(f"{where}: attribute {attr}={raw!r} is beyond ±{MAX_ABS_VALUE:g} (MAX_ABS_VALUE)")
     return value
 
 

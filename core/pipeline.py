@@ -83,8 +83,14 @@ class VideoSource(Sequence[Detections]):
 
     @cached_property
     def _videos(self) -> VideoSet:
-        """The probed videos, once: chunks and re-analyses seek without probing again."""
-        return VideoSet(self.videos)
+        """The probed videos, once: chunks and re-analyses seek without probing again.
+
+        Checked against the rig here, so that a missing video or a roi outside the
+        frame fails the job before any frame is fitted.
+        """
+        videos = VideoSet(self.videos)
+        self.rig.check_videos([(info.width, info.height) for info in videos.infos])
+        return videos
 
     @property
     def fps(self) -> float:

@@ -11,7 +11,10 @@ Three projection types map a world point (model units) to full-frame pixels
 
 from __future__ import annotations
 
+import copy
 import json
+from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -22,10 +25,21 @@ import numpy as np
 
 from core import _kernels
 
-__all__ = ["Rig", "RigArrays", "RigError", "View"]
+__all__ = ["MAX_NAME_CHARS", "MAX_RIG_BYTES", "MAX_VIEWS", "Rig", "RigArrays", "RigError", "View"]
 
 PROJECTION_TYPES = ("affine", "pinhole", "matrix")
 _KIND = {"affine": 0, "pinhole": _kernels.PINHOLE, "matrix": 2}
+
+# Limits on rig files that users upload. A 16-camera pinhole rig takes about 5 kB; the
+# limits bound what a hostile file costs (parse time and memory, size of messages).
+MAX_RIG_BYTES = 2**20  # bytes of a file or bytes object; characters of a str
+MAX_NAME_CHARS = 1024
+# Views per rig: every view costs detection and projection in every image. Labs use up to
+# about 16 cameras (with mirrors, two views each); a 1 MiB file could otherwise hold 16,000.
+MAX_VIEWS = 256
+# Longer integer literals are read as floats: Python's int() is quadratic in the digits
+# and refuses more than 4300 with a plain ValueError; no index or pixel needs 20 digits.
+_MAX_INT_DIGITS = 19
 
 
 class RigError(ValueError):
@@ -62,11 +76,13 @@ class Rig:
 
     @classmethod
     def from_json(cls, source: str | bytes | Path) -> Rig:
-        """Parse and validate ``rig.json`` given as text, bytes or a path."""
+        """Parse and validate ``rig.json`` given as text, bytes or a path (at most :data:`MAX_RIG_BYTES`)."""
+        text = _read_bounded(source)
         try:
-            text = source.read_text() if isinstance(source, Path) else source
-            data = json.loads(text, parse_constant=_reject_constant)
-        except (OSError, UnicodeDecodeError) as exc:
+            data = json.loads(text, parse_constant=_reject_constant, parse_int=_parse_int)
+        except RecursionError:
+            raise RigError("rig JSON is nested too deeply") from None
+        except UnicodeDecodeError as exc:
             raise RigError(f"cannot read rig file: {exc}") from exc
         except json.JSONDecodeError as exc:
             raise RigError(f"rig is not valid JSON: {exc}") from exc
@@ -79,20 +95,23 @@ class Rig:
             raise RigError("rig must be an object with a list 'views'")
         if not data["views"]:
             raise RigError("rig has no views")
+        if len(data["views"]) > MAX_VIEWS:
+            raise RigError(f"rig has {len(data['views'])} views; at most {MAX_VIEWS} are allowed (MAX_VIEWS)")
         views = tuple(_view_from_dict(v, i) for i, v in enumerate(data["views"]))
-        names = [v.name for v in views]
-        dup = {n for n in names if names.count(n) > 1}
+        dup = [name for name, n in Counter(v.name for v in views).items() if n > 1]
         if dup:
             raise RigError(f"duplicate view name '{sorted(dup)[0]}'")
+        _check_video_indices(views)
         return cls(views)
 
     def to_dict(self) -> dict[str, Any]:
+        """The rig as a JSON-ready document; a deep copy, so editing it cannot change the rig."""
         out = []
         for v in self.views:
             d: dict[str, Any] = {"name": v.name, "video": v.video}
             if v.roi is not None:
                 d["roi"] = list(v.roi)
-            d["projection"] = v.projection
+            d["projection"] = copy.deepcopy(v.projection)
             out.append(d)
         return {"views": out}
 
@@ -101,8 +120,32 @@ class Rig:
 
     @property
     def n_videos(self) -> int:
-        """How many video files the rig expects (highest ``video`` index + 1)."""
+        """How many video files the rig expects: its views use video indices 0 .. n_videos - 1."""
         return max(v.video for v in self.views) + 1
+
+    def check_videos(self, sizes: Sequence[tuple[int, int]]) -> None:
+        """Refuse videos that do not fit the rig, before any frame is decoded.
+
+        Parameters
+        ----------
+        sizes : sequence of (width, height), pixels, one per video file given with the job,
+            in ``video`` index order (``VideoInfo.width``, ``VideoInfo.height``).
+
+        Raises
+        ------
+        RigError
+            If the number of videos is not :attr:`n_videos`, or a view's roi does not lie
+            inside the frame of its video.
+        """
+        if len(sizes) != self.n_videos:
+            raise RigError(f"the rig expects {self.n_videos} video(s), got {len(sizes)}")
+        for v in self.views:
+            width, height = sizes[v.video]
+            if v.roi is not None and (v.roi[0] + v.roi[2] > width or v.roi[1] + v.roi[3] > height):
+                raise RigError(
+                    f"view '{v.name}': roi {list(v.roi)} lies outside the {width}×{height} frame "
+                    f"of video {v.video}"
+                )
 
     @cached_property
     def arrays(self) -> RigArrays:
@@ -150,25 +193,49 @@ class Rig:
 # ---- validation ---------------------------------------------------------------------------
 
 
+def _read_bounded(source: str | bytes | Path) -> str | bytes:
+    """The document, read no further than :data:`MAX_RIG_BYTES` + 1; only a regular file is opened."""
+    if isinstance(source, Path):
+        try:
+            if not source.is_file():
+                raise OSError(f"{source} is not a regular file")
+            with source.open("rb") as f:
+                source = f.read(MAX_RIG_BYTES + 1)
+        except OSError as exc:
+            raise RigError(f"cannot read rig file: {exc}") from exc
+    if len(source) > MAX_RIG_BYTES:
+        raise RigError(f"rig file is larger than {MAX_RIG_BYTES} bytes (MAX_RIG_BYTES)")
+    return source
+
+
 def _reject_constant(name: str) -> float:
     raise RigError(f"rig contains {name}, which is not a number")
 
 
-def _numeric(value: Any) -> bool:
-    """True for (nested lists/tuples of) int or float, or a numeric array: no strings, no booleans."""
+def _parse_int(text: str) -> int | float:
+    """A JSON integer; one longer than :data:`_MAX_INT_DIGITS` digits as a float (maybe inf)."""
+    return int(text) if len(text) <= _MAX_INT_DIGITS else float(text)
+
+
+def _numeric(value: Any, depth: int) -> bool:
+    """True for numbers nested exactly ``depth`` lists/tuples deep, or a numeric array.
+
+    No strings, no booleans; recursion stops at ``depth``, so a list nested a million
+    deep costs nothing.
+    """
     if isinstance(value, np.ndarray):
         return value.dtype.kind in "iuf"
-    if isinstance(value, list | tuple):
-        return all(_numeric(v) for v in value)
+    if depth > 0:
+        return isinstance(value, list | tuple) and all(_numeric(v, depth - 1) for v in value)
     return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
 
 
 def _matrix(value: Any, shape: tuple[int, ...], where: str) -> np.ndarray:
-    if not _numeric(value):
+    if not _numeric(value, len(shape)):
         raise RigError(f"{where} must be a {'×'.join(map(str, shape))} array of numbers")
     try:
         arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise RigError(f"{where} must be a {'×'.join(map(str, shape))} array of numbers") from None
     if arr.shape != shape:
         raise RigError(f"{where} must have shape {'×'.join(map(str, shape))}, got {arr.shape}")
@@ -183,6 +250,8 @@ def _view_from_dict(d: Any, index: int) -> View:
     name = d.get("name", f"view{index}")
     if not isinstance(name, str) or not name:
         raise RigError(f"view {index}: 'name' must be a non-empty string")
+    if len(name) > MAX_NAME_CHARS:
+        raise RigError(f"view {index}: 'name' is {len(name)} characters long; at most {MAX_NAME_CHARS}")
     where = f"view '{name}'"
     video = d.get("video", 0)
     if isinstance(video, bool) or not isinstance(video, int) or video < 0:
@@ -199,6 +268,22 @@ def _view_from_dict(d: Any, index: int) -> View:
     if not isinstance(proj, dict) or proj.get("type") not in PROJECTION_TYPES:
         raise RigError(f"{where}: 'projection' must be an object with type affine, pinhole or matrix")
     return View(name, video, roi, _validate_projection(proj, where))
+
+
+def _check_video_indices(views: tuple[View, ...]) -> None:
+    """Views must use video indices 0 .. n-1, none skipped.
+
+    FORMATS §2: ``video`` indexes the list of files given with the job, so the rig
+    asks for ``max + 1`` files; a skipped index would be a file no view looks at,
+    decoded for nothing — most likely a typo or a view missing from the rig.
+    """
+    used = {v.video for v in views}
+    skipped = sorted(set(range(max(used) + 1)) - used)
+    if skipped:
+        raise RigError(
+            f"views use video indices {sorted(used)}: no view uses video {skipped[0]}; "
+            "indices must be 0..n-1 with none skipped"
+        )
 
 
 def _validate_projection(p: dict[str, Any], where: str) -> dict[str, Any]:

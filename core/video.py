@@ -28,12 +28,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["MAX_FRAME_MISMATCH", "VideoError", "VideoInfo", "VideoSet", "probe"]
+__all__ = ["MAX_FRAME_MISMATCH", "MAX_FRAME_PIXELS", "VideoError", "VideoInfo", "VideoSet", "probe"]
 
 # Videos of one rig are cut from synchronised cameras, but their files may end a
 # frame or two apart (a camera started late, a trailing partial frame dropped).
 # Up to this many frames the shortest one decides; beyond it the set is refused.
 MAX_FRAME_MISMATCH = 2
+# Largest frame (width × height, from the container's header) that is decoded: 4096 × 4096,
+# 48 MiB per BGR frame. Lab cameras are PAL to 4K (8.3 Mpx); a file announcing more is
+# refused before its first frame is allocated. A module setting: a service may lower it.
+MAX_FRAME_PIXELS = 4096 * 4096
 # Relative difference of frame rates still considered the same rate (25 vs 25.0001).
 _FPS_TOLERANCE = 1e-3
 
@@ -67,6 +71,7 @@ def probe(path: str | Path) -> VideoInfo:
     try:
         fps = capture.get(cv2.CAP_PROP_FPS)
         announced = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        _check_frame_size(capture, path)
         first = _read_at(capture, 0)
         if first is None:
             raise VideoError(f"{path}: holds no decodable frame")
@@ -146,6 +151,17 @@ def _open(path: Path) -> cv2.VideoCapture:
         capture.release()
         raise VideoError(f"{path}: not a video file FFmpeg can decode (or it is damaged)")
     return capture
+
+
+def _check_frame_size(capture: cv2.VideoCapture, path: Path) -> None:
+    """Refuse a frame size beyond :data:`MAX_FRAME_PIXELS` before one frame is decoded."""
+    width = capture.get(cv2.CAP_PROP_FRAME_WIDTH)
+    height = capture.get(cv2.CAP_PROP_FRAME_HEIGHT)
+    if width * height > MAX_FRAME_PIXELS:
+        raise VideoError(
+            f"{path}: frames of {width:.0f}×{height:.0f} pixels are larger than "
+            f"{MAX_FRAME_PIXELS} pixels (MAX_FRAME_PIXELS)"
+        )
 
 
 def _read_at(capture: cv2.VideoCapture, index: int) -> np.ndarray | None:
