@@ -313,7 +313,8 @@ def test_restarts_rescue_a_local_minimum(locust):
 
 
 def test_a_restart_that_finds_the_same_minimum_ends_the_restarts(locust):
-    """A displaced detection keeps the minimum above eps: restarting finds it again, and stops."""
+    """A displaced detection keeps the minimum above eps (but below a lost marker's penalty):
+    restarting finds it again, and stops well before the 5 restarts allowed."""
     model, rig = locust
     q = np.array([170.0, 10.0, 0.0, 20.0, 90.0])
     proj = rig.project(model.marker_positions(q))
@@ -323,7 +324,7 @@ def test_a_restart_that_finds_the_same_minimum_ends_the_restarts(locust):
                      params=FitParams(anneal=replace(FAST, patience=0), restarts=5), seed=0).fits
     assert fits[0].objective > FAST.eps
     assert np.abs(fits[0].dofs - q).max() < 1.0
-    assert fits[0].iterations <= 2 * FAST.n_end
+    assert fits[0].iterations <= 3 * FAST.n_end < 6 * FAST.n_end
 
 
 def test_patience_stops_annealing_once_the_best_stops_improving(locust):
