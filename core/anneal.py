@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -90,6 +90,16 @@ class AnnealParams:
             raise ValueError(
                 f"plausibility_threshold must be in [0, 1), got {self.plausibility_threshold!r}"
             )
+
+    def with_iterations(self, n_end: int) -> AnnealParams:
+        """These parameters with N_end = ``n_end`` and N_l, N_τ scaled along (paper §3.2).
+
+        >>> AnnealParams().with_iterations(7000).n_l
+        700
+        """
+        ratio = n_end / self.n_end
+        return replace(self, n_end=n_end, n_l=max(1, round(self.n_l * ratio)),
+                       n_tau=max(1, round(self.n_tau * ratio)))
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,6 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
@@ -146,7 +145,7 @@ def fit(
         if diameter is None:
             diameter = estimate_marker_diameter(source) or 0.0
         params = FitParams(
-            anneal=scaled_iterations(iterations), error_threshold_px=error_threshold_px,
+            anneal=AnnealParams().with_iterations(iterations), error_threshold_px=error_threshold_px,
             max_attempts=max_attempts, fusion_px=fusion_distance(diameter),
         )
         root = None if root_marker is None else RootTracking(
@@ -194,14 +193,6 @@ def _threshold(text: str) -> float | str:
         return float(text)
     except ValueError:
         raise ValueError(f"--threshold must be a grey level 0..255 or 'otsu', got {text!r}") from None
-
-
-def scaled_iterations(n_end: int) -> AnnealParams:
-    """Table 1 with N_end = ``n_end`` and N_l, N_tau scaled linearly (paper §3.2)."""
-    table = AnnealParams()
-    ratio = n_end / table.n_end
-    return replace(table, n_end=n_end, n_l=max(1, round(table.n_l * ratio)),
-                   n_tau=max(1, round(table.n_tau * ratio)))
 
 
 @contextmanager
