@@ -35,6 +35,7 @@ PG_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 REDIS_URL = "redis://127.0.0.1:6379/9"
 CLIP_IMAGES = 40
 CLIP_SEED = 11
+UPLOAD_LIMIT = 64 * 1024**2  # the tests' clips are a few MB
 
 
 def _reachable(port: int) -> bool:
@@ -115,7 +116,8 @@ def _wait_healthy(deployment: Deployment, timeout: float = 60.0) -> None:
 def _base_env(data_dir: Path) -> dict[str, str]:
     env = dict(os.environ)
     env.update(MOCAP_DATA_DIR=str(data_dir), MOCAP_DEFAULT_CHUNK_SIZE="10", MOCAP_HEARTBEAT_S="0.5",
-               MOCAP_CANCEL_CHECK_S="0.2", PYTHONUNBUFFERED="1")
+               MOCAP_CANCEL_CHECK_S="0.2", MOCAP_MAX_UPLOAD_BYTES=str(UPLOAD_LIMIT),
+               PYTHONUNBUFFERED="1")
     return env
 
 
