@@ -29,9 +29,11 @@ def run() -> None:
     run_core()
 
 
-def _celery_command(concurrency: int) -> list[str]:
-    return [sys.executable, "-m", "celery", "-A", "worker.celery_app", "worker",
-            f"--concurrency={concurrency}", "--loglevel=INFO", "--without-mingle", "--without-gossip"]
+def _start_workers(concurrency: int, nice: int) -> subprocess.Popen:
+    """``celery worker`` with ``concurrency`` processes at CPU priority ``nice`` (0 normal, 19 lowest)."""
+    command = [sys.executable, "-m", "celery", "-A", "worker.celery_app", "worker",
+               f"--concurrency={concurrency}", "--loglevel=INFO", "--without-mingle", "--without-gossip"]
+    return subprocess.Popen(command, preexec_fn=(lambda: os.nice(nice)) if nice else None)
 
 
 @app.command()
@@ -39,6 +41,8 @@ def serve(
     port: Annotated[int, typer.Option(min=1, max=65535, help="HTTP port of the API")] = 8000,
     host: Annotated[str, typer.Option(help="address to listen on")] = "127.0.0.1",
     workers: Annotated[int, typer.Option(min=0, max=256, help="Celery worker processes (0: none)")] = 1,
+    nice: Annotated[int, typer.Option(min=0, max=19, help="CPU priority of the workers: fitting "
+                                      "yields to the API on a shared machine")] = 10,
 ) -> None:
     """Run the API and worker processes: SQLite and a filesystem broker unless MOCAP_* say otherwise."""
     import uvicorn
@@ -52,7 +56,7 @@ def serve(
     with user_errors():
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         upgrade()
-    pool = subprocess.Popen(_celery_command(workers)) if workers else None
+    pool = _start_workers(workers, nice) if workers else None
     print(f"mocap: API on http://{host}:{port}/v1 (docs at /docs), {workers} worker process(es), "
           f"data in {settings.data_dir.resolve()}", flush=True)
     try:
@@ -67,9 +71,16 @@ def serve(
 def worker(
     concurrency: Annotated[int, typer.Option(min=1, max=256, help="processes fitting chunks")] = (
         os.cpu_count() or 1),
+    nice: Annotated[int, typer.Option(min=0, max=19, help="CPU priority (0 normal, 19 lowest)")] = 0,
 ) -> None:
     """Run a Celery worker alone (another machine: set MOCAP_DATABASE_URL and MOCAP_BROKER_URL)."""
-    raise typer.Exit(subprocess.call(_celery_command(concurrency)))
+    pool = _start_workers(concurrency, nice)
+    try:
+        code = pool.wait()
+    except KeyboardInterrupt:
+        pool.send_signal(signal.SIGTERM)
+        code = pool.wait()
+    raise typer.Exit(code)
 
 
 @admin.command("create-lab")

@@ -29,6 +29,7 @@ import io
 import json
 import logging
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from datetime import UTC
@@ -77,12 +78,25 @@ class _Loaded:
     prior: Histograms
 
 
+_CACHE_SIZE = 8
+_core_cache: OrderedDict[int, tuple[FitJob, Histograms]] = OrderedDict()
+
+
 def _load(session: Session, job_id: int) -> _Loaded:
+    """The job row and its core objects. The FitJob and the starting histograms never change
+    after submission, and building them probes the videos (decoding frames), so each worker
+    process builds them once per job, not once per chunk."""
     job = session.get_one(Job, job_id)
-    storage = get_storage()
-    fit = build_fit_job(session, job, storage, get_settings().default_chunk_size)
-    start = session.get_one(HistogramVersion, job.histogram_version_id)
-    return _Loaded(job, fit, histstore.load(storage, start.storage_key, fit.model))
+    if job_id not in _core_cache:
+        storage = get_storage()
+        fit = build_fit_job(session, job, storage, get_settings().default_chunk_size)
+        start = session.get_one(HistogramVersion, job.histogram_version_id)
+        _core_cache[job_id] = (fit, histstore.load(storage, start.storage_key, fit.model))
+        while len(_core_cache) > _CACHE_SIZE:
+            _core_cache.popitem(last=False)
+    _core_cache.move_to_end(job_id)
+    fit, prior = _core_cache[job_id]
+    return _Loaded(job, fit, prior.copy())
 
 
 def _enqueue(name: str, *args: int) -> None:

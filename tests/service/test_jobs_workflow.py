@@ -9,6 +9,7 @@ import zipfile
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 from sqlalchemy import text
 from svc_helpers import EXAMPLE, submit, upload_inputs, wait_for
@@ -114,3 +115,21 @@ def test_batch_one_job_per_trial_and_archive_with_a_folder_each(redis_pg, clip):
     assert [j["id"] for j in rest.json()["items"]] == [batch["jobs"][0]["id"]]
     assert rest.json()["next_cursor"] is None
     assert client.get("/jobs", params={"status": "failed"}).json()["items"] == []
+
+
+def test_a_failing_chunk_fails_the_job_with_its_message(redis_pg, tmp_path):
+    """Footage smaller than the rig's regions of interest: planning succeeds, every chunk fails
+    in detection, and the job reports the first failure's message."""
+    client = redis_pg.create_lab("failing")
+    small = tmp_path / "small.avi"
+    write_video(small, (np.zeros((100, 100), np.uint8) for _ in range(12)), fps=50.0)
+    ids = upload_inputs(client, small)
+    job = wait_for(client, submit(client, ids, chunk_size=6)["id"])
+    assert job["status"] == "failed"
+    assert job["error"].startswith("chunk ")
+    assert "roi [0, 0, 360, 288] of view 'side' lies outside its 100×100 frame" in job["error"]
+    with redis_pg.db().connect() as conn:
+        errors = conn.execute(text("SELECT status, error FROM chunks WHERE job_id = :j"),
+                              {"j": job["id"]}).all()
+    assert {status for status, _ in errors} <= {"failed", "running", "queued"}
+    assert any(status == "failed" and "lies outside" in error for status, error in errors)
