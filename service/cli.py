@@ -29,11 +29,15 @@ def run() -> None:
     run_core()
 
 
+def _celery_command(concurrency: int) -> list[str]:
+    return [sys.executable, "-m", "celery", "-A", "worker.celery_app", "worker",
+            f"--concurrency={concurrency}", "--loglevel=INFO", "--without-mingle", "--without-gossip"]
+
+
 def _start_workers(concurrency: int, nice: int) -> subprocess.Popen:
     """``celery worker`` with ``concurrency`` processes at CPU priority ``nice`` (0 normal, 19 lowest)."""
-    command = [sys.executable, "-m", "celery", "-A", "worker.celery_app", "worker",
-               f"--concurrency={concurrency}", "--loglevel=INFO", "--without-mingle", "--without-gossip"]
-    return subprocess.Popen(command, preexec_fn=(lambda: os.nice(nice)) if nice else None)
+    return subprocess.Popen(_celery_command(concurrency),
+                            preexec_fn=(lambda: os.nice(nice)) if nice else None)
 
 
 @app.command()
@@ -73,14 +77,15 @@ def worker(
         os.cpu_count() or 1),
     nice: Annotated[int, typer.Option(min=0, max=19, help="CPU priority (0 normal, 19 lowest)")] = 0,
 ) -> None:
-    """Run a Celery worker alone (another machine: set MOCAP_DATABASE_URL and MOCAP_BROKER_URL)."""
-    pool = _start_workers(concurrency, nice)
-    try:
-        code = pool.wait()
-    except KeyboardInterrupt:
-        pool.send_signal(signal.SIGTERM)
-        code = pool.wait()
-    raise typer.Exit(code)
+    """Run a Celery worker alone (another machine: set MOCAP_DATABASE_URL and MOCAP_BROKER_URL).
+
+    The process becomes the Celery worker (exec), so SIGTERM from a supervisor or
+    ``docker stop`` reaches Celery itself: a warm shutdown, never an orphaned pool.
+    """
+    if nice:
+        os.nice(nice)
+    command = _celery_command(concurrency)
+    os.execv(command[0], command)
 
 
 @admin.command("create-lab")
