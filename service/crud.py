@@ -185,11 +185,6 @@ def list_jobs(
     return rows, (rows[-1].id if more and rows else None)
 
 
-def job_video_ids(session: Session, job: Job) -> list[int]:
-    return list(session.scalars(select(JobVideo.video_id).where(JobVideo.job_id == job.id)
-                                .order_by(JobVideo.position)))
-
-
 def batch_jobs(session: Session, batch: Batch) -> list[Job]:
     return list(session.scalars(select(Job).where(Job.batch_id == batch.id).order_by(Job.trial)))
 

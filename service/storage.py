@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
 from contextlib import AbstractContextManager, contextmanager
@@ -27,7 +26,6 @@ class Storage(Protocol):
 
     def put(self, key: str, chunks: Iterable[bytes]) -> int: ...
     def writer(self, key: str) -> AbstractContextManager[BinaryIO]: ...
-    def put_file(self, key: str, source: Path) -> None: ...
     def open(self, key: str) -> BinaryIO: ...
     def path(self, key: str) -> Path: ...
     def exists(self, key: str) -> bool: ...
@@ -71,11 +69,6 @@ class LocalStorage:
                 f.write(chunk)
                 size += len(chunk)
         return size
-
-    def put_file(self, key: str, source: Path) -> None:
-        """Copy a local file into ``key`` atomically."""
-        with self.writer(key) as f, open(source, "rb") as src:
-            shutil.copyfileobj(src, f, 1 << 20)
 
     def open(self, key: str) -> BinaryIO:
         return open(self.path(key), "rb")
