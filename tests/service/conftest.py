@@ -35,7 +35,7 @@ PG_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 REDIS_URL = "redis://127.0.0.1:6379/9"
 CLIP_IMAGES = 40
 CLIP_SEED = 11
-UPLOAD_LIMIT = 64 * 1024**2  # the tests' clips are a few MB
+UPLOAD_LIMIT = 128 * 1024**2  # the cancel test uploads ~80 MB; the 413 test sends 200 MB
 
 
 def _reachable(port: int) -> bool:
