@@ -32,7 +32,7 @@ class _Sink:
 def stream_zip(entries: Iterable[tuple[str, Storage, str] | tuple[str, bytes]]) -> Iterator[bytes]:
     """Yield a zip of ``entries``: (name, storage, key) copies a stored file, (name, bytes) a small one."""
     sink = _Sink()
-    with zipfile.ZipFile(sink, "w", compression=zipfile.ZIP_DEFLATED) as archive:  # type: ignore[arg-type]
+    with zipfile.ZipFile(sink, "w", compression=zipfile.ZIP_DEFLATED) as archive:  # type: ignore[call-overload]
         for entry in entries:
             with archive.open(entry[0], "w") as dest:
                 if len(entry) == 2:

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from datetime import UTC
 from typing import Any
 
-from sqlalchemy import select, update
+from sqlalchemy import CursorResult, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
@@ -188,10 +188,10 @@ def _complete_chunk(chunk_id: int, job_id: int, key: str, fits: list[ImageFit], 
     with session_scope() as session:
         _insert_ignore(session, ImageResult, [_image_row(job_id, f) for f in fits])
         _insert_ignore(session, Attempt, [_attempt_row(job_id, f, worker) for f in fits])
-        done = session.execute(
+        done = _changed(session,
             update(Chunk).where(Chunk.id == chunk_id, Chunk.status != ChunkStatus.DONE)
             .values(status=ChunkStatus.DONE, observed_key=key, heartbeat_at=utcnow())
-        ).rowcount
+        )
         if not done:
             return False
         counts = session.execute(
@@ -216,11 +216,11 @@ def _after_chunks(job_id: int) -> None:
         fits = _fits(session, job_id)
         typical = typical_objective(fits)
         pending = [f.sample for f in fits if needs_reanalysis(f, loaded.fit.params, typical)]
-        moved = session.execute(
+        moved = _changed(session,
             update(Job).where(Job.id == job_id, Job.status == JobStatus.RUNNING)
             .values(typical_objective=typical, reanalyses_pending=len(pending), fitted_at=utcnow(),
                     status=JobStatus.REANALYSING if pending else JobStatus.RUNNING)
-        ).rowcount
+        )
     if not moved:
         return
     logger.info("job %s: all chunks done, %d images to re-analyse", job_id, len(pending))
@@ -247,11 +247,11 @@ def reanalyse(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
     again = needs_reanalysis(fit, loaded.fit.params, typical)
     over = int(fit.status is Status.OVER_THRESHOLD) - int(previous.status is Status.OVER_THRESHOLD)
     with session_scope() as session:
-        stored = session.execute(
+        stored = _changed(session,
             update(ImageResult).where(ImageResult.job_id == job_id, ImageResult.sample == sample,
                                       ImageResult.attempts == attempt - 1)
             .values(**_image_row(job_id, fit))
-        ).rowcount
+        )
         if not stored:
             return
         _insert_ignore(session, Attempt, [_attempt_row(job_id, fit, worker)])
@@ -282,11 +282,11 @@ def _finish(job_id: int) -> None:
         storage.put(f"jobs/{job_id}/report.json", [(json.dumps(report, indent=2) + "\n").encode()])
         model = session.scalars(select(Model).where(Model.id == loaded.job.model_id)
                                 .with_for_update()).one()  # one fold at a time per model
-        ended = session.execute(
+        ended = _changed(session,
             update(Job).where(Job.id == job_id, Job.status.in_([JobStatus.RUNNING, JobStatus.REANALYSING]))
             .values(status=JobStatus.SUCCEEDED, finished_at=utcnow(), reanalyses_pending=0,
                     images_over_threshold=sum(f.status is Status.OVER_THRESHOLD for f in result.fits))
-        ).rowcount
+        )
         if not ended:
             session.rollback()
             return
@@ -333,6 +333,12 @@ def _set_chunk(chunk_id: int, status: ChunkStatus) -> None:
 
 
 # ---- rows ---------------------------------------------------------------------------------------
+def _changed(session: Session, statement: Any) -> int:
+    """Rows an UPDATE changed: 0 means another delivery (or a cancel) got there first."""
+    result: CursorResult[Any] = session.execute(statement)  # type: ignore[assignment]
+    return result.rowcount
+
+
 def _fits(session: Session, job_id: int) -> list[ImageFit]:
     records = session.scalars(select(ImageResult.record).where(ImageResult.job_id == job_id)
                               .order_by(ImageResult.sample)).all()
