@@ -63,6 +63,8 @@ def serve(
     pool = _start_workers(workers, nice) if workers else None
     print(f"mocap: API on http://{host}:{port}/v1 (docs at /docs), {workers} worker process(es), "
           f"data in {settings.data_dir.resolve()}", flush=True)
+    # uvicorn re-raises SIGTERM once it has shut down; as SystemExit, the workers are stopped below.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     try:
         uvicorn.run(create_app(), host=host, port=port, log_level="info")
     finally:
