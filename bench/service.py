@@ -114,6 +114,24 @@ def upload(client: httpx.Client, videos: list[Path]) -> dict:
             "options": OPTIONS}
 
 
+def busy_cpu_seconds() -> float:
+    """CPU seconds every process of the machine has used (``/proc/stat``): tells whether something
+    besides this benchmark was using the cores while it measured."""
+    fields = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    idle = fields[3] + fields[4]
+    return (sum(fields[:8]) - idle) / os.sysconf("SC_CLK_TCK")
+
+
+def tree_cpu_seconds(pid: int) -> float:
+    """CPU seconds used so far by process ``pid`` and its children (the Celery pool)."""
+    total, tick = 0.0, os.sysconf("SC_CLK_TCK")
+    pids = [pid, *(int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split())]
+    for p in pids:
+        fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+        total += (int(fields[11]) + int(fields[12])) / tick  # utime, stime
+    return total
+
+
 def run_batch(client: httpx.Client, body: dict) -> tuple[float, int]:
     """Seconds from submission to every job succeeded; the batch id."""
     t0 = time.perf_counter()
@@ -169,11 +187,16 @@ def main() -> None:
             seconds = {}
             for n in (1, 2):
                 workers = start_workers(env, n, data / f"workers{n}.log")
+                cpu, own = busy_cpu_seconds(), tree_cpu_seconds(workers.pid)
                 seconds[n], _ = run_batch(client, body)
+                cores = (busy_cpu_seconds() - cpu) / seconds[n]
+                worker_cores = (tree_cpu_seconds(workers.pid) - own) / seconds[n]
                 stop(workers)
                 images = args.trials * args.images
                 print(f"{n} worker(s): {args.trials} trials, {images} images: all succeeded in "
-                      f"{seconds[n]:.2f} s ({images / seconds[n]:.0f} images/s)")
+                      f"{seconds[n]:.2f} s ({images / seconds[n]:.0f} images/s); the machine's "
+                      f"{os.cpu_count()} cores were busy {cores:.2f} on average, the workers "
+                      f"{worker_cores:.2f}")
             print(f"speed-up 2 vs 1 workers: {seconds[1] / seconds[2]:.2f}x (target >= 1.8x)")
 
             workers = start_workers(env, 2, data / "workers-poll.log")

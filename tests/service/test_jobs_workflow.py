@@ -11,10 +11,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from celery import Celery
 from sqlalchemy import text
 from svc_helpers import EXAMPLE, submit, upload_inputs, wait_for
 
 from core.synth import write_video
+from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE
 
 pytestmark = [pytest.mark.service, pytest.mark.slow]
 
@@ -133,3 +135,41 @@ def test_a_failing_chunk_fails_the_job_with_its_message(redis_pg, tmp_path):
                               {"j": job["id"]}).all()
     assert {status for status, _ in errors} <= {"failed", "running", "queued"}
     assert any(status == "failed" and "lies outside" in error for status, error in errors)
+
+
+def test_messages_delivered_again_change_nothing(redis_pg, clip):
+    """Every task of a finished job sent again (as a lost acknowledgement would): no new rows,
+    no new archive version, the job unchanged."""
+    client = redis_pg.create_lab("redelivery")
+    ids = upload_inputs(client, clip.video)
+    job = wait_for(client, submit(client, ids, marker_diameter_px=4.0, chunk_size=20)["id"])
+    assert job["status"] == "succeeded"
+    queries = {
+        "images": "SELECT count(*) FROM image_results WHERE job_id = :j",
+        "attempts": "SELECT count(*) FROM attempts WHERE job_id = :j",
+        "chunks": "SELECT count(*) FROM chunks WHERE job_id = :j",
+        "versions": "SELECT count(*) FROM histogram_versions WHERE job_id = :j",
+    }
+
+    def counts() -> dict[str, int]:
+        with redis_pg.db().connect() as conn:
+            return {k: conn.execute(text(q), {"j": job["id"]}).scalar_one() for k, q in queries.items()}
+
+    before = counts()
+    assert before["images"] == 40 and before["chunks"] == 2 and before["versions"] == 1
+    assert before["attempts"] >= 40  # one per image, more for those re-analysed
+    with redis_pg.db().connect() as conn:
+        chunk_ids = conn.execute(text("SELECT id FROM chunks WHERE job_id = :j"), {"j": job["id"]}).scalars()
+        chunk_ids = list(chunk_ids)
+    broker = Celery(broker=redis_pg.env["MOCAP_BROKER_URL"])
+    queue = redis_pg.env["MOCAP_QUEUE"]
+    broker.send_task(PLAN_JOB, args=[job["id"]], queue=queue)
+    for chunk_id in chunk_ids:
+        broker.send_task(FIT_CHUNK, args=[chunk_id], queue=queue)
+    broker.send_task(REANALYSE_IMAGE, args=[job["id"], 0, 2], queue=queue)
+    # A job submitted after them succeeds only once the worker has taken them all (FIFO queue).
+    later = wait_for(client, submit(client, ids, chunk_size=40)["id"])
+    assert later["status"] == "succeeded"
+    after = counts()
+    assert after == before
+    assert client.get(f"/jobs/{job['id']}").json() == job
