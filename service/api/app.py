@@ -1,0 +1,56 @@
+"""The FastAPI application: routers under ``/v1`` and errors as ``{"detail": "..."}``.
+
+Invalid models, rigs, histograms and videos (``core``'s ModelError, RigError,
+HistogramError, VideoError, and ValueError from option checks) are 422 with
+core's message, which names the element or option at fault.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from service.api.routes import batches, jobs, models, rigs, videos
+from service.errors import ConflictError, NotFoundError
+from service.upload import TooLargeError
+
+logger = logging.getLogger(__name__)
+
+
+def create_app() -> FastAPI:
+    app = FastAPI(title="mocap", version="1",
+                  description="Model-based motion capture as a service: upload models, rigs and "
+                              "videos, submit fitting jobs, download angles and histograms.")
+    for router in (models.router, rigs.router, videos.router, jobs.router, batches.router):
+        app.include_router(router, prefix="/v1")
+    _errors(app)
+    return app
+
+
+def _errors(app: FastAPI) -> None:
+    def handler(status: int):  # type: ignore[no-untyped-def]
+        async def respond(_request: Request, exc: Exception) -> JSONResponse:
+            return JSONResponse({"detail": str(exc) or default[status]}, status_code=status)
+        return respond
+
+    default = {404: "not found", 409: "conflict", 413: "too large", 422: "invalid input"}
+    app.add_exception_handler(NotFoundError, handler(404))
+    app.add_exception_handler(ConflictError, handler(409))
+    app.add_exception_handler(ValueError, handler(422))  # core's ModelError, RigError, VideoError…
+
+    async def too_large(_request: Request, _exc: Exception) -> JSONResponse:
+        return JSONResponse({"detail": "the upload is larger than this server accepts"}, status_code=413)
+
+    async def invalid_request(_request: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, RequestValidationError)
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in e['loc'] if p != 'body') or 'body'}: {e['msg']}"
+            for e in exc.errors()
+        )
+        return JSONResponse({"detail": problems}, status_code=422)
+
+    app.add_exception_handler(TooLargeError, too_large)
+    app.add_exception_handler(RequestValidationError, invalid_request)

@@ -1,0 +1,45 @@
+"""Dependencies of every route: a database session, the caller's lab, the storage, settings."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Annotated
+
+from fastapi import Depends, HTTPException, status
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from sqlalchemy.orm import Session
+
+from service.db import session_factory
+from service.labs import lab_for_key
+from service.models import Lab
+from service.settings import Settings, get_settings
+from service.storage import LocalStorage, get_storage
+
+
+def get_session() -> Iterator[Session]:
+    with session_factory()() as session:
+        yield session
+
+
+SessionDep = Annotated[Session, Depends(get_session)]
+StorageDep = Annotated[LocalStorage, Depends(get_storage)]
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+
+_bearer = HTTPBearer(auto_error=False, description="the lab's API key (`mocap admin create-lab`)")
+
+
+def current_lab(
+    session: SessionDep, credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]
+) -> Lab:
+    """The lab whose key the request carries; 401 without a valid one."""
+    challenge = {"WWW-Authenticate": "Bearer"}
+    if credentials is None:
+        raise HTTPException(status.HTTP_401_UNAUTHORIZED,
+                            "send the lab's API key as 'Authorization: Bearer <key>'", challenge)
+    lab = lab_for_key(session, credentials.credentials)
+    if lab is None:
+        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "unknown API key", challenge)
+    return lab
+
+
+CurrentLab = Annotated[Lab, Depends(current_lab)]

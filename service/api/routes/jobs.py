@@ -1,0 +1,108 @@
+"""Fitting jobs: submit (202), poll, list, cancel, download results."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Response
+from fastapi.responses import FileResponse, StreamingResponse
+from sqlalchemy.orm import Session
+
+from service import crud
+from service.api.deps import CurrentLab, SessionDep, StorageDep
+from service.archive import stream_zip
+from service.models import Job, JobStatus, Lab, Model, RigRow
+from service.schemas import JobCreate, JobPage, JobPublic, Progress
+from service.storage import Storage
+from worker.celery_app import PLAN_JOB
+from worker.celery_app import app as celery
+
+router = APIRouter(prefix="/jobs", tags=["jobs"])
+
+RESULTS = {"angles.csv": "text/csv", "histograms.xml": "application/xml",
+           "report.json": "application/json"}
+
+
+def job_public(job: Job) -> JobPublic:
+    """A job as the API shows it: every field from the job row alone (a poll is one read)."""
+    return JobPublic(
+        id=job.id, status=job.status, model_id=job.model_id, rig_id=job.rig_id, batch_id=job.batch_id,
+        trial=job.trial, histogram_version_id=job.histogram_version_id, options=job.options,
+        progress=progress(job), error=job.error, created_at=job.created_at, started_at=job.started_at,
+        fitted_at=job.fitted_at, finished_at=job.finished_at,
+    )
+
+
+def progress(job: Job) -> Progress:
+    return Progress(images_total=job.images_total, images_done=job.images_done,
+                    images_over_threshold=job.images_over_threshold,
+                    reanalyses_pending=job.reanalyses_pending, chunks_total=job.chunks_total,
+                    chunks_done=job.chunks_done)
+
+
+def enqueue(job: Job) -> None:
+    """Queue a committed job's planning task (ids only: the worker reads the rest from the DB)."""
+    celery.send_task(PLAN_JOB, args=[job.id])
+
+
+@router.post("", status_code=202, response_model=JobPublic,
+             summary="Submit a job; poll the Location it returns")
+def submit(body: JobCreate, response: Response, session: SessionDep, lab: CurrentLab) -> JobPublic:
+    job = crud.submit_job(session, lab, body)
+    enqueue(job)
+    response.headers["Location"] = f"/v1/jobs/{job.id}"
+    return job_public(job)
+
+
+@router.get("", response_model=JobPage, summary="The lab's jobs, newest first")
+def list_jobs(session: SessionDep, lab: CurrentLab, status: JobStatus | None = None,
+              cursor: Annotated[int | None, Query(ge=1, description="next_cursor of the last page")] = None,
+              limit: Annotated[int, Query(ge=1, le=200)] = 50) -> JobPage:
+    rows, next_cursor = crud.list_jobs(session, lab, status=status, cursor=cursor, limit=limit)
+    return JobPage(items=[job_public(j) for j in rows], next_cursor=next_cursor)
+
+
+@router.get("/{job_id}", response_model=JobPublic)
+def get_job(job_id: int, session: SessionDep, lab: CurrentLab) -> JobPublic:
+    return job_public(crud.owned(session, Job, job_id, lab))
+
+
+@router.post("/{job_id}/cancel", response_model=JobPublic,
+             summary="Cancel a job; workers stop between images")
+def cancel(job_id: int, session: SessionDep, lab: CurrentLab) -> JobPublic:
+    return job_public(crud.cancel_job(session, lab, job_id))
+
+
+def _result(name: str):  # type: ignore[no-untyped-def]
+    def download(job_id: int, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> FileResponse:
+        key = crud.result_key(session, lab, job_id, name)
+        return FileResponse(storage.path(key), media_type=RESULTS[name], filename=f"job-{job_id}-{name}")
+
+    download.__name__ = f"download_{name.replace('.', '_')}"
+    return download
+
+
+for _name in RESULTS:
+    router.add_api_route(f"/{{job_id}}/{_name}", _result(_name), methods=["GET"], response_class=FileResponse,
+                         summary=f"Download {_name} of a succeeded job (409 before)")
+
+
+@router.get("/{job_id}/archive.zip", response_class=StreamingResponse,
+            summary="angles.csv, histograms.xml, report.json, model.xml and rig.json in one zip")
+def archive(job_id: int, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> StreamingResponse:
+    entries = list(job_entries(session, storage, lab, job_id, folder=""))
+    return StreamingResponse(stream_zip(entries), media_type="application/zip",
+                             headers={"Content-Disposition": f'attachment; filename="job-{job_id}.zip"'})
+
+
+def job_entries(session: Session, storage: Storage, lab: Lab, job_id: int,
+                folder: str) -> Iterator[tuple[str, Storage, str] | tuple[str, bytes]]:
+    """A succeeded job's results and the model and rig it used, as zip entries under ``folder``."""
+    for name in RESULTS:
+        yield f"{folder}{name}", storage, crud.result_key(session, lab, job_id, name)
+    job = crud.owned(session, Job, job_id, lab)
+    yield f"{folder}model.xml", session.get_one(Model, job.model_id).xml.encode()
+    rig = session.get_one(RigRow, job.rig_id).spec
+    yield f"{folder}rig.json", (json.dumps(rig, indent=2) + "\n").encode()

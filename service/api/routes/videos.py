@@ -1,0 +1,34 @@
+"""Trial videos: streamed to storage, probed, registered only when complete and decodable."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+from fastapi.concurrency import run_in_threadpool
+
+from service import crud
+from service.api.deps import CurrentLab, SessionDep, SettingsDep, StorageDep
+from service.models import Video
+from service.schemas import VideoPublic
+from service.upload import receive_video
+
+router = APIRouter(prefix="/videos", tags=["videos"])
+
+
+def _public(row: Video) -> VideoPublic:
+    return VideoPublic(id=row.id, filename=row.filename, frames=row.frames, fps=row.fps, width=row.width,
+                       height=row.height, size_bytes=row.size_bytes, sha256=row.sha256)
+
+
+@router.post("", status_code=201, response_model=VideoPublic,
+             summary="Upload a video (multipart field 'file'); 413 past MOCAP_MAX_UPLOAD_BYTES")
+async def upload_video(request: Request, session: SessionDep, storage: StorageDep,
+                       settings: SettingsDep, lab: CurrentLab) -> VideoPublic:
+    got = await receive_video(request, storage, settings.max_upload_bytes)
+    row = await run_in_threadpool(crud.register_video, session, storage, lab, key=got.key,
+                                  filename=got.filename, size=got.size, sha256=got.sha256)
+    return _public(row)
+
+
+@router.get("/{video_id}", response_model=VideoPublic)
+def get_video(video_id: int, session: SessionDep, lab: CurrentLab) -> VideoPublic:
+    return _public(crud.owned(session, Video, video_id, lab))

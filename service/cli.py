@@ -1,0 +1,110 @@
+"""``mocap``'s service commands (``serve``, ``worker``, ``admin create-lab``) added to core's CLI.
+
+This is the console script: it registers the commands below on ``core.cli.app``
+and runs it. Service code is imported inside the commands, so ``mocap fit``,
+``synth`` and ``demo`` work where the service's dependencies are not installed;
+``core`` never imports this package.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import subprocess
+import sys
+from typing import Annotated
+
+import typer
+
+from core.cli import app, user_errors
+from core.cli import run as run_core
+
+admin = typer.Typer(no_args_is_help=True, help="Administer labs.")
+app.add_typer(admin, name="admin")
+
+
+def run() -> None:
+    """Console entry point (``mocap``)."""
+    run_core()
+
+
+def _celery_command(concurrency: int) -> list[str]:
+    return [sys.executable, "-m", "celery", "-A", "worker.celery_app", "worker",
+            f"--concurrency={concurrency}", "--loglevel=INFO", "--without-mingle", "--without-gossip"]
+
+
+def _start_workers(concurrency: int, nice: int) -> subprocess.Popen:
+    """``celery worker`` with ``concurrency`` processes at CPU priority ``nice`` (0 normal, 19 lowest)."""
+    return subprocess.Popen(_celery_command(concurrency),
+                            preexec_fn=(lambda: os.nice(nice)) if nice else None)
+
+
+@app.command()
+def serve(
+    port: Annotated[int, typer.Option(min=1, max=65535, help="HTTP port of the API")] = 8000,
+    host: Annotated[str, typer.Option(help="address to listen on")] = "127.0.0.1",
+    workers: Annotated[int, typer.Option(min=0, max=256, help="Celery worker processes (0: none)")] = 1,
+    nice: Annotated[int, typer.Option(min=0, max=19, help="CPU priority of the workers: fitting "
+                                      "yields to the API on a shared machine")] = 10,
+) -> None:
+    """Run the API and worker processes: SQLite and a filesystem broker unless MOCAP_* say otherwise."""
+    import uvicorn
+
+    from service.api.app import create_app
+    from service.migrate import upgrade
+    from service.settings import get_settings
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    settings = get_settings()
+    with user_errors():
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        upgrade()
+    pool = _start_workers(workers, nice) if workers else None
+    print(f"mocap: API on http://{host}:{port}/v1 (docs at /docs), {workers} worker process(es), "
+          f"data in {settings.data_dir.resolve()}", flush=True)
+    # uvicorn re-raises SIGTERM once it has shut down; as SystemExit, the workers are stopped below.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    try:
+        uvicorn.run(create_app(), host=host, port=port, log_level="info")
+    finally:
+        if pool is not None:
+            pool.send_signal(signal.SIGTERM)  # warm shutdown: running tasks finish or are re-queued
+            pool.wait(timeout=60)
+
+
+@app.command()
+def worker(
+    concurrency: Annotated[int, typer.Option(min=1, max=256, help="processes fitting chunks")] = (
+        os.cpu_count() or 1),
+    nice: Annotated[int, typer.Option(min=0, max=19, help="CPU priority (0 normal, 19 lowest)")] = 0,
+) -> None:
+    """Run a Celery worker alone (another machine: set MOCAP_DATABASE_URL and MOCAP_BROKER_URL).
+
+    The process becomes the Celery worker (exec), so SIGTERM from a supervisor or
+    ``docker stop`` reaches Celery itself: a warm shutdown, never an orphaned pool.
+    """
+    if nice:
+        os.nice(nice)
+    command = _celery_command(concurrency)
+    os.execv(command[0], command)
+
+
+@admin.command("create-lab")
+def create_lab(name: Annotated[str, typer.Argument(help="the lab's name")]) -> None:
+    """Create a lab and print its API key (last line; shown only this once)."""
+    from service.db import session_scope
+    from service.labs import create_lab as create
+    from service.migrate import upgrade
+
+    with user_errors():
+        upgrade()
+        with session_scope() as session:
+            lab, key = create(session, name)
+            lab_id = lab.id
+    print(f"created lab {lab_id} ({name}); its API key (store it, it is shown only once):")
+    print(key)
+
+
+if __name__ == "__main__":
+    run()

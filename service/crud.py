@@ -1,0 +1,197 @@
+"""The service layer between routes and the database: ownership checked once, commits here.
+
+Every lookup goes through :func:`owned`, so a resource of another lab is
+indistinguishable from one that does not exist (404), and no route repeats the
+check. Functions that change state commit; routes never do.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any, TypeVar
+
+from sqlalchemy import func, select, update
+from sqlalchemy.orm import Session
+
+from core.histogram import Histograms
+from core.model import KinematicModel
+from core.rig import Rig
+from core.video import probe
+from service import histstore
+from service.errors import ConflictError, InvalidError, NotFoundError
+from service.fitjob import detector_params, fit_params
+from service.models import (
+    TERMINAL,
+    Batch,
+    HistogramVersion,
+    Job,
+    JobStatus,
+    JobVideo,
+    Lab,
+    Model,
+    RigRow,
+    Video,
+)
+from service.schemas import BatchCreate, JobCreate, JobOptions
+from service.storage import Storage
+
+logger = logging.getLogger(__name__)
+
+Owned = TypeVar("Owned", Model, RigRow, Video, Job, Batch)
+
+
+def owned(session: Session, kind: type[Owned], id_: int, lab: Lab) -> Owned:
+    """The ``kind`` row ``id_`` if it belongs to ``lab``; otherwise :class:`NotFoundError`."""
+    row = session.get(kind, id_)
+    if row is None or row.lab_id != lab.id:
+        raise NotFoundError(f"{kind.__tablename__[:-1]} {id_} not found")
+    return row
+
+
+# ---- models and their histogram archive -------------------------------------------------------
+def create_model(session: Session, storage: Storage, lab: Lab, xml: bytes) -> Model:
+    """Validate and store a model; its archive starts with the uniform prior as version 1."""
+    kinematic = KinematicModel.from_xml(xml)  # ModelError → 422
+    row = Model(lab_id=lab.id, name=kinematic.name, xml=xml.decode())
+    session.add(row)
+    session.flush()
+    add_histogram_version(session, storage, row, Histograms.uniform(kinematic), job_id=None)
+    session.commit()
+    return row
+
+
+def add_histogram_version(
+    session: Session, storage: Storage, model: Model, histograms: Histograms, *, job_id: int | None
+) -> HistogramVersion:
+    """Store ``histograms`` as the model's next archive version (caller holds the model's lock)."""
+    latest = session.scalar(select(func.max(HistogramVersion.version))
+                            .where(HistogramVersion.model_id == model.id)) or 0
+    key = f"models/{model.id}/histograms-v{latest + 1}.npz"
+    histstore.save(storage, key, histograms)
+    version = HistogramVersion(model_id=model.id, version=latest + 1, storage_key=key, job_id=job_id)
+    session.add(version)
+    session.flush()
+    return version
+
+
+def histogram_version(session: Session, model: Model, version: int | None) -> HistogramVersion:
+    """Version ``version`` of the model's archive, or the latest."""
+    query = select(HistogramVersion).where(HistogramVersion.model_id == model.id)
+    query = (query.where(HistogramVersion.version == version) if version is not None
+             else query.order_by(HistogramVersion.version.desc()).limit(1))
+    row = session.scalars(query).first()
+    if row is None:
+        raise NotFoundError(f"model {model.id} has no histogram version {version}")
+    return row
+
+
+def histogram_versions(session: Session, model: Model) -> int:
+    return session.scalar(select(func.count()).where(HistogramVersion.model_id == model.id)) or 0
+
+
+# ---- rigs and videos --------------------------------------------------------------------------
+def create_rig(session: Session, lab: Lab, spec: Any) -> RigRow:
+    Rig.from_dict(spec)  # RigError → 422
+    row = RigRow(lab_id=lab.id, spec=spec)
+    session.add(row)
+    session.commit()
+    return row
+
+
+def register_video(
+    session: Session, storage: Storage, lab: Lab, *, key: str, filename: str, size: int, sha256: str
+) -> Video:
+    """Probe a fully stored upload and register it; an unusable file is deleted (VideoError → 422)."""
+    try:
+        info = probe(storage.path(key))
+    except BaseException:
+        storage.delete(key)
+        raise
+    row = Video(lab_id=lab.id, storage_key=key, filename=filename, frames=info.frames, fps=info.fps,
+                width=info.width, height=info.height, size_bytes=size, sha256=sha256)
+    session.add(row)
+    session.commit()
+    return row
+
+
+# ---- jobs and batches ---------------------------------------------------------------------------
+def submit_job(session: Session, lab: Lab, body: JobCreate) -> Job:
+    """Create a queued job (committed); the caller enqueues its planning task."""
+    job = _new_job(session, lab, body.model_id, body.rig_id, body.video_ids, body.options)
+    session.commit()
+    return job
+
+
+def submit_batch(session: Session, lab: Lab, body: BatchCreate) -> tuple[Batch, list[Job]]:
+    """One job per trial, all or none (committed together)."""
+    batch = Batch(lab_id=lab.id)
+    session.add(batch)
+    session.flush()
+    jobs = [
+        _new_job(session, lab, body.model_id, body.rig_id, trial.video_ids, body.options,
+                 batch=batch, trial=i)
+        for i, trial in enumerate(body.trials)
+    ]
+    session.commit()
+    return batch, jobs
+
+
+def _new_job(
+    session: Session, lab: Lab, model_id: int, rig_id: int, video_ids: list[int], options: JobOptions,
+    *, batch: Batch | None = None, trial: int | None = None,
+) -> Job:
+    model = owned(session, Model, model_id, lab)
+    rig = Rig.from_dict(owned(session, RigRow, rig_id, lab).spec)
+    videos = [owned(session, Video, v, lab) for v in video_ids]
+    if len(videos) != rig.n_videos:
+        raise InvalidError(f"rig {rig_id} expects {rig.n_videos} video(s), the job names {len(videos)}")
+    fit_params(options)  # ValueError naming the option → 422
+    detector_params(options)
+    start = histogram_version(session, model, options.histogram_version)
+    job = Job(lab_id=lab.id, model_id=model.id, rig_id=rig_id, options=options.model_dump(),
+              histogram_version_id=start.id, batch_id=None if batch is None else batch.id, trial=trial,
+              status=JobStatus.QUEUED)
+    session.add(job)
+    session.flush()
+    session.add_all(JobVideo(job_id=job.id, position=i, video_id=v.id) for i, v in enumerate(videos))
+    return job
+
+
+def cancel_job(session: Session, lab: Lab, job_id: int) -> Job:
+    """Mark a job canceled unless it has ended; workers see it between images."""
+    job = owned(session, Job, job_id, lab)
+    session.execute(update(Job).where(Job.id == job.id, Job.status.not_in(list(TERMINAL)))
+                    .values(status=JobStatus.CANCELED, error="canceled by the user"))
+    session.commit()
+    session.refresh(job)
+    return job
+
+
+def list_jobs(
+    session: Session, lab: Lab, *, status: JobStatus | None, cursor: int | None, limit: int,
+    batch_id: int | None = None,
+) -> tuple[list[Job], int | None]:
+    """The lab's jobs, newest first, ``limit`` per page after ``cursor`` (a job id)."""
+    query = select(Job).where(Job.lab_id == lab.id)
+    if status is not None:
+        query = query.where(Job.status == status)
+    if batch_id is not None:
+        query = query.where(Job.batch_id == batch_id)
+    if cursor is not None:
+        query = query.where(Job.id < cursor)
+    rows = list(session.scalars(query.order_by(Job.id.desc()).limit(limit + 1)))
+    more = len(rows) > limit
+    rows = rows[:limit]
+    return rows, (rows[-1].id if more and rows else None)
+
+
+def batch_jobs(session: Session, batch: Batch) -> list[Job]:
+    return list(session.scalars(select(Job).where(Job.batch_id == batch.id).order_by(Job.trial)))
+
+
+def result_key(session: Session, lab: Lab, job_id: int, name: str) -> str:
+    """Storage key of a finished job's result file; 409 until the job has succeeded."""
+    job = owned(session, Job, job_id, lab)
+    if job.status != JobStatus.SUCCEEDED:
+        raise ConflictError(f"job {job.id} is {job.status}; results exist once it has succeeded")
+    return f"jobs/{job.id}/{name}"

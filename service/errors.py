@@ -1,0 +1,15 @@
+"""Errors the service layer raises; the API turns them into JSON ``{"detail": ...}``."""
+
+from __future__ import annotations
+
+
+class NotFoundError(LookupError):
+    """A resource that does not exist or belongs to another lab (the two look the same: 404)."""
+
+
+class ConflictError(RuntimeError):
+    """A request that the resource's state does not allow now (409), e.g. results not ready."""
+
+
+class InvalidError(ValueError):
+    """A request that names things that do not fit together (422)."""

@@ -1,0 +1,129 @@
+"""Pydantic schemas of the API, kept apart from the database models (Create / Public)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class DetectorOptions(BaseModel):
+    """Marker detection (``core.detect.DetectorParams``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    threshold: float | Literal["otsu"] = 100.0
+    channel: Literal["grey", "red", "green", "blue"] = "grey"
+    blur: int = Field(default=0, ge=0, le=99)
+    erode: int = Field(default=0, ge=0, le=20)
+    dilate: int = Field(default=0, ge=0, le=20)
+    min_area: int = Field(default=2, ge=1)
+    max_area: int = Field(default=2000, ge=1)
+
+
+class JobOptions(BaseModel):
+    """Everything besides model, rig and videos that decides a job's result (as ``mocap fit``).
+
+    histogram_version : the model archive version to start from; None: the latest.
+    chunk_size : images per chunk task; None: the server's default.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+    deinterlace: bool = False
+    field_order: Literal["even-first", "odd-first"] = "even-first"
+    error_threshold_px: float = Field(default=10.0, gt=0)
+    max_attempts: int = Field(default=5, ge=1, le=100)
+    iterations: int = Field(default=35000, ge=1, le=10_000_000)
+    seed: int = Field(default=0, ge=0, lt=2**63)
+    chunk_size: int | None = Field(default=None, ge=1, le=1_000_000)
+    marker_diameter_px: float | Literal["auto"] = Field(
+        default="auto", description="markers' diameter in pixels, closer markers may image as one "
+        "blob: a number >= 0 (0: the paper's plain Eq. 5) or 'auto' (from the blobs of the first "
+        "images, as `mocap fit` does)")
+    histogram_version: int | None = Field(default=None, ge=1)
+    detector: DetectorOptions = Field(default_factory=DetectorOptions)
+
+
+class ModelPublic(BaseModel):
+    id: int
+    name: str
+    dofs: list[str]
+    histogram_versions: int
+
+
+class RigPublic(BaseModel):
+    id: int
+    views: list[str]
+    videos: int
+
+
+class VideoPublic(BaseModel):
+    id: int
+    filename: str
+    frames: int
+    fps: float
+    width: int
+    height: int
+    size_bytes: int
+    sha256: str
+
+
+class JobCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    model_id: int
+    rig_id: int
+    video_ids: list[int] = Field(min_length=1, max_length=16)
+    options: JobOptions = Field(default_factory=JobOptions)
+
+
+class Trial(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    video_ids: list[int] = Field(min_length=1, max_length=16)
+
+
+class BatchCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    model_id: int
+    rig_id: int
+    trials: list[Trial] = Field(min_length=1, max_length=1000)
+    options: JobOptions = Field(default_factory=JobOptions)
+
+
+class Progress(BaseModel):
+    images_total: int
+    images_done: int
+    images_over_threshold: int
+    reanalyses_pending: int
+    chunks_total: int
+    chunks_done: int
+
+
+class JobPublic(BaseModel):
+    id: int
+    status: str
+    model_id: int
+    rig_id: int
+    batch_id: int | None
+    trial: int | None
+    histogram_version_id: int
+    options: dict[str, Any]
+    progress: Progress
+    error: str | None
+    created_at: datetime
+    started_at: datetime | None
+    fitted_at: datetime | None
+    finished_at: datetime | None
+
+
+class JobPage(BaseModel):
+    items: list[JobPublic]
+    next_cursor: int | None = Field(description="pass as ?cursor= for the next page; null: last page")
+
+
+class BatchPublic(BaseModel):
+    id: int
+    status: str = Field(description="running until every job is terminal; then succeeded if all "
+                                    "succeeded, else failed (or canceled if any was)")
+    statuses: dict[str, int]
+    progress: Progress
+    jobs: list[JobPublic]

@@ -1,0 +1,68 @@
+"""One :class:`Settings` object, read from ``MOCAP_*`` environment variables.
+
+The defaults make ``mocap serve`` work on a fresh machine with no server
+running: SQLite and kombu's filesystem broker, both under ``MOCAP_DATA_DIR``.
+``MOCAP_DATABASE_URL`` and ``MOCAP_BROKER_URL`` switch to PostgreSQL and Redis.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+from pydantic import Field, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Service settings; every field is ``MOCAP_<NAME>`` in the environment."""
+
+    model_config = SettingsConfigDict(env_prefix="MOCAP_")
+
+    data_dir: Path = Path("./mocap-data")
+    # None: SQLite file / kombu filesystem transport under data_dir (filled in below).
+    database_url: str = ""
+    broker_url: str = ""
+    queue: str = "mocap"
+    max_upload_bytes: int = Field(default=2 * 1024**3, gt=0)
+    default_chunk_size: int = Field(default=50, ge=1)
+    # Cancel is cooperative: a fitting worker reads its job's status this often (seconds).
+    cancel_check_s: float = Field(default=0.5, gt=0)
+    # A fitting chunk writes its heartbeat at most this often (seconds); a reaper (issue 5)
+    # re-queues chunks whose heartbeat is much older.
+    heartbeat_s: float = Field(default=2.0, gt=0)
+    # Celery: hard limit < visibility timeout, so Redis never re-delivers a chunk that is
+    # still legitimately running (see worker.celery_app).
+    task_soft_time_limit_s: int = Field(default=1800, gt=0)
+    task_time_limit_s: int = Field(default=1900, gt=0)
+    visibility_timeout_s: int = Field(default=3600, gt=0)
+    # Filesystem broker poll interval (embedded mode only), seconds.
+    filesystem_poll_s: float = Field(default=0.1, gt=0)
+
+    @model_validator(mode="after")
+    def _defaults_under_data_dir(self) -> Settings:
+        if not self.database_url:
+            self.database_url = f"sqlite:///{(self.data_dir / 'mocap.db').resolve()}"
+        if not self.broker_url:
+            self.broker_url = "filesystem://"
+        if not self.task_soft_time_limit_s < self.task_time_limit_s < self.visibility_timeout_s:
+            raise ValueError(
+                "need task_soft_time_limit_s < task_time_limit_s < visibility_timeout_s, got "
+                f"{self.task_soft_time_limit_s}, {self.task_time_limit_s}, {self.visibility_timeout_s}"
+            )
+        return self
+
+    @property
+    def storage_dir(self) -> Path:
+        return self.data_dir / "storage"
+
+    @property
+    def broker_dir(self) -> Path:
+        """The filesystem transport's message folder (embedded mode)."""
+        return self.data_dir / "broker"
+
+
+@lru_cache(maxsize=1)
+def get_settings() -> Settings:
+    """The process's settings, read once from the environment."""
+    return Settings()

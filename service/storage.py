@@ -1,0 +1,85 @@
+"""Storage of uploads and results behind one small interface, shared by API and workers.
+
+Keys are built by the service (``videos/<uuid>.avi``, ``jobs/<id>/angles.csv``),
+never from a user's filename. Writes are atomic: data goes to a temporary file
+in the same directory and is renamed into place once complete, so a reader (or
+a database row) never sees a partial file, even if the writer dies midway.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from collections.abc import Iterable, Iterator
+from contextlib import AbstractContextManager, contextmanager
+from pathlib import Path
+from typing import BinaryIO, Protocol
+
+from service.settings import get_settings
+
+_KEY = re.compile(r"^[A-Za-z0-9_-]+(/[A-Za-z0-9_.-]+)*$")
+
+
+class Storage(Protocol):
+    """What the service needs of a blob store."""
+
+    def put(self, key: str, chunks: Iterable[bytes]) -> int: ...
+    def writer(self, key: str) -> AbstractContextManager[BinaryIO]: ...
+    def open(self, key: str) -> BinaryIO: ...
+    def path(self, key: str) -> Path: ...
+    def exists(self, key: str) -> bool: ...
+    def delete(self, key: str) -> None: ...
+
+
+class LocalStorage:
+    """A directory on a disk shared by the API and the workers (a volume in docker-compose)."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root).resolve()
+        self.root.mkdir(parents=True, exist_ok=True)
+
+    def path(self, key: str) -> Path:
+        """The file of ``key``; keys with ``..``, absolute paths or odd characters are refused."""
+        if not _KEY.match(key) or ".." in key.split("/"):
+            raise ValueError(f"invalid storage key {key!r}")
+        return self.root / key
+
+    @contextmanager
+    def writer(self, key: str) -> Iterator[BinaryIO]:
+        """A file to write ``key`` into; it appears under ``key`` only if the block succeeds."""
+        final = self.path(key)
+        final.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=final.parent, prefix=".partial-")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                yield f
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, final)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    def put(self, key: str, chunks: Iterable[bytes]) -> int:
+        """Store ``chunks`` under ``key`` atomically; return the number of bytes."""
+        size = 0
+        with self.writer(key) as f:
+            for chunk in chunks:
+                f.write(chunk)
+                size += len(chunk)
+        return size
+
+    def open(self, key: str) -> BinaryIO:
+        return open(self.path(key), "rb")
+
+    def exists(self, key: str) -> bool:
+        return self.path(key).is_file()
+
+    def delete(self, key: str) -> None:
+        self.path(key).unlink(missing_ok=True)
+
+
+def get_storage() -> LocalStorage:
+    """The storage of this process's settings."""
+    return LocalStorage(get_settings().storage_dir)

@@ -1,0 +1,135 @@
+"""Request bodies read as they stream in: uploads go to storage chunk by chunk, never whole
+in memory, and a body over the size limit is refused (413) as soon as it passes the limit."""
+
+from __future__ import annotations
+
+import hashlib
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import BinaryIO
+
+from python_multipart.multipart import MultipartParser, parse_options_header
+from starlette.requests import Request
+
+from service.errors import InvalidError
+from service.storage import Storage
+
+MULTIPART_SLACK = 64 * 1024  # part headers and boundaries on top of the file itself
+
+
+class TooLargeError(Exception):
+    """The body passed the configured limit (413)."""
+
+
+@dataclass
+class Received:
+    """A file stored under ``key``: its name as the client gave it (shown, never used as a path)."""
+
+    key: str
+    filename: str
+    size: int
+    sha256: str
+
+
+@dataclass
+class _FilePart:
+    """python-multipart callbacks that write the part named ``file`` to an open file."""
+
+    out: BinaryIO
+    limit: int
+    digest: hashlib._Hash = field(default_factory=hashlib.sha256)
+    size: int = 0
+    filename: str | None = None
+    _header: bytes = b""
+    _value: bytes = b""
+    _disposition: bytes = b""
+    _writing: bool = False
+    _done: bool = False
+
+    def callbacks(self) -> dict[str, Callable[..., None]]:
+        return {"on_header_field": self._on_field, "on_header_value": self._on_value,
+                "on_header_end": self._on_header_end, "on_headers_finished": self._on_headers,
+                "on_part_data": self._on_data, "on_part_end": self._on_part_end}
+
+    def _on_field(self, data: bytes, start: int, end: int) -> None:
+        self._header += data[start:end]
+
+    def _on_value(self, data: bytes, start: int, end: int) -> None:
+        self._value += data[start:end]
+
+    def _on_header_end(self) -> None:
+        if self._header.lower() == b"content-disposition":
+            self._disposition = self._value
+        self._header = self._value = b""
+
+    def _on_headers(self) -> None:
+        _, params = parse_options_header(self._disposition)
+        self._disposition = b""
+        self._writing = not self._done and params.get(b"name") == b"file"
+        if self._writing:
+            self.filename = params.get(b"filename", b"upload").decode("utf-8", "replace")
+
+    def _on_data(self, data: bytes, start: int, end: int) -> None:
+        if not self._writing:
+            return
+        self.size += end - start
+        if self.size > self.limit:
+            raise TooLargeError
+        self.digest.update(data[start:end])
+        self.out.write(data[start:end])
+
+    def _on_part_end(self) -> None:
+        self._done = self._done or self._writing
+        self._writing = False
+
+
+async def receive_video(request: Request, storage: Storage, limit: int) -> Received:
+    """Stream the multipart field ``file`` into storage under a fresh key (atomic: all or nothing)."""
+    content_type, params = parse_options_header(request.headers.get("content-type", ""))
+    if content_type != b"multipart/form-data" or b"boundary" not in params:
+        raise InvalidError("upload the video as multipart/form-data with a field named 'file'")
+    _check_length(request, limit + MULTIPART_SLACK)
+    key = f"videos/{uuid.uuid4().hex}"
+    with storage.writer(key) as out:
+        part = _FilePart(out, limit)
+        parser = MultipartParser(params[b"boundary"], part.callbacks())  # type: ignore[arg-type]
+        received = 0
+        async for chunk in request.stream():
+            received += len(chunk)
+            if received > limit + MULTIPART_SLACK:
+                raise TooLargeError
+            parser.write(chunk)
+        parser.finalize()
+        if part.filename is None:
+            raise InvalidError("the multipart body has no field named 'file'")
+    return Received(key, part.filename[:255], part.size, part.digest.hexdigest())
+
+
+async def read_document(request: Request, limit: int) -> bytes:
+    """A small document (model XML, rig JSON): the raw body, or a multipart field ``file``."""
+    _check_length(request, limit + MULTIPART_SLACK)
+    content_type, _ = parse_options_header(request.headers.get("content-type", ""))
+    if content_type == b"multipart/form-data":
+        form = await request.form(max_files=1, max_fields=10, max_part_size=limit)
+        upload = form.get("file")
+        if upload is None or isinstance(upload, str):
+            raise InvalidError("the multipart body has no file field named 'file'")
+        data = await upload.read(limit + 1)
+    else:
+        data = b""
+        async for chunk in request.stream():
+            data += chunk
+            if len(data) > limit:
+                raise TooLargeError
+    if len(data) > limit:
+        raise TooLargeError
+    if not data.strip():
+        raise InvalidError("the request body is empty")
+    return data
+
+
+def _check_length(request: Request, limit: int) -> None:
+    length = request.headers.get("content-length")
+    if length is not None and length.isdigit() and int(length) > limit:
+        raise TooLargeError

@@ -1,0 +1,194 @@
+"""Real deployments for the service tests: API and Celery worker processes, no mocks.
+
+- ``redis_pg``: uvicorn + ``mocap worker`` against PostgreSQL (a schema of its own,
+  dropped afterwards) and Redis (db 9, a queue named for this run).
+- ``embedded``: ``mocap serve`` as a user runs it: SQLite and kombu's filesystem
+  transport under a temporary data dir, migrations on start.
+
+With ``CI=true`` a missing PostgreSQL or Redis fails the tests; elsewhere they skip.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from sqlalchemy import Engine, text
+
+from core.model import KinematicModel
+from core.rig import Rig
+from core.synth import natural_movements, render_frames, write_video
+from service.db import make_engine
+
+EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
+PG_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
+REDIS_URL = "redis://127.0.0.1:6379/9"
+CLIP_IMAGES = 40
+CLIP_SEED = 11
+UPLOAD_LIMIT = 128 * 1024**2  # the cancel test uploads ~80 MB; the 413 test sends 200 MB
+
+
+def _reachable(port: int) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=1):
+            return True
+    except OSError:
+        return False
+
+
+def require_servers() -> None:
+    """PostgreSQL and Redis on 127.0.0.1, or a failure (CI) / skip (laptop) saying which is down."""
+    down = [name for name, port in (("PostgreSQL", 5432), ("Redis", 6379)) if not _reachable(port)]
+    if not down:
+        return
+    message = f"{' and '.join(down)} not reachable on 127.0.0.1 (start them: see .ci/run)"
+    if os.environ.get("CI", "").lower() == "true":
+        pytest.fail(message)
+    pytest.skip(message)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class Deployment:
+    """A running service: its URL, environment, database and the processes to stop."""
+
+    name: str
+    url: str
+    env: dict[str, str]
+    database_url: str
+    processes: list[subprocess.Popen] = field(default_factory=list)
+    engine: Engine | None = None
+
+    def create_lab(self, name: str) -> httpx.Client:
+        """A client carrying the key ``mocap admin create-lab`` printed as its last line."""
+        out = subprocess.run([sys.executable, "-m", "service.cli", "admin", "create-lab", name],
+                             env=self.env, capture_output=True, text=True, check=True).stdout
+        key = out.strip().splitlines()[-1]
+        return httpx.Client(base_url=self.url, headers={"Authorization": f"Bearer {key}"}, timeout=30)
+
+    def db(self) -> Engine:
+        if self.engine is None:
+            self.engine = make_engine(self.database_url)
+        return self.engine
+
+    def stop(self) -> None:
+        for p in self.processes:
+            p.terminate()
+        for p in self.processes:
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        if self.engine is not None:
+            self.engine.dispose()
+
+
+def _wait_healthy(deployment: Deployment, timeout: float = 60.0) -> None:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        for p in deployment.processes:
+            if p.poll() is not None:
+                raise RuntimeError(f"{deployment.name}: process {p.args} exited with {p.returncode}")
+        try:
+            if httpx.get(deployment.url.removesuffix("/v1") + "/openapi.json", timeout=2).status_code == 200:
+                return
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.2)
+    raise RuntimeError(f"{deployment.name}: the API did not come up in {timeout} s")
+
+
+def _base_env(data_dir: Path) -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(MOCAP_DATA_DIR=str(data_dir), MOCAP_DEFAULT_CHUNK_SIZE="10", MOCAP_HEARTBEAT_S="0.5",
+               MOCAP_CANCEL_CHECK_S="0.2", MOCAP_MAX_UPLOAD_BYTES=str(UPLOAD_LIMIT),
+               PYTHONUNBUFFERED="1")
+    return env
+
+
+def _worker(env: dict[str, str], log: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "service.cli", "worker", "--concurrency", "2"],
+                            env=env, stdout=log.open("w"), stderr=subprocess.STDOUT)
+
+
+@pytest.fixture(scope="session")
+def redis_pg(tmp_path_factory) -> Iterator[Deployment]:
+    require_servers()
+    schema = f"mocap_test_{uuid.uuid4().hex[:10]}"
+    admin = make_engine(PG_ADMIN_URL)
+    with admin.begin() as conn:
+        conn.execute(text(f'CREATE SCHEMA "{schema}"'))
+    data = tmp_path_factory.mktemp("redis_pg")
+    env = _base_env(data)
+    env.update(MOCAP_DATABASE_URL=f"{PG_ADMIN_URL}?options=-csearch_path%3D{schema}",
+               MOCAP_BROKER_URL=REDIS_URL, MOCAP_QUEUE=f"mocap-test-{uuid.uuid4().hex[:10]}")
+    subprocess.run([sys.executable, "-m", "service.migrate"], env=env, check=True, capture_output=True)
+    port = _free_port()
+    deployment = Deployment("redis_pg", f"http://127.0.0.1:{port}/v1", env, env["MOCAP_DATABASE_URL"])
+    deployment.processes.append(subprocess.Popen(
+        [sys.executable, "-m", "uvicorn", "service.api.app:create_app", "--factory", "--port", str(port),
+         "--log-level", "warning"], env=env, stdout=(data / "api.log").open("w"), stderr=subprocess.STDOUT))
+    deployment.processes.append(_worker(env, data / "worker.log"))
+    try:
+        _wait_healthy(deployment)
+        yield deployment
+    finally:
+        deployment.stop()
+        with admin.begin() as conn:
+            conn.execute(text(f'DROP SCHEMA "{schema}" CASCADE'))
+        admin.dispose()
+
+
+@pytest.fixture(scope="session")
+def embedded(tmp_path_factory) -> Iterator[Deployment]:
+    data = tmp_path_factory.mktemp("embedded")
+    env = _base_env(data)
+    for name in ("MOCAP_DATABASE_URL", "MOCAP_BROKER_URL", "MOCAP_QUEUE"):
+        env.pop(name, None)
+    port = _free_port()
+    deployment = Deployment("embedded", f"http://127.0.0.1:{port}/v1", env,
+                            f"sqlite:///{data / 'mocap.db'}")
+    deployment.processes.append(subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", "2"],
+        env=env, stdout=(data / "serve.log").open("w"), stderr=subprocess.STDOUT))
+    try:
+        _wait_healthy(deployment)
+        yield deployment
+    finally:
+        deployment.stop()
+
+
+@dataclass(frozen=True)
+class Clip:
+    """A rendered locust clip on disk and its truth."""
+
+    video: Path
+    model: KinematicModel
+    rig: Rig
+    truth: np.ndarray
+
+
+@pytest.fixture(scope="session")
+def clip(tmp_path_factory) -> Clip:
+    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
+    rig = Rig.from_json(EXAMPLE / "rig.json")
+    rng = np.random.default_rng(CLIP_SEED)
+    truth = natural_movements(model, rig, CLIP_IMAGES, rng=rng, n_sequences=2)
+    video = tmp_path_factory.mktemp("clip") / "clip.avi"
+    write_video(video, render_frames(model, rig, truth, rng=rng), fps=50.0)
+    return Clip(video, model, rig, truth)

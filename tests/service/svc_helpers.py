@@ -1,0 +1,47 @@
+"""HTTP steps shared by the service tests: upload, submit, poll."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
+TERMINAL = {"succeeded", "failed", "canceled"}
+
+
+def upload_inputs(client: httpx.Client, video: Path, rig: bytes | None = None) -> dict[str, int]:
+    """Upload the locust model, a rig (the example's by default) and ``video``; return their ids."""
+    model = client.post("/models", content=(EXAMPLE / "model.xml").read_bytes(),
+                        headers={"Content-Type": "application/xml"})
+    assert model.status_code == 201, model.text
+    rig_response = client.post("/rigs", content=rig or (EXAMPLE / "rig.json").read_bytes(),
+                               headers={"Content-Type": "application/json"})
+    assert rig_response.status_code == 201, rig_response.text
+    with video.open("rb") as f:
+        uploaded = client.post("/videos", files={"file": (video.name, f, "video/x-msvideo")})
+    assert uploaded.status_code == 201, uploaded.text
+    return {"model_id": model.json()["id"], "rig_id": rig_response.json()["id"],
+            "video_id": uploaded.json()["id"]}
+
+
+def submit(client: httpx.Client, ids: dict[str, int], **options: Any) -> dict[str, Any]:
+    response = client.post("/jobs", json={"model_id": ids["model_id"], "rig_id": ids["rig_id"],
+                                          "video_ids": [ids["video_id"]], "options": options})
+    assert response.status_code == 202, response.text
+    assert response.headers["Location"] == f"/v1/jobs/{response.json()['id']}"
+    return response.json()
+
+
+def wait_for(client: httpx.Client, job_id: int, statuses: set[str] = TERMINAL,
+             timeout: float = 120.0) -> dict[str, Any]:
+    """Poll the job until its status is in ``statuses``."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        job = client.get(f"/jobs/{job_id}").json()
+        if job["status"] in statuses:
+            return job
+        time.sleep(0.2)
+    raise AssertionError(f"job {job_id} still {job['status']} after {timeout} s: {job}")

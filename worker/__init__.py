@@ -1,0 +1,1 @@
+"""Celery workers: thin tasks (``tasks``) over one orchestration module (``orchestration``)."""

@@ -1,0 +1,372 @@
+"""The whole life of a job, driven by database state: plan → chunks → merge → re-analysis → finish.
+
+Every step calls the same ``core.pipeline`` functions as ``mocap fit``:
+
+1. :func:`plan_job` (``core.pipeline.plan``): chunk rows, one ``fit_chunk`` task each.
+2. :func:`run_chunk` (``core.pipeline.fit_range``): the chunk's image rows (attempt 1)
+   and its observed histogram counts, stored exactly (``.npz``). Marking the chunk
+   done and counting it on the job is one guarded UPDATE; the chunk whose UPDATE
+   brings ``chunks_done`` to ``chunks_total`` is the last, and only it goes on:
+3. :func:`_after_chunks` (``core.fit.merge_chunks``, ``typical_objective``,
+   ``needs_reanalysis``): merged histograms, one ``reanalyse_image`` task per image
+   to re-fit, ``reanalyses_pending`` on the job.
+4. :func:`reanalyse` (``core.pipeline.reanalyse``): one attempt, keeping the best;
+   the next attempt is queued while the image still needs one; the task that brings
+   ``reanalyses_pending`` to 0 finishes the job.
+5. :func:`_finish` (``core.pipeline.finish``, ``build_report``): angles.csv,
+   histograms.xml, report.json, and the job's observations folded into the model's
+   histogram archive as a new version.
+
+Idempotence: image and attempt rows are inserted keyed by (job, sample[, attempt])
+and a second insert is ignored (fits are deterministic per seed, sample and attempt);
+every transition is an UPDATE guarded by the expected current state, acting only if
+it changed a row. Tasks are queued only after the transaction that needs them commits.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import time
+from collections import OrderedDict
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from datetime import UTC
+from typing import Any
+
+from sqlalchemy import CursorResult, select, update
+from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.orm import Session
+
+from core.fit import ImageFit, Status, merge_chunks, needs_reanalysis, typical_objective
+from core.histogram import Histograms
+from core.pipeline import FitJob, FitOutcome, build_report, finish, fit_range, plan
+from core.pipeline import reanalyse as reanalyse_step
+from core.results import write_angles_csv
+from service import histstore
+from service.crud import add_histogram_version, histogram_version
+from service.db import session_scope
+from service.fitjob import build_fit_job
+from service.models import (
+    TERMINAL,
+    Attempt,
+    Chunk,
+    ChunkStatus,
+    HistogramVersion,
+    ImageResult,
+    Job,
+    JobStatus,
+    Model,
+    utcnow,
+)
+from service.settings import get_settings
+from service.storage import get_storage
+from worker.celery_app import FIT_CHUNK, REANALYSE_IMAGE, app
+
+logger = logging.getLogger(__name__)
+
+_INSERT_BATCH = 500  # rows per INSERT: SQLite allows 32,766 bound values per statement
+
+
+@dataclass
+class _Loaded:
+    """A job row with its core objects: what every step needs."""
+
+    job: Job
+    fit: FitJob
+    prior: Histograms
+
+
+_CACHE_SIZE = 8
+_core_cache: OrderedDict[int, tuple[FitJob, Histograms]] = OrderedDict()
+
+
+def _load(session: Session, job_id: int) -> _Loaded:
+    """The job row and its core objects. The FitJob and the starting histograms never change
+    after submission, and building them probes the videos (decoding frames), so each worker
+    process builds them once per job, not once per chunk."""
+    job = session.get_one(Job, job_id)
+    if job_id not in _core_cache:
+        storage = get_storage()
+        fit = build_fit_job(session, job, storage, get_settings().default_chunk_size)
+        start = session.get_one(HistogramVersion, job.histogram_version_id)
+        _core_cache[job_id] = (fit, histstore.load(storage, start.storage_key, fit.model))
+        while len(_core_cache) > _CACHE_SIZE:
+            _core_cache.popitem(last=False)
+    _core_cache.move_to_end(job_id)
+    fit, prior = _core_cache[job_id]
+    return _Loaded(job, fit, prior.copy())
+
+
+def _enqueue(name: str, *args: int) -> None:
+    app.send_task(name, args=list(args))
+
+
+# ---- 1. plan ----------------------------------------------------------------------------------
+def plan_job(job_id: int) -> None:
+    """Count images, create chunk rows and queue them (only for a job still queued)."""
+    with session_scope() as session:
+        job = session.get_one(Job, job_id)
+        if job.status != JobStatus.QUEUED:
+            logger.info("job %s is %s: nothing to plan", job_id, job.status)
+            return
+        steps = plan(_load(session, job_id).fit)
+        chunks = [Chunk(job_id=job_id, index=i, first=a, last=b) for i, (a, b) in enumerate(steps.chunks)]
+        session.add_all(chunks)
+        job.images_total, job.chunks_total = steps.images, len(chunks)
+        job.status, job.started_at = JobStatus.RUNNING, utcnow()
+        session.flush()
+        ids = [c.id for c in chunks]
+    logger.info("job %s: %d images in %d chunks", job_id, steps.images, len(ids))
+    for chunk_id in ids:
+        _enqueue(FIT_CHUNK, chunk_id)
+
+
+# ---- 2. chunks --------------------------------------------------------------------------------
+def run_chunk(chunk_id: int, *, worker: str) -> None:
+    """Fit one chunk, store its rows and counts, and go on to step 3 if it was the last."""
+    with session_scope() as session:
+        chunk = session.get_one(Chunk, chunk_id)
+        if not _claim(session, chunk, worker):
+            return
+        loaded = _load(session, chunk.job_id)
+        first, last, job_id, index = chunk.first, chunk.last, chunk.job_id, chunk.index
+    result = fit_range(loaded.fit, loaded.prior, first, last,
+                       should_stop=_canceled_check(job_id), progress=_heartbeat(chunk_id))
+    if len(result.fits) < last - first:
+        _set_chunk(chunk_id, ChunkStatus.CANCELED)
+        logger.info("chunk %s of job %s stopped: job canceled", index, job_id)
+        return
+    key = f"jobs/{job_id}/chunks/{index}.npz"
+    histstore.save(get_storage(), key, result.observed)
+    if _complete_chunk(chunk_id, job_id, key, result.fits, worker):
+        _after_chunks(job_id)
+
+
+def _claim(session: Session, chunk: Chunk, worker: str) -> bool:
+    """Start (or restart, after a lost delivery) a chunk that is not done and whose job runs."""
+    job = session.get_one(Job, chunk.job_id)
+    if job.status != JobStatus.RUNNING or chunk.status in (ChunkStatus.DONE, ChunkStatus.FAILED):
+        logger.info("chunk %s skipped: chunk %s, job %s", chunk.id, chunk.status, job.status)
+        return False
+    chunk.status, chunk.worker, chunk.heartbeat_at = ChunkStatus.RUNNING, worker, utcnow()
+    chunk.attempts += 1
+    return True
+
+
+def _canceled_check(job_id: int) -> Callable[[], bool]:
+    """``should_stop`` for ``fit_range``: reads the job's status at most every cancel_check_s."""
+    interval, state = get_settings().cancel_check_s, {"at": time.monotonic(), "stop": False}
+
+    def should_stop() -> bool:
+        if not state["stop"] and time.monotonic() - state["at"] >= interval:
+            state["at"] = time.monotonic()
+            with session_scope() as session:
+                state["stop"] = session.get_one(Job, job_id).status in TERMINAL
+        return bool(state["stop"])
+
+    return should_stop
+
+
+def _heartbeat(chunk_id: int) -> Callable[[ImageFit], None]:
+    """``progress`` for ``fit_range``: writes the chunk's heartbeat at most every heartbeat_s."""
+    interval, last = get_settings().heartbeat_s, [time.monotonic()]
+
+    def beat(_fit: ImageFit) -> None:
+        if time.monotonic() - last[0] >= interval:
+            last[0] = time.monotonic()
+            with session_scope() as session:
+                session.execute(update(Chunk).where(Chunk.id == chunk_id).values(heartbeat_at=utcnow()))
+
+    return beat
+
+
+def _complete_chunk(chunk_id: int, job_id: int, key: str, fits: list[ImageFit], worker: str) -> bool:
+    """Store the chunk's fits and count it done; True for the job's last chunk."""
+    over = sum(f.status is Status.OVER_THRESHOLD for f in fits)
+    with session_scope() as session:
+        _insert_ignore(session, ImageResult, [_image_row(job_id, f) for f in fits])
+        _insert_ignore(session, Attempt, [_attempt_row(job_id, f, worker) for f in fits])
+        done = _changed(session,
+            update(Chunk).where(Chunk.id == chunk_id, Chunk.status != ChunkStatus.DONE)
+            .values(status=ChunkStatus.DONE, observed_key=key, heartbeat_at=utcnow())
+        )
+        if not done:
+            return False
+        counts = session.execute(
+            update(Job).where(Job.id == job_id)
+            .values(chunks_done=Job.chunks_done + 1, images_done=Job.images_done + len(fits),
+                    images_over_threshold=Job.images_over_threshold + over)
+            .returning(Job.chunks_done, Job.chunks_total, Job.status)
+        ).one()
+    return counts.chunks_done == counts.chunks_total and counts.status == JobStatus.RUNNING
+
+
+# ---- 3. merge and queue re-analysis -------------------------------------------------------------
+def _after_chunks(job_id: int) -> None:
+    storage = get_storage()
+    with session_scope() as session:
+        loaded = _load(session, job_id)
+        keys = session.scalars(select(Chunk.observed_key).where(Chunk.job_id == job_id)
+                               .order_by(Chunk.index)).all()
+        observed = [histstore.load(storage, k, loaded.fit.model) for k in keys if k]
+        merged = merge_chunks(loaded.prior, observed)
+        histstore.save(storage, f"jobs/{job_id}/merged.npz", merged)
+        fits = _fits(session, job_id)
+        typical = typical_objective(fits)
+        pending = [f.sample for f in fits if needs_reanalysis(f, loaded.fit.params, typical)]
+        moved = _changed(session,
+            update(Job).where(Job.id == job_id, Job.status == JobStatus.RUNNING)
+            .values(typical_objective=typical, reanalyses_pending=len(pending), fitted_at=utcnow(),
+                    status=JobStatus.REANALYSING if pending else JobStatus.RUNNING)
+        )
+    if not moved:
+        return
+    logger.info("job %s: all chunks done, %d images to re-analyse", job_id, len(pending))
+    for sample in pending:
+        _enqueue(REANALYSE_IMAGE, job_id, sample, 2)
+    if not pending:
+        _finish(job_id)
+
+
+# ---- 4. re-analysis -----------------------------------------------------------------------------
+def reanalyse(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
+    """Attempt ``attempt`` on image ``sample``: skipped unless it is the image's next attempt."""
+    with session_scope() as session:
+        job = session.get_one(Job, job_id)
+        row = session.scalars(select(ImageResult).where(ImageResult.job_id == job_id,
+                                                        ImageResult.sample == sample)).one()
+        if job.status != JobStatus.REANALYSING or row.attempts != attempt - 1:
+            return
+        loaded = _load(session, job_id)
+        typical = job.typical_objective if job.typical_objective is not None else float("nan")
+        previous = ImageFit.from_record(row.record)
+    merged = histstore.load(get_storage(), f"jobs/{job_id}/merged.npz", loaded.fit.model)
+    fit = reanalyse_step(loaded.fit, previous, merged, typical=typical)
+    again = needs_reanalysis(fit, loaded.fit.params, typical)
+    over = int(fit.status is Status.OVER_THRESHOLD) - int(previous.status is Status.OVER_THRESHOLD)
+    with session_scope() as session:
+        stored = _changed(session,
+            update(ImageResult).where(ImageResult.job_id == job_id, ImageResult.sample == sample,
+                                      ImageResult.attempts == attempt - 1)
+            .values(**_image_row(job_id, fit))
+        )
+        if not stored:
+            return
+        _insert_ignore(session, Attempt, [_attempt_row(job_id, fit, worker)])
+        values: dict[str, Any] = {"images_over_threshold": Job.images_over_threshold + over}
+        if not again:
+            values["reanalyses_pending"] = Job.reanalyses_pending - 1
+        left = session.execute(update(Job).where(Job.id == job_id).values(**values)
+                               .returning(Job.reanalyses_pending)).scalar_one()
+    if again:
+        _enqueue(REANALYSE_IMAGE, job_id, sample, attempt + 1)
+    elif left == 0:
+        _finish(job_id)
+
+
+# ---- 5. finish ---------------------------------------------------------------------------------
+def _finish(job_id: int) -> None:
+    """Write the results and fold the job into the model's archive, then mark it succeeded."""
+    storage = get_storage()
+    with session_scope() as session:
+        loaded = _load(session, job_id)
+        fits = _fits(session, job_id)
+        result = finish(loaded.fit, loaded.prior, fits)
+        text = io.StringIO()
+        write_angles_csv(text, loaded.fit.model, result.fits, loaded.fit.clock)
+        storage.put(f"jobs/{job_id}/angles.csv", [text.getvalue().encode()])
+        storage.put(f"jobs/{job_id}/histograms.xml", [result.histograms.to_xml().encode()])
+        report = _report(session, loaded, result, fits)
+        storage.put(f"jobs/{job_id}/report.json", [(json.dumps(report, indent=2) + "\n").encode()])
+        model = session.scalars(select(Model).where(Model.id == loaded.job.model_id)
+                                .with_for_update()).one()  # one fold at a time per model
+        ended = _changed(session,
+            update(Job).where(Job.id == job_id, Job.status.in_([JobStatus.RUNNING, JobStatus.REANALYSING]))
+            .values(status=JobStatus.SUCCEEDED, finished_at=utcnow(), reanalyses_pending=0,
+                    images_over_threshold=sum(f.status is Status.OVER_THRESHOLD for f in result.fits))
+        )
+        if not ended:
+            session.rollback()
+            return
+        latest = histogram_version(session, model, None)
+        archive = histstore.load(storage, latest.storage_key, loaded.fit.model)
+        version = add_histogram_version(session, storage, model, archive.merge(result.observed),
+                                        job_id=job_id)
+    logger.info("job %s succeeded; model %s archive version %s", job_id, model.id, version.version)
+
+
+def _report(session: Session, loaded: _Loaded, result: Any, fits: list[ImageFit]) -> dict[str, Any]:
+    """``core.pipeline.build_report`` for the distributed run, plus what only the service knows."""
+    job = loaded.job
+    seconds = ((utcnow() - _aware(job.started_at)).total_seconds() if job.started_at else 0.0)
+    workers = session.scalars(select(Chunk.worker).where(Chunk.job_id == job.id).distinct()).all()
+    report = build_report(loaded.fit, FitOutcome(result, seconds, max(len(workers), 1)))
+    report["videos"] = [p.name for p in loaded.fit.source.videos]  # storage keys, not server paths
+    report["service"] = {"job_id": job.id, "chunks": job.chunks_total, "workers": sorted(workers),
+                         "histogram_version_id": job.histogram_version_id,
+                         "attempts_total": sum(f.attempts for f in fits)}
+    return report
+
+
+# ---- failures -----------------------------------------------------------------------------------
+def fail_chunk(chunk_id: int, message: str) -> None:
+    """Record a chunk's failure; its job fails with the message."""
+    with session_scope() as session:
+        chunk = session.get_one(Chunk, chunk_id)
+        chunk.status, chunk.error = ChunkStatus.FAILED, message
+        job_id, where = chunk.job_id, f"chunk {chunk.index} (images {chunk.first}-{chunk.last - 1})"
+    fail_job(job_id, f"{where} failed: {message}")
+
+
+def fail_job(job_id: int, message: str) -> None:
+    """Mark a job failed with ``message`` unless it has already ended."""
+    with session_scope() as session:
+        session.execute(update(Job).where(Job.id == job_id, Job.status.not_in(list(TERMINAL)))
+                        .values(status=JobStatus.FAILED, error=message, finished_at=utcnow()))
+
+
+def _set_chunk(chunk_id: int, status: ChunkStatus) -> None:
+    with session_scope() as session:
+        session.execute(update(Chunk).where(Chunk.id == chunk_id).values(status=status))
+
+
+# ---- rows ---------------------------------------------------------------------------------------
+def _changed(session: Session, statement: Any) -> int:
+    """Rows an UPDATE changed: 0 means another delivery (or a cancel) got there first."""
+    result: CursorResult[Any] = session.execute(statement)  # type: ignore[assignment]
+    return result.rowcount
+
+
+def _fits(session: Session, job_id: int) -> list[ImageFit]:
+    records = session.scalars(select(ImageResult.record).where(ImageResult.job_id == job_id)
+                              .order_by(ImageResult.sample)).all()
+    return [ImageFit.from_record(r) for r in records]
+
+
+def _image_row(job_id: int, fit: ImageFit) -> dict[str, Any]:
+    record = fit.to_record()
+    return {"job_id": job_id, "sample": fit.sample, "attempts": fit.attempts,
+            "status": fit.status.value, "error_px": record["error"], "record": record}
+
+
+def _attempt_row(job_id: int, fit: ImageFit, worker: str) -> dict[str, Any]:
+    record = fit.to_record()
+    return {"job_id": job_id, "sample": fit.sample, "attempt": max(fit.attempts, 1),
+            "error_px": record["error"], "objective": record["objective"], "worker": worker}
+
+
+def _insert_ignore(session: Session, table: type[ImageResult] | type[Attempt],
+                   rows: Iterable[dict[str, Any]]) -> None:
+    """INSERT … ON CONFLICT DO NOTHING on the table's unique key (a redelivered task's rows)."""
+    rows = list(rows)
+    dialect = postgresql if session.get_bind().dialect.name == "postgresql" else sqlite
+    for start in range(0, len(rows), _INSERT_BATCH):
+        batch = rows[start:start + _INSERT_BATCH]
+        session.execute(dialect.insert(table).values(batch).on_conflict_do_nothing())
+
+
+def _aware(moment: Any) -> Any:
+    """SQLite returns naive datetimes for timezone-aware columns: they were stored in UTC."""
+    return moment if moment.tzinfo else moment.replace(tzinfo=UTC)

@@ -1,0 +1,53 @@
+"""Celery tasks: ids in, ``worker.orchestration`` does the work, failures recorded and re-raised.
+
+Each task is idempotent (the orchestration guards every state change in the
+database), so a message delivered twice changes nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+from celery import Task
+
+from worker import orchestration
+from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, app
+
+logger = logging.getLogger(__name__)
+
+
+@contextmanager
+def _recorded(what: str, record: Callable[[str], None]) -> Iterator[None]:
+    """Log a failure, write its message to the database, and re-raise it."""
+    try:
+        yield
+    except Exception as exc:
+        logger.exception("%s failed", what)
+        record(f"{type(exc).__name__}: {exc}")
+        raise
+
+
+@app.task(bind=True, name=PLAN_JOB)
+def plan_job(self: Task, job_id: int) -> None:
+    """Count the job's images and queue one task per chunk."""
+    job_id = int(job_id)
+    with _recorded(f"planning job {job_id}", lambda msg: orchestration.fail_job(job_id, msg)):
+        orchestration.plan_job(job_id)
+
+
+@app.task(bind=True, name=FIT_CHUNK)
+def fit_chunk(self: Task, chunk_id: int) -> None:
+    """Fit one chunk; the last chunk of a job merges and starts re-analysis."""
+    chunk_id = int(chunk_id)
+    with _recorded(f"chunk {chunk_id}", lambda msg: orchestration.fail_chunk(chunk_id, msg)):
+        orchestration.run_chunk(chunk_id, worker=self.request.hostname or "")
+
+
+@app.task(bind=True, name=REANALYSE_IMAGE)
+def reanalyse_image(self: Task, job_id: int, sample: int, attempt: int) -> None:
+    """One more attempt on one image; the last one pending finishes the job."""
+    job_id = int(job_id)
+    with _recorded(f"job {job_id} image {sample}", lambda msg: orchestration.fail_job(job_id, msg)):
+        orchestration.reanalyse(job_id, int(sample), int(attempt), worker=self.request.hostname or "")
