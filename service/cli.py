@@ -107,8 +107,12 @@ def demo(
     if not service:
         local_demo(samples=samples, seed=seed)
         return
-    from service.demo import run_demo
-
+    try:
+        from service.demo import run_demo
+    except ModuleNotFoundError as exc:
+        typer.echo(f"mocap: error: --service needs the service's packages ({exc.name} is missing): "
+                   "python3 -m pip install -e '.[service]'", err=True)
+        raise typer.Exit(2) from None
     try:
         run_demo(samples, seed, workers)
     except (RuntimeError, OSError, subprocess.CalledProcessError) as exc:
