@@ -23,6 +23,7 @@ import numpy as np
 from defusedxml import DefusedXmlException
 
 from core import _kernels
+from core._files import read_bounded
 
 __all__ = [
     "MAX_ABS_VALUE", "MAX_ATTRIBUTE_CHARS", "MAX_JOINTS", "MAX_MARKERS", "MAX_XML_ATTRIBUTES",
@@ -271,7 +272,7 @@ def _parse_xml(source: str | bytes | Path, what: str = "model file") -> Element:
 
     ``what`` names the file in messages ("model file", "histogram file").
     """
-    data = _read_bounded(source, what)
+    data = read_bounded(source, MAX_XML_BYTES, what, ModelError)
     try:
         return _parse_bounded(data)
     except DefusedXmlException as exc:
@@ -280,24 +281,6 @@ def _parse_xml(source: str | bytes | Path, what: str = "model file") -> Element:
         ) from exc
     except SafeET.ParseError as exc:
         raise ModelError(f"not well-formed XML: {exc}") from exc
-
-
-def _read_bounded(source: str | bytes | Path, what: str) -> str | bytes:
-    """The document, read no further than :data:`MAX_XML_BYTES` + 1 so a huge file costs nothing.
-
-    Only a regular file is opened: a FIFO or a device would block or never end.
-    """
-    if isinstance(source, Path):
-        try:
-            if not source.is_file():
-                raise OSError(f"{source} is not a regular file")
-            with source.open("rb") as f:
-                source = f.read(MAX_XML_BYTES + 1)
-        except OSError as exc:
-            raise ModelError(f"cannot read {what}: {exc}") from exc
-    if len(source) > MAX_XML_BYTES:
-        raise ModelError(f"{what} is larger than {MAX_XML_BYTES} bytes (MAX_XML_BYTES)")
-    return source
 
 
 def _parse_bounded(data: str | bytes) -> Element:

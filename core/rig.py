@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from core import _kernels
+from core._files import read_bounded
 
 __all__ = ["MAX_NAME_CHARS", "MAX_RIG_BYTES", "MAX_VIEWS", "Rig", "RigArrays", "RigError", "View"]
 
@@ -77,7 +78,7 @@ class Rig:
     @classmethod
     def from_json(cls, source: str | bytes | Path) -> Rig:
         """Parse and validate ``rig.json`` given as text, bytes or a path (at most :data:`MAX_RIG_BYTES`)."""
-        text = _read_bounded(source)
+        text = read_bounded(source, MAX_RIG_BYTES, "rig file", RigError)
         try:
             data = json.loads(text, parse_constant=_reject_constant, parse_int=_parse_int)
         except RecursionError:
@@ -191,21 +192,6 @@ class Rig:
 
 
 # ---- validation ---------------------------------------------------------------------------
-
-
-def _read_bounded(source: str | bytes | Path) -> str | bytes:
-    """The document, read no further than :data:`MAX_RIG_BYTES` + 1; only a regular file is opened."""
-    if isinstance(source, Path):
-        try:
-            if not source.is_file():
-                raise OSError(f"{source} is not a regular file")
-            with source.open("rb") as f:
-                source = f.read(MAX_RIG_BYTES + 1)
-        except OSError as exc:
-            raise RigError(f"cannot read rig file: {exc}") from exc
-    if len(source) > MAX_RIG_BYTES:
-        raise RigError(f"rig file is larger than {MAX_RIG_BYTES} bytes (MAX_RIG_BYTES)")
-    return source
 
 
 def _reject_constant(name: str) -> float:
