@@ -23,6 +23,8 @@ from service.fitjob import detector_params, fit_params
 from service.models import (
     TERMINAL,
     Batch,
+    Chunk,
+    ChunkStatus,
     HistogramVersion,
     Job,
     JobStatus,
@@ -158,10 +160,14 @@ def _new_job(
 
 
 def cancel_job(session: Session, lab: Lab, job_id: int) -> Job:
-    """Mark a job canceled unless it has ended; workers see it between images."""
+    """Mark a job canceled unless it has ended, and its chunks no worker has started with it;
+    running chunks see it between images."""
     job = owned(session, Job, job_id, lab)
-    session.execute(update(Job).where(Job.id == job.id, Job.status.not_in(list(TERMINAL)))
-                    .values(status=JobStatus.CANCELED, error="canceled by the user"))
+    canceled = session.execute(update(Job).where(Job.id == job.id, Job.status.not_in(list(TERMINAL)))
+                               .values(status=JobStatus.CANCELED, error="canceled by the user"))
+    if canceled.rowcount:  # type: ignore[attr-defined]
+        session.execute(update(Chunk).where(Chunk.job_id == job.id, Chunk.status == ChunkStatus.QUEUED)
+                        .values(status=ChunkStatus.CANCELED))
     session.commit()
     session.refresh(job)
     return job

@@ -58,7 +58,8 @@ def _repeated(video: Path, times: int, out: Path) -> Path:
 
 def test_cancel_stops_a_running_job(redis_pg, clip, tmp_path):
     """A rig that cannot explain the markers makes every image slow (~40 ms, 400 images in two
-    chunks: several seconds each); cancel stops both chunks between images."""
+    chunks: several seconds each); cancel stops a running chunk between images, and a chunk
+    no worker has started yet (a busy machine) is canceled at once."""
     client = redis_pg.create_lab("cancel")
     rig = json.loads((EXAMPLE / "rig.json").read_text())
     for view in rig["views"]:
