@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 import zipfile
 from collections.abc import Iterable, Iterator
 from typing import BinaryIO
@@ -34,7 +35,9 @@ def stream_zip(entries: Iterable[tuple[str, Storage, str] | tuple[str, bytes]]) 
     sink = _Sink()
     with zipfile.ZipFile(sink, "w", compression=zipfile.ZIP_DEFLATED) as archive:  # type: ignore[call-overload]
         for entry in entries:
-            with archive.open(entry[0], "w") as dest:
+            info = zipfile.ZipInfo(entry[0], date_time=time.localtime()[:6])
+            info.compress_type = zipfile.ZIP_DEFLATED
+            with archive.open(info, "w") as dest:
                 if len(entry) == 2:
                     dest.write(entry[1])
                 else:

@@ -173,6 +173,13 @@ def cancel_job(session: Session, lab: Lab, job_id: int) -> Job:
     return job
 
 
+def fail_unqueued(session: Session, jobs: list[Job], message: str) -> None:
+    """Fail jobs whose planning task could not be queued (still ``queued``), saying why."""
+    session.execute(update(Job).where(Job.id.in_([j.id for j in jobs]), Job.status == JobStatus.QUEUED)
+                    .values(status=JobStatus.FAILED, error=message))
+    session.commit()
+
+
 def list_jobs(
     session: Session, lab: Lab, *, status: JobStatus | None, cursor: int | None, limit: int,
     batch_id: int | None = None,

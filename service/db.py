@@ -5,7 +5,10 @@ writes, and a busy timeout, so concurrent writers wait instead of failing
 with "database is locked". Transactions start with ``BEGIN IMMEDIATE``: a
 deferred transaction that reads and then writes cannot wait for another
 writer (SQLite returns "locked" at once rather than risk a deadlock), and
-the workers' transactions all read then write.
+the workers' transactions all read then write. Read-only sessions (the API's
+GET requests, :func:`read_session_factory`) begin deferred: in WAL mode a
+reader never waits for the writer, so a status poll is not queued behind a
+worker's transaction.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from service.settings import get_settings
 
 SQLITE_BUSY_TIMEOUT_MS = 30_000
+READ_ONLY = "mocap_read_only"  # execution option of read-only sessions
 
 
 def make_engine(url: str) -> Engine:
@@ -43,8 +47,9 @@ def make_engine(url: str) -> Engine:
         cursor.close()
 
     @event.listens_for(engine, "begin")
-    def _begin_immediate(connection) -> None:  # type: ignore[no-untyped-def]
-        connection.exec_driver_sql("BEGIN IMMEDIATE")
+    def _begin(connection) -> None:  # type: ignore[no-untyped-def]
+        read_only = connection.get_execution_options().get(READ_ONLY, False)
+        connection.exec_driver_sql("BEGIN DEFERRED" if read_only else "BEGIN IMMEDIATE")
 
     return engine
 
@@ -58,6 +63,12 @@ def get_engine() -> Engine:
 @lru_cache(maxsize=1)
 def session_factory() -> sessionmaker[Session]:
     return sessionmaker(get_engine(), expire_on_commit=False)
+
+
+@lru_cache(maxsize=1)
+def read_session_factory() -> sessionmaker[Session]:
+    """Sessions for requests that only read (on SQLite: deferred transactions)."""
+    return sessionmaker(get_engine().execution_options(**{READ_ONLY: True}), expire_on_commit=False)
 
 
 @contextmanager

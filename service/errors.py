@@ -13,3 +13,7 @@ class ConflictError(RuntimeError):
 
 class InvalidError(ValueError):
     """A request that names things that do not fit together (422)."""
+
+
+class QueueUnavailableError(RuntimeError):
+    """The broker could not take a job's task (503); the job was failed, not left queued."""

@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
-from datetime import datetime
-from typing import Any, Literal
+from datetime import UTC, datetime
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+
+
+def _utc(moment: datetime | None) -> datetime | None:
+    """Times are stored in UTC; SQLite hands them back without a zone, so add it."""
+    return moment if moment is None or moment.tzinfo else moment.replace(tzinfo=UTC)
+
+
+UtcDatetime = Annotated[datetime, AfterValidator(_utc)]
 
 
 class DetectorOptions(BaseModel):
@@ -109,10 +117,10 @@ class JobPublic(BaseModel):
     options: dict[str, Any]
     progress: Progress
     error: str | None
-    created_at: datetime
-    started_at: datetime | None
-    fitted_at: datetime | None
-    finished_at: datetime | None
+    created_at: UtcDatetime
+    started_at: UtcDatetime | None
+    fitted_at: UtcDatetime | None
+    finished_at: UtcDatetime | None
 
 
 class JobPage(BaseModel):

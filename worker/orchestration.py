@@ -112,10 +112,13 @@ def plan_job(job_id: int) -> None:
             logger.info("job %s is %s: nothing to plan", job_id, job.status)
             return
         steps = plan(_load(session, job_id).fit)
+        # Guarded: a cancel, or another delivery of this task, may have come in meanwhile.
+        if not _changed(session, update(Job).where(Job.id == job_id, Job.status == JobStatus.QUEUED)
+                        .values(status=JobStatus.RUNNING, started_at=utcnow(), images_total=steps.images,
+                                chunks_total=len(steps.chunks))):
+            return
         chunks = [Chunk(job_id=job_id, index=i, first=a, last=b) for i, (a, b) in enumerate(steps.chunks)]
         session.add_all(chunks)
-        job.images_total, job.chunks_total = steps.images, len(chunks)
-        job.status, job.started_at = JobStatus.RUNNING, utcnow()
         session.flush()
         ids = [c.id for c in chunks]
     logger.info("job %s: %d images in %d chunks", job_id, steps.images, len(ids))

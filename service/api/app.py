@@ -14,7 +14,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from service.api.routes import batches, jobs, models, rigs, videos
-from service.errors import ConflictError, NotFoundError
+from service.errors import ConflictError, NotFoundError, QueueUnavailableError
 from service.upload import TooLargeError
 
 logger = logging.getLogger(__name__)
@@ -36,9 +36,10 @@ def _errors(app: FastAPI) -> None:
             return JSONResponse({"detail": str(exc) or default[status]}, status_code=status)
         return respond
 
-    default = {404: "not found", 409: "conflict", 413: "too large", 422: "invalid input"}
+    default = {404: "not found", 409: "conflict", 422: "invalid input", 503: "unavailable"}
     app.add_exception_handler(NotFoundError, handler(404))
     app.add_exception_handler(ConflictError, handler(409))
+    app.add_exception_handler(QueueUnavailableError, handler(503))
     app.add_exception_handler(ValueError, handler(422))  # core's ModelError, RigError, VideoError…
 
     async def too_large(_request: Request, _exc: Exception) -> JSONResponse:

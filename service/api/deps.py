@@ -5,19 +5,21 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, status
+from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
-from service.db import session_factory
+from service.db import read_session_factory, session_factory
 from service.labs import lab_for_key
 from service.models import Lab
 from service.settings import Settings, get_settings
 from service.storage import LocalStorage, get_storage
 
 
-def get_session() -> Iterator[Session]:
-    with session_factory()() as session:
+def get_session(request: Request) -> Iterator[Session]:
+    """A session per request; GET requests only read, so they never wait for a writer (SQLite)."""
+    factory = read_session_factory() if request.method in ("GET", "HEAD") else session_factory()
+    with factory() as session:
         yield session
 
 

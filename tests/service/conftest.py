@@ -57,7 +57,7 @@ def require_servers() -> None:
     pytest.skip(message)
 
 
-def _free_port() -> int:
+def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
@@ -98,7 +98,7 @@ class Deployment:
             self.engine.dispose()
 
 
-def _wait_healthy(deployment: Deployment, timeout: float = 60.0) -> None:
+def wait_healthy(deployment: Deployment, timeout: float = 60.0) -> None:
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
         for p in deployment.processes:
@@ -138,14 +138,14 @@ def redis_pg(tmp_path_factory) -> Iterator[Deployment]:
     env.update(MOCAP_DATABASE_URL=f"{PG_ADMIN_URL}?options=-csearch_path%3D{schema}",
                MOCAP_BROKER_URL=REDIS_URL, MOCAP_QUEUE=f"mocap-test-{uuid.uuid4().hex[:10]}")
     subprocess.run([sys.executable, "-m", "service.migrate"], env=env, check=True, capture_output=True)
-    port = _free_port()
+    port = free_port()
     deployment = Deployment("redis_pg", f"http://127.0.0.1:{port}/v1", env, env["MOCAP_DATABASE_URL"])
     deployment.processes.append(subprocess.Popen(
         [sys.executable, "-m", "uvicorn", "service.api.app:create_app", "--factory", "--port", str(port),
          "--log-level", "warning"], env=env, stdout=(data / "api.log").open("w"), stderr=subprocess.STDOUT))
     deployment.processes.append(_worker(env, data / "worker.log"))
     try:
-        _wait_healthy(deployment)
+        wait_healthy(deployment)
         yield deployment
     finally:
         deployment.stop()
@@ -160,14 +160,14 @@ def embedded(tmp_path_factory) -> Iterator[Deployment]:
     env = _base_env(data)
     for name in ("MOCAP_DATABASE_URL", "MOCAP_BROKER_URL", "MOCAP_QUEUE"):
         env.pop(name, None)
-    port = _free_port()
+    port = free_port()
     deployment = Deployment("embedded", f"http://127.0.0.1:{port}/v1", env,
                             f"sqlite:///{data / 'mocap.db'}")
     deployment.processes.append(subprocess.Popen(
         [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", "2"],
         env=env, stdout=(data / "serve.log").open("w"), stderr=subprocess.STDOUT))
     try:
-        _wait_healthy(deployment)
+        wait_healthy(deployment)
         yield deployment
     finally:
         deployment.stop()

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
+from conftest import Deployment, free_port, wait_healthy
 from svc_helpers import EXAMPLE, submit, upload_inputs, wait_for
 
 from core.model import KinematicModel
@@ -135,3 +138,32 @@ def test_model_can_also_be_sent_as_a_multipart_file(redis_pg):
     response = client.post("/models", files={"file": ("m.xml", (EXAMPLE / "model.xml").read_bytes())})
     assert response.status_code == 201
     assert response.json()["dofs"] == KinematicModel.from_xml(EXAMPLE / "model.xml").dof_names
+
+
+@pytest.fixture
+def api_without_broker(redis_pg, tmp_path):
+    """A second API process on the same database whose broker is unreachable (a closed port)."""
+    env = {**redis_pg.env, "MOCAP_BROKER_URL": "redis://127.0.0.1:1/0"}
+    port = free_port()
+    deployment = Deployment("no-broker", f"http://127.0.0.1:{port}/v1", env, redis_pg.database_url)
+    deployment.processes.append(subprocess.Popen(
+        [sys.executable, "-m", "uvicorn", "service.api.app:create_app", "--factory", "--port", str(port),
+         "--log-level", "warning"], env=env, stdout=(tmp_path / "api.log").open("w"),
+        stderr=subprocess.STDOUT))
+    try:
+        wait_healthy(deployment)
+        yield deployment
+    finally:
+        deployment.stop()
+
+
+def test_a_job_the_broker_cannot_take_is_503_and_failed_not_left_queued(api_without_broker, clip):
+    client = api_without_broker.create_lab("no-broker")
+    ids = upload_inputs(client, clip.video)
+    response = client.post("/jobs", json={"model_id": ids["model_id"], "rig_id": ids["rig_id"],
+                                          "video_ids": [ids["video_id"]]})
+    assert response.status_code == 503
+    assert "unreachable" in response.json()["detail"]
+    jobs = client.get("/jobs").json()["items"]
+    assert [j["status"] for j in jobs] == ["failed"]
+    assert "submit it again" in jobs[0]["error"]

@@ -52,6 +52,7 @@ def test_clip_fitted_by_workers_matches_truth_and_mocap_fit(deployment, clip, lo
     assert job["status"] == "succeeded", job
     assert job["progress"]["images_total"] == job["progress"]["images_done"] == 40
     assert job["progress"]["chunks_done"] == job["progress"]["chunks_total"] == 4
+    assert all(job[t].endswith(("Z", "+00:00")) for t in ("created_at", "started_at", "finished_at"))
 
     csv = client.get(f"/jobs/{job['id']}/angles.csv")
     assert csv.status_code == 200

@@ -34,8 +34,7 @@ def _public(batch: Batch, jobs: list[Job]) -> BatchPublic:
 @router.post("", status_code=202, response_model=BatchPublic, summary="Submit one job per trial")
 def submit(body: BatchCreate, response: Response, session: SessionDep, lab: CurrentLab) -> BatchPublic:
     batch, jobs = crud.submit_batch(session, lab, body)
-    for job in jobs:
-        enqueue(job)
+    enqueue(session, jobs)
     response.headers["Location"] = f"/v1/batches/{batch.id}"
     return _public(batch, jobs)
 

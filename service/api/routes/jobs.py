@@ -3,21 +3,26 @@
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Iterator
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
 from fastapi.responses import FileResponse, StreamingResponse
+from kombu.exceptions import OperationalError
 from sqlalchemy.orm import Session
 
 from service import crud
 from service.api.deps import CurrentLab, SessionDep, StorageDep
 from service.archive import stream_zip
+from service.errors import QueueUnavailableError
 from service.models import Job, JobStatus, Lab, Model, RigRow
 from service.schemas import JobCreate, JobPage, JobPublic, Progress
 from service.storage import Storage
 from worker.celery_app import PLAN_JOB
 from worker.celery_app import app as celery
+
+logger = logging.getLogger(__name__)
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -42,16 +47,31 @@ def progress(job: Job) -> Progress:
                     chunks_done=job.chunks_done)
 
 
-def enqueue(job: Job) -> None:
-    """Queue a committed job's planning task (ids only: the worker reads the rest from the DB)."""
-    celery.send_task(PLAN_JOB, args=[job.id])
+# A few quick retries, then 503: an unreachable broker must not hold the request for long.
+PUBLISH_RETRY = {"max_retries": 2, "interval_start": 0.2, "interval_step": 0.5, "interval_max": 1.0}
+
+
+def enqueue(session: Session, jobs: list[Job]) -> None:
+    """Queue committed jobs' planning tasks (ids only: the worker reads the rest from the DB).
+
+    If the broker cannot be reached, the jobs not yet queued are failed with a message
+    saying so (and the request is 503) rather than left ``queued`` with no task to run them.
+    """
+    for i, job in enumerate(jobs):
+        try:
+            celery.send_task(PLAN_JOB, args=[job.id], retry=True, retry_policy=PUBLISH_RETRY)
+        except OperationalError as exc:
+            logger.exception("cannot queue job %s", job.id)
+            message = "the job queue (broker) is unreachable; the job was not started, submit it again"
+            crud.fail_unqueued(session, jobs[i:], message)
+            raise QueueUnavailableError(message) from exc
 
 
 @router.post("", status_code=202, response_model=JobPublic,
              summary="Submit a job; poll the Location it returns")
 def submit(body: JobCreate, response: Response, session: SessionDep, lab: CurrentLab) -> JobPublic:
     job = crud.submit_job(session, lab, body)
-    enqueue(job)
+    enqueue(session, [job])
     response.headers["Location"] = f"/v1/jobs/{job.id}"
     return job_public(job)
 
