@@ -38,7 +38,7 @@ REANALYSE_IMAGE = "mocap.reanalyse_image"
 
 def make_celery(settings: Settings) -> Celery:
     """A Celery app for ``settings`` (broker, queue, limits)."""
-    app = Celery("mocap", broker=settings.broker_url, include=["worker.tasks"])
+    app = Celery("mocap", broker=settings.broker_url, include=["worker.tasks", "worker.reaper"])
     transport: dict[str, Any] = {"visibility_timeout": settings.visibility_timeout_s}
     embedded = settings.broker_url.startswith("filesystem")
     if embedded:
