@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -84,6 +85,21 @@ def _assert_every_image_once(faults: Deployment, job_id: int, images: int) -> No
     assert sorted(r.sample for r in firsts) == list(range(images))
 
 
+def _reaped(faults: Deployment, since: int) -> str:
+    """The reaper's reports in the workers' log after byte ``since``."""
+    assert faults.data is not None
+    with (faults.data / "worker.log").open("rb") as log:
+        log.seek(since)
+        return "".join(line for line in log.read().decode(errors="replace").splitlines(keepends=True)
+                       if "reaper sent again" in line)
+
+
+def _log_size(faults: Deployment) -> int:
+    assert faults.data is not None
+    log = faults.data / "worker.log"
+    return log.stat().st_size if log.exists() else 0
+
+
 def _attempts(faults: Deployment, job_id: int) -> list[int]:
     return [r.attempts for r in _rows(faults, "SELECT attempts FROM chunks WHERE job_id = :j "
                                                "ORDER BY index", job_id)]
@@ -116,32 +132,46 @@ def test_sigkill_mid_chunk_the_reaper_runs_it_again(faults, slow_ids):
     logger.info("SIGKILL: recovered in %.1f s, 2 chunks re-queued, %d images checked", recovered, SLOW_IMAGES)
 
 
-def test_redis_flushed_mid_job_the_reaper_sends_again_from_the_database(faults, slow_ids):
-    """One worker slot. Flushed once with one chunk fitting and three waiting in Redis, then
-    again with the re-analyses of all 120 images queued: both sent again from the database."""
+def test_redis_flushed_mid_job_the_reaper_sends_again_from_the_database(faults, slow_ids, clip):
+    """One worker slot. Flushed with one chunk fitting and three waiting in Redis; then, on
+    another job, with the re-analyses of its 40 images queued: both sent again from the
+    database, each image fitted and re-analysed once."""
     client = _client(faults, slow_ids)
     flush = redis.Redis.from_url(REDIS_FAULTS_URL).flushdb
+    fast = upload_inputs(client, clip.video)
     with worker(faults, concurrency=1):
-        job = submit(client, slow_ids, chunk_size=30, max_attempts=2)["id"]
+        job = submit(client, slow_ids, chunk_size=30, max_attempts=1)["id"]
         _wait_chunks(faults, job, "running", 1)
-        waiting = len(_rows(faults, "SELECT id FROM chunks WHERE job_id = :j AND status = 'queued'", job))
-        flush()
-        flushed = time.monotonic()
-        wait_for(client, job, {"reanalysing"}, timeout=60)
-        chunks_recovered = time.monotonic() - flushed
+        waiting = {r.id for r in _rows(faults, "SELECT id FROM chunks WHERE job_id = :j "
+                                                "AND status = 'queued'", job)}
+        since = _log_size(faults)
         flush()
         flushed = time.monotonic()
         done = wait_for(client, job, timeout=90)
+        lost = re.findall(r"lost_chunks=\[([\d, ]*)\]", _reaped(faults, since))
+        chunks_recovered = time.monotonic() - flushed
+        again = submit(client, fast, marker_diameter_px=4.0, error_threshold_px=1e-9, max_attempts=2,
+                       chunk_size=40)["id"]
+        wait_for(client, again, {"reanalysing"}, timeout=60)
+        since = _log_size(faults)
+        flush()
+        flushed = time.monotonic()
+        redone = wait_for(client, again, timeout=90)
         recovered = time.monotonic() - flushed
-    assert waiting == 3
-    assert done["status"] == "succeeded", done
+    assert len(waiting) == 3
+    assert {int(i) for ids in lost for i in ids.split(",") if i.strip()} == waiting
+    assert done["status"] == redone["status"] == "succeeded", (done, redone)
     assert _attempts(faults, job) == [1, 1, 1, 1]  # sent again, fitted once
     _assert_every_image_once(faults, job, SLOW_IMAGES)
-    attempts = _rows(faults, "SELECT sample, attempt FROM attempts WHERE job_id = :j ORDER BY 1, 2", job)
-    assert [tuple(r) for r in attempts] == [(s, a) for s in range(SLOW_IMAGES) for a in (1, 2)]
-    logger.info("FLUSHDB: chunks fitted %.1f s after the first flush (%d chunks sent again); job done "
-                "%.1f s after the second (re-analyses sent again); %d images, %d attempts checked",
-                chunks_recovered, waiting, recovered, SLOW_IMAGES, len(attempts))
+    _assert_every_image_once(faults, again, 40)
+    attempts = _rows(faults, "SELECT sample, attempt FROM attempts WHERE job_id = :j ORDER BY 1, 2", again)
+    assert [tuple(r) for r in attempts] == [(s, a) for s in range(40) for a in (1, 2)]
+    resent = [int(n) for n in re.findall(r"lost_reanalyses=(\d+)", _reaped(faults, since))]
+    assert sum(resent) > 0  # the reaper, not a surviving message, finished the job
+    logger.info("FLUSHDB: job done %.1f s after a flush mid-chunks (%d chunks sent again), another "
+                "%.1f s after a flush mid-re-analysis; %d images, %d attempts checked",
+                chunks_recovered, len(waiting), recovered, SLOW_IMAGES + 40, len(attempts))
+    logger.info("FLUSHDB: %d re-analyses sent again", sum(resent))
 
 
 def test_a_chunk_that_kills_its_worker_fails_its_job_after_bounded_attempts(faults, clip):
