@@ -101,7 +101,8 @@ def reap() -> None:
     with user_errors():
         reaped = reap_once()
     print(f"stale chunks {len(reaped.stale_chunks)}, lost chunks {len(reaped.lost_chunks)}, "
-          f"lost plans {len(reaped.lost_plans)}, lost re-analyses {reaped.lost_reanalyses}")
+          f"lost plans {len(reaped.lost_plans)}, lost re-analyses {reaped.lost_reanalyses}, "
+          f"resumed jobs {len(reaped.resumed)}")
 
 
 @admin.command("create-lab")

@@ -39,7 +39,8 @@ class Settings(BaseSettings):
     # Deliveries that may start a chunk; the next one fails the job (a poison chunk).
     max_chunk_attempts: int = Field(default=3, ge=1)
     # Fault injection for the tests only: "JOB_ID:CHUNK_INDEX" makes the worker process
-    # that starts that chunk exit at once (os._exit), as a poison input would crash it.
+    # that starts that chunk exit at once (os._exit), as a poison input would crash it;
+    # "JOB_ID:CHUNK_INDEX:done" exits once that chunk is counted done, before the merge.
     crash_chunk: str = ""
     # Celery: hard limit < visibility timeout, so Redis never re-delivers a chunk that is
     # still legitimately running (see worker.celery_app).

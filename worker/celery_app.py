@@ -34,6 +34,7 @@ from service.settings import Settings, get_settings
 PLAN_JOB = "mocap.plan_job"
 FIT_CHUNK = "mocap.fit_chunk"
 REANALYSE_IMAGE = "mocap.reanalyse_image"
+RESUME_JOB = "mocap.resume_job"
 
 
 def make_celery(settings: Settings) -> Celery:

@@ -19,6 +19,9 @@ Every step calls the same ``core.pipeline`` functions as ``mocap fit``:
    histograms.xml, report.json, and the job's observations folded into the model's
    histogram archive as a new version.
 
+:func:`resume` runs step 3 or 5 again for a job whose worker died just before it (the
+reaper sends it once the job has stopped moving).
+
 Idempotence: image and attempt rows are inserted keyed by (job, sample[, attempt])
 and a second insert is ignored (fits are deterministic per seed, sample and attempt);
 every transition is an UPDATE guarded by the expected current state, acting only if
@@ -156,6 +159,7 @@ def run_chunk(chunk_id: int, *, worker: str) -> None:
     key = f"jobs/{job_id}/chunks/{index}.npz"
     histstore.save(get_storage(), key, result.observed)
     if _complete_chunk(chunk_id, job_id, key, result.fits, worker):
+        _crash_if_told(job_id, index, "done")
         _after_chunks(job_id)
 
 
@@ -185,10 +189,11 @@ def _claim(session: Session, chunk: Chunk, worker: str) -> bool:
     return True
 
 
-def _crash_if_told(job_id: int, index: int) -> None:
-    """Test-only fault injection (``MOCAP_CRASH_CHUNK=JOB:INDEX``): die like a poison input would,
-    without cleanup, so the tests exercise the real crash path (Celery's worker-lost hand-back)."""
-    if get_settings().crash_chunk == f"{job_id}:{index}":
+def _crash_if_told(job_id: int, index: int, when: str = "") -> None:
+    """Test-only fault injection: ``MOCAP_CRASH_CHUNK=JOB:INDEX`` dies as the chunk starts, like a
+    poison input would; ``JOB:INDEX:done`` right after the chunk is counted done, before the merge.
+    No cleanup, so the tests exercise the real crash path (Celery's worker-lost hand-back)."""
+    if get_settings().crash_chunk == f"{job_id}:{index}" + (f":{when}" if when else ""):
         logger.error("MOCAP_CRASH_CHUNK: worker process exits on chunk %s of job %s", index, job_id)
         logging.shutdown()
         os._exit(1)
@@ -270,7 +275,7 @@ def _after_chunks(job_id: int) -> None:
         typical = typical_objective(fits)
         pending = [f.sample for f in fits if needs_reanalysis(f, loaded.fit.params, typical)]
         moved = _changed(session,
-            update(Job).where(Job.id == job_id, Job.status == JobStatus.RUNNING)
+            update(Job).where(Job.id == job_id, Job.status == JobStatus.RUNNING, Job.fitted_at.is_(None))
             .values(typical_objective=typical, reanalyses_pending=len(pending), fitted_at=utcnow(),
                     progress_at=utcnow(),
                     status=JobStatus.REANALYSING if pending else JobStatus.RUNNING)
@@ -329,6 +334,21 @@ def pending_reanalyses(session: Session, job_id: int) -> list[tuple[int, int]]:
     typical = job.typical_objective if job.typical_objective is not None else float("nan")
     return [(f.sample, f.attempts + 1) for f in _fits(session, job_id)
             if needs_reanalysis(f, params, typical)]
+
+
+def resume(job_id: int) -> None:
+    """Step 3 or 5 for a job whose worker died after the step before committed (sent by the
+    reaper): every chunk done but never merged, or nothing pending but never finished."""
+    with session_scope() as session:
+        job = session.get_one(Job, job_id)
+        status, merged, pending = job.status, job.fitted_at is not None, job.reanalyses_pending
+        all_done = job.chunks_total > 0 and job.chunks_done == job.chunks_total
+    if status == JobStatus.RUNNING and all_done and not merged:
+        _after_chunks(job_id)
+    elif status in (JobStatus.RUNNING, JobStatus.REANALYSING) and all_done and merged and pending == 0:
+        _finish(job_id)
+    else:
+        logger.info("job %s is %s: nothing to resume", job_id, status)
 
 
 # ---- 5. finish ---------------------------------------------------------------------------------

@@ -6,7 +6,9 @@
   It goes back to ``queued`` and is sent again.
 - **Queued work whose message is gone** (broker flushed or restarted without persistence):
   a chunk queued, a job waiting to be planned, or a re-analysing job with no progress, for
-  longer than ``MOCAP_QUEUED_TIMEOUT_S`` *while the broker's queue is empty*. The empty
+  longer than ``MOCAP_QUEUED_TIMEOUT_S`` *while the broker's queue is empty*. The same
+  holds for a job whose worker died between two steps (every chunk done but never merged,
+  nothing pending but never finished): it gets a ``resume_job`` task. The empty
   queue is what tells a lost message from one that merely waits behind a long backlog;
   without it every waiting chunk would be sent again each timeout.
 
@@ -35,13 +37,13 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from celery.signals import worker_process_init, worker_ready
-from sqlalchemy import or_, select, update
+from sqlalchemy import func, or_, select, update
 from sqlalchemy.orm import Session
 
 from service.db import get_engine, session_scope
 from service.models import Chunk, ChunkStatus, Job, JobStatus, utcnow
 from service.settings import get_settings
-from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, app
+from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, RESUME_JOB, app
 from worker.orchestration import enqueue, pending_reanalyses
 
 logger = logging.getLogger(__name__)
@@ -55,9 +57,11 @@ class Reaped:
     lost_chunks: list[int]
     lost_plans: list[int]
     lost_reanalyses: int
+    resumed: list[int]
 
     def __bool__(self) -> bool:
-        return bool(self.stale_chunks or self.lost_chunks or self.lost_plans or self.lost_reanalyses)
+        return bool(self.stale_chunks or self.lost_chunks or self.lost_plans or self.lost_reanalyses
+                    or self.resumed)
 
 
 def reap() -> Reaped:
@@ -65,11 +69,12 @@ def reap() -> Reaped:
     settings, now = get_settings(), utcnow()
     stale = now - timedelta(seconds=settings.heartbeat_timeout_s)
     old = now - timedelta(seconds=settings.queued_timeout_s)
-    reaped = Reaped(_requeue_stale_chunks(stale, now), [], [], 0)
+    reaped = Reaped(_requeue_stale_chunks(stale, now), [], [], 0, [])
     if queue_length() == 0:
         reaped.lost_chunks = _requeue_lost_chunks(old, now)
         reaped.lost_plans = _requeue_lost_plans(old, now)
-        reaped.lost_reanalyses = _requeue_lost_reanalyses(old, now)
+        reaped.lost_reanalyses, reaped.resumed = _requeue_lost_reanalyses(old, now)
+        reaped.resumed += _resume_stalled_fan_in(old, now)
     if reaped:
         logger.warning("reaper sent again: %s", reaped)
     return reaped
@@ -128,16 +133,31 @@ def _requeue_lost_plans(old: datetime, now: datetime) -> list[int]:
     return sent
 
 
-def _requeue_lost_reanalyses(old: datetime, now: datetime) -> int:
+def _requeue_lost_reanalyses(old: datetime, now: datetime) -> tuple[int, list[int]]:
+    """Re-analyses sent again, and the jobs with none left that were never finished."""
     condition = (Job.status == JobStatus.REANALYSING, or_(Job.progress_at.is_(None), Job.progress_at < old))
-    sent = 0
+    sent, resumed = 0, []
     for job_id in _won_jobs(condition, now):
         with session_scope() as session:
             pending = pending_reanalyses(session, job_id)
         for sample, attempt in pending:
             enqueue(REANALYSE_IMAGE, job_id, sample, attempt)
         sent += len(pending)
-    return sent
+        if not pending:
+            enqueue(RESUME_JOB, job_id)
+            resumed.append(job_id)
+    return sent, resumed
+
+
+def _resume_stalled_fan_in(old: datetime, now: datetime) -> list[int]:
+    """Running jobs whose chunks are all done (the last one before ``old``), not yet moved on."""
+    last_done = select(func.max(Chunk.heartbeat_at)).where(Chunk.job_id == Job.id).scalar_subquery()
+    condition = (Job.status == JobStatus.RUNNING, Job.chunks_total > 0, Job.chunks_done == Job.chunks_total,
+                 last_done < old, or_(Job.progress_at.is_(None), Job.progress_at < old))
+    won = _won_jobs(condition, now)
+    for job_id in won:
+        enqueue(RESUME_JOB, job_id)
+    return won
 
 
 def _won_jobs(condition: tuple[Any, ...], now: datetime) -> list[int]:
