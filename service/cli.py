@@ -1,5 +1,5 @@
-"""``mocap``'s service commands (``serve``, ``worker``, ``admin create-lab``, ``demo --service``)
-added to core's CLI.
+"""``mocap``'s service commands (``serve``, ``worker``, ``reap``, ``admin create-lab``,
+``demo --service``) added to core's CLI.
 
 This is the console script: it registers the commands below on ``core.cli.app``
 and runs it. Service code is imported inside the commands, so ``mocap fit``,
@@ -58,6 +58,7 @@ def serve(
     from service.api.app import create_app
     from service.migrate import upgrade
     from service.settings import get_settings
+    from worker.reaper import start_reaper
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     settings = get_settings()
@@ -65,6 +66,7 @@ def serve(
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         upgrade()
     pool = _start_workers(workers, nice) if workers else None
+    start_reaper()  # also with --workers 0: workers elsewhere may all be down
     print(f"mocap: API on http://{host}:{port}/v1 (docs at /docs), {workers} worker process(es), "
           f"data in {settings.data_dir.resolve()}", flush=True)
     # uvicorn re-raises SIGTERM once it has shut down; as SystemExit, the workers are stopped below.
@@ -118,6 +120,19 @@ def demo(
     except (RuntimeError, OSError, subprocess.CalledProcessError) as exc:
         typer.echo(f"mocap: error: {exc}", err=True)
         raise typer.Exit(1) from None
+
+
+@app.command()
+def reap() -> None:
+    """One reaper pass (for cron): send again stale chunks and work whose message was lost."""
+    from worker.reaper import reap as reap_once
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    with user_errors():
+        reaped = reap_once()
+    print(f"stale chunks {len(reaped.stale_chunks)}, lost chunks {len(reaped.lost_chunks)}, "
+          f"lost plans {len(reaped.lost_plans)}, lost re-analyses {reaped.lost_reanalyses}, "
+          f"resumed jobs {len(reaped.resumed)}")
 
 
 @admin.command("create-lab")

@@ -159,6 +159,9 @@ class Job(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     started_at: Mapped[datetime | None] = mapped_column()
     fitted_at: Mapped[datetime | None] = mapped_column()  # every chunk done
+    # Last sign of life of a queued or re-analysing job (re-analysis stored, reaper re-sent
+    # its messages): the reaper's clock for lost plan and re-analysis messages.
+    progress_at: Mapped[datetime | None] = mapped_column()
     finished_at: Mapped[datetime | None] = mapped_column()
 
 
@@ -183,6 +186,7 @@ class Chunk(Base):
     last: Mapped[int] = mapped_column(Integer)  # exclusive
     status: Mapped[str] = mapped_column(String(16), default=ChunkStatus.QUEUED)
     attempts: Mapped[int] = mapped_column(Integer, default=0)
+    queued_at: Mapped[datetime | None] = mapped_column()  # last sent to the broker
     heartbeat_at: Mapped[datetime | None] = mapped_column()
     worker: Mapped[str | None] = mapped_column(String(255))
     error: Mapped[str | None] = mapped_column(Text)

@@ -28,9 +28,20 @@ class Settings(BaseSettings):
     default_chunk_size: int = Field(default=50, ge=1)
     # Cancel is cooperative: a fitting worker reads its job's status this often (seconds).
     cancel_check_s: float = Field(default=0.5, gt=0)
-    # A fitting chunk writes its heartbeat at most this often (seconds); a reaper (issue 5)
-    # re-queues chunks whose heartbeat is much older.
+    # A fitting chunk writes its heartbeat at most this often (seconds); the reaper
+    # (worker.reaper) re-queues a running chunk whose heartbeat is older than the timeout.
     heartbeat_s: float = Field(default=2.0, gt=0)
+    heartbeat_timeout_s: float = Field(default=60.0, gt=0)
+    # A chunk, plan or re-analysis queued this long while the broker's queue is empty lost
+    # its message (broker flushed or restarted): the reaper sends it again.
+    queued_timeout_s: float = Field(default=300.0, gt=0)
+    reap_interval_s: float = Field(default=10.0, gt=0)
+    # Deliveries that may start a chunk; the next one fails the job (a poison chunk).
+    max_chunk_attempts: int = Field(default=3, ge=1)
+    # Fault injection for the tests only: "JOB_ID:CHUNK_INDEX" makes the worker process
+    # that starts that chunk exit at once (os._exit), as a poison input would crash it;
+    # "JOB_ID:CHUNK_INDEX:done" exits once that chunk is counted done, before the merge.
+    crash_chunk: str = ""
     # Celery: hard limit < visibility timeout, so Redis never re-delivers a chunk that is
     # still legitimately running (see worker.celery_app).
     task_soft_time_limit_s: int = Field(default=1800, gt=0)

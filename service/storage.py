@@ -4,10 +4,18 @@ Keys are built by the service (``videos/<uuid>.avi``, ``jobs/<id>/angles.csv``),
 never from a user's filename. Writes are atomic: data goes to a temporary file
 in the same directory and is renamed into place once complete, so a reader (or
 a database row) never sees a partial file, even if the writer dies midway.
+
+A writer killed midway (SIGKILL, power loss) leaves its ``.partial-*`` file behind.
+Each writer holds an exclusive ``flock`` on its temporary file while writing, and the
+kernel drops the lock when the process dies: :meth:`LocalStorage.remove_abandoned`
+(run when the API starts) deletes exactly the partial files nobody holds, so it never
+pulls a file from under a live writer in another API or worker process.
 """
 
 from __future__ import annotations
 
+import fcntl
+import logging
 import os
 import re
 import tempfile
@@ -18,6 +26,8 @@ from typing import BinaryIO, Protocol
 
 from service.settings import get_settings
 
+logger = logging.getLogger(__name__)
+PARTIAL_PREFIX = ".partial-"
 _KEY = re.compile(r"^[A-Za-z0-9_-]+(/[A-Za-z0-9_.-]+)*$")
 
 
@@ -50,8 +60,9 @@ class LocalStorage:
         """A file to write ``key`` into; it appears under ``key`` only if the block succeeds."""
         final = self.path(key)
         final.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=final.parent, prefix=".partial-")
+        fd, tmp = tempfile.mkstemp(dir=final.parent, prefix=PARTIAL_PREFIX)
         try:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # "a live writer", for remove_abandoned; freed on close
             with os.fdopen(fd, "wb") as f:
                 yield f
                 f.flush()
@@ -75,6 +86,21 @@ class LocalStorage:
 
     def exists(self, key: str) -> bool:
         return self.path(key).is_file()
+
+    def remove_abandoned(self) -> int:
+        """Delete partial files no live writer holds (their writer died); return how many."""
+        removed = 0
+        for path in self.root.rglob(PARTIAL_PREFIX + "*"):
+            try:
+                with open(path, "rb") as f:
+                    fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    path.unlink()
+                    removed += 1
+            except (BlockingIOError, FileNotFoundError):
+                continue  # being written, or already gone
+        if removed:
+            logger.warning("removed %d partial file(s) left by writers that died", removed)
+        return removed
 
     def delete(self, key: str) -> None:
         self.path(key).unlink(missing_ok=True)

@@ -34,11 +34,12 @@ from service.settings import Settings, get_settings
 PLAN_JOB = "mocap.plan_job"
 FIT_CHUNK = "mocap.fit_chunk"
 REANALYSE_IMAGE = "mocap.reanalyse_image"
+RESUME_JOB = "mocap.resume_job"
 
 
 def make_celery(settings: Settings) -> Celery:
     """A Celery app for ``settings`` (broker, queue, limits)."""
-    app = Celery("mocap", broker=settings.broker_url, include=["worker.tasks"])
+    app = Celery("mocap", broker=settings.broker_url, include=["worker.tasks", "worker.reaper"])
     transport: dict[str, Any] = {"visibility_timeout": settings.visibility_timeout_s}
     embedded = settings.broker_url.startswith("filesystem")
     if embedded:

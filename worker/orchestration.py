@@ -7,6 +7,8 @@ Every step calls the same ``core.pipeline`` functions as ``mocap fit``:
    and its observed histogram counts, stored exactly (``.npz``). Marking the chunk
    done and counting it on the job is one guarded UPDATE; the chunk whose UPDATE
    brings ``chunks_done`` to ``chunks_total`` is the last, and only it goes on:
+   A thread writes the chunk's heartbeat meanwhile; ``worker.reaper`` sends again a
+   chunk whose heartbeat stops (its worker died as a whole).
 3. :func:`_after_chunks` (``core.fit.merge_chunks``, ``typical_objective``,
    ``needs_reanalysis``): merged histograms, one ``reanalyse_image`` task per image
    to re-fit, ``reanalyses_pending`` on the job.
@@ -16,6 +18,9 @@ Every step calls the same ``core.pipeline`` functions as ``mocap fit``:
 5. :func:`_finish` (``core.pipeline.finish``, ``build_report``): angles.csv,
    histograms.xml, report.json, and the job's observations folded into the model's
    histogram archive as a new version.
+
+:func:`resume` runs step 3 or 5 again for a job whose worker died just before it (the
+reaper sends it once the job has stopped moving).
 
 Idempotence: image and attempt rows are inserted keyed by (job, sample[, attempt])
 and a second insert is ignored (fits are deterministic per seed, sample and attempt);
@@ -28,9 +33,12 @@ from __future__ import annotations
 import io
 import json
 import logging
+import os
+import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC
 from typing import Any
@@ -99,31 +107,39 @@ def _load(session: Session, job_id: int) -> _Loaded:
     return _Loaded(job, fit, prior.copy())
 
 
-def _enqueue(name: str, *args: int) -> None:
+def enqueue(name: str, *args: int) -> None:
+    """Send a task (ids only) to the settings' queue."""
     app.send_task(name, args=list(args))
 
 
 # ---- 1. plan ----------------------------------------------------------------------------------
 def plan_job(job_id: int) -> None:
-    """Count images, create chunk rows and queue them (only for a job still queued)."""
+    """Count images, create chunk rows and queue them (only for a job still queued).
+
+    The job row is locked first: a second delivery running at the same time (a message
+    the reaper thought lost) waits here, then finds the job running and does nothing,
+    rather than inserting the same chunks again.
+    """
     with session_scope() as session:
-        job = session.get_one(Job, job_id)
+        job = session.get_one(Job, job_id, with_for_update=True)
         if job.status != JobStatus.QUEUED:
             logger.info("job %s is %s: nothing to plan", job_id, job.status)
             return
         steps = plan(_load(session, job_id).fit)
-        # Guarded: a cancel, or another delivery of this task, may have come in meanwhile.
+        # Guarded: with SQLite (no row locks) a cancel may have come in while the videos were probed.
         if not _changed(session, update(Job).where(Job.id == job_id, Job.status == JobStatus.QUEUED)
                         .values(status=JobStatus.RUNNING, started_at=utcnow(), images_total=steps.images,
                                 chunks_total=len(steps.chunks))):
             return
-        chunks = [Chunk(job_id=job_id, index=i, first=a, last=b) for i, (a, b) in enumerate(steps.chunks)]
+        now = utcnow()
+        chunks = [Chunk(job_id=job_id, index=i, first=a, last=b, queued_at=now)
+                  for i, (a, b) in enumerate(steps.chunks)]
         session.add_all(chunks)
         session.flush()
         ids = [c.id for c in chunks]
     logger.info("job %s: %d images in %d chunks", job_id, steps.images, len(ids))
     for chunk_id in ids:
-        _enqueue(FIT_CHUNK, chunk_id)
+        enqueue(FIT_CHUNK, chunk_id)
 
 
 # ---- 2. chunks --------------------------------------------------------------------------------
@@ -133,10 +149,12 @@ def run_chunk(chunk_id: int, *, worker: str) -> None:
         chunk = session.get_one(Chunk, chunk_id)
         if not _claim(session, chunk, worker):
             return
-        loaded = _load(session, chunk.job_id)
         first, last, job_id, index = chunk.first, chunk.last, chunk.job_id, chunk.index
-    result = fit_range(loaded.fit, loaded.prior, first, last,
-                       should_stop=_canceled_check(job_id), progress=_heartbeat(chunk_id))
+    with _heartbeat(chunk_id):  # from the claim on: loading probes the videos, seconds on a cold process
+        with session_scope() as session:
+            loaded = _load(session, job_id)
+        _crash_if_told(job_id, index)
+        result = fit_range(loaded.fit, loaded.prior, first, last, should_stop=_canceled_check(job_id))
     if len(result.fits) < last - first:
         _set_chunk(chunk_id, ChunkStatus.CANCELED)
         logger.info("chunk %s of job %s stopped: job canceled", index, job_id)
@@ -144,18 +162,44 @@ def run_chunk(chunk_id: int, *, worker: str) -> None:
     key = f"jobs/{job_id}/chunks/{index}.npz"
     histstore.save(get_storage(), key, result.observed)
     if _complete_chunk(chunk_id, job_id, key, result.fits, worker):
+        _crash_if_told(job_id, index, "done")
         _after_chunks(job_id)
 
 
 def _claim(session: Session, chunk: Chunk, worker: str) -> bool:
-    """Start (or restart, after a lost delivery) a chunk that is not done and whose job runs."""
+    """Start (or restart, after a lost delivery) a chunk that is not done and whose job runs.
+
+    A chunk already started ``max_chunk_attempts`` times crashed or stalled its worker each
+    time (Celery hands a message back when its worker dies, the reaper when its heartbeat
+    stops): it fails, and its job with it, instead of taking down workers for ever.
+    """
     job = session.get_one(Job, chunk.job_id)
     if job.status != JobStatus.RUNNING or chunk.status in (ChunkStatus.DONE, ChunkStatus.FAILED):
         logger.info("chunk %s skipped: chunk %s, job %s", chunk.id, chunk.status, job.status)
         return False
+    limit = get_settings().max_chunk_attempts
+    if chunk.attempts >= limit:
+        message = (f"chunk {chunk.index} (images {chunk.first}-{chunk.last - 1}) was started "
+                   f"{chunk.attempts} times and never finished: its worker died or stalled each time "
+                   f"(MOCAP_MAX_CHUNK_ATTEMPTS={limit})")
+        logger.error("job %s: %s", job.id, message)
+        chunk.status, chunk.error = ChunkStatus.FAILED, message
+        session.execute(update(Job).where(Job.id == job.id, Job.status.not_in(list(TERMINAL)))
+                        .values(status=JobStatus.FAILED, error=message, finished_at=utcnow()))
+        return False
     chunk.status, chunk.worker, chunk.heartbeat_at = ChunkStatus.RUNNING, worker, utcnow()
     chunk.attempts += 1
     return True
+
+
+def _crash_if_told(job_id: int, index: int, when: str = "") -> None:
+    """Test-only fault injection: ``MOCAP_CRASH_CHUNK=JOB:INDEX`` dies as the chunk starts, like a
+    poison input would; ``JOB:INDEX:done`` right after the chunk is counted done, before the merge.
+    No cleanup, so the tests exercise the real crash path (Celery's worker-lost hand-back)."""
+    if get_settings().crash_chunk == f"{job_id}:{index}" + (f":{when}" if when else ""):
+        logger.error("MOCAP_CRASH_CHUNK: worker process exits on chunk %s of job %s", index, job_id)
+        logging.shutdown()
+        os._exit(1)
 
 
 def _canceled_check(job_id: int) -> Callable[[], bool]:
@@ -172,17 +216,31 @@ def _canceled_check(job_id: int) -> Callable[[], bool]:
     return should_stop
 
 
-def _heartbeat(chunk_id: int) -> Callable[[ImageFit], None]:
-    """``progress`` for ``fit_range``: writes the chunk's heartbeat at most every heartbeat_s."""
-    interval, last = get_settings().heartbeat_s, [time.monotonic()]
+@contextmanager
+def _heartbeat(chunk_id: int) -> Iterator[None]:
+    """Write the chunk's heartbeat every heartbeat_s from a thread while the block runs.
 
-    def beat(_fit: ImageFit) -> None:
-        if time.monotonic() - last[0] >= interval:
-            last[0] = time.monotonic()
-            with session_scope() as session:
-                session.execute(update(Chunk).where(Chunk.id == chunk_id).values(heartbeat_at=utcnow()))
+    A thread, not a per-image callback: the first image of a process can take a minute
+    (numba compiles the kernels on a cold cache) and the reaper must not take that for a dead
+    worker. The heartbeat says the process lives; a hung fit is Celery's time limits' job.
+    """
+    stop = threading.Event()
 
-    return beat
+    def beat() -> None:
+        while not stop.wait(get_settings().heartbeat_s):
+            try:
+                with session_scope() as session:
+                    session.execute(update(Chunk).where(Chunk.id == chunk_id).values(heartbeat_at=utcnow()))
+            except Exception:  # a database blip: the next beat may get through
+                logger.exception("heartbeat of chunk %s not written", chunk_id)
+
+    thread = threading.Thread(target=beat, name=f"heartbeat-{chunk_id}", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
 
 
 def _complete_chunk(chunk_id: int, job_id: int, key: str, fits: list[ImageFit], worker: str) -> bool:
@@ -220,15 +278,16 @@ def _after_chunks(job_id: int) -> None:
         typical = typical_objective(fits)
         pending = [f.sample for f in fits if needs_reanalysis(f, loaded.fit.params, typical)]
         moved = _changed(session,
-            update(Job).where(Job.id == job_id, Job.status == JobStatus.RUNNING)
+            update(Job).where(Job.id == job_id, Job.status == JobStatus.RUNNING, Job.fitted_at.is_(None))
             .values(typical_objective=typical, reanalyses_pending=len(pending), fitted_at=utcnow(),
+                    progress_at=utcnow(),
                     status=JobStatus.REANALYSING if pending else JobStatus.RUNNING)
         )
     if not moved:
         return
     logger.info("job %s: all chunks done, %d images to re-analyse", job_id, len(pending))
     for sample in pending:
-        _enqueue(REANALYSE_IMAGE, job_id, sample, 2)
+        enqueue(REANALYSE_IMAGE, job_id, sample, 2)
     if not pending:
         _finish(job_id)
 
@@ -258,15 +317,41 @@ def reanalyse(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
         if not stored:
             return
         _insert_ignore(session, Attempt, [_attempt_row(job_id, fit, worker)])
-        values: dict[str, Any] = {"images_over_threshold": Job.images_over_threshold + over}
+        values: dict[str, Any] = {"images_over_threshold": Job.images_over_threshold + over,
+                                  "progress_at": utcnow()}
         if not again:
             values["reanalyses_pending"] = Job.reanalyses_pending - 1
         left = session.execute(update(Job).where(Job.id == job_id).values(**values)
                                .returning(Job.reanalyses_pending)).scalar_one()
     if again:
-        _enqueue(REANALYSE_IMAGE, job_id, sample, attempt + 1)
+        enqueue(REANALYSE_IMAGE, job_id, sample, attempt + 1)
     elif left == 0:
         _finish(job_id)
+
+
+def pending_reanalyses(session: Session, job_id: int) -> list[tuple[int, int]]:
+    """(sample, next attempt) of every image of a re-analysing job that still needs one: read
+    from the stored fits with the rule that queued them, so lost messages can be sent again."""
+    job = session.get_one(Job, job_id)
+    params = _load(session, job_id).fit.params
+    typical = job.typical_objective if job.typical_objective is not None else float("nan")
+    return [(f.sample, f.attempts + 1) for f in _fits(session, job_id)
+            if needs_reanalysis(f, params, typical)]
+
+
+def resume(job_id: int) -> None:
+    """Step 3 or 5 for a job whose worker died after the step before committed (sent by the
+    reaper): every chunk done but never merged, or nothing pending but never finished."""
+    with session_scope() as session:
+        job = session.get_one(Job, job_id)
+        status, merged, pending = job.status, job.fitted_at is not None, job.reanalyses_pending
+        all_done = job.chunks_total > 0 and job.chunks_done == job.chunks_total
+    if status == JobStatus.RUNNING and all_done and not merged:
+        _after_chunks(job_id)
+    elif status in (JobStatus.RUNNING, JobStatus.REANALYSING) and all_done and merged and pending == 0:
+        _finish(job_id)
+    else:
+        logger.info("job %s is %s: nothing to resume", job_id, status)
 
 
 # ---- 5. finish ---------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ from contextlib import contextmanager
 from celery import Task
 
 from worker import orchestration
-from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, app
+from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, RESUME_JOB, app
 
 logger = logging.getLogger(__name__)
 
@@ -43,6 +43,14 @@ def fit_chunk(self: Task, chunk_id: int) -> None:
     chunk_id = int(chunk_id)
     with _recorded(f"chunk {chunk_id}", lambda msg: orchestration.fail_chunk(chunk_id, msg)):
         orchestration.run_chunk(chunk_id, worker=self.request.hostname or "")
+
+
+@app.task(bind=True, name=RESUME_JOB)
+def resume_job(self: Task, job_id: int) -> None:
+    """Merge or finish a job whose worker died between its last step and the next (reaper)."""
+    job_id = int(job_id)
+    with _recorded(f"resuming job {job_id}", lambda msg: orchestration.fail_job(job_id, msg)):
+        orchestration.resume(job_id)
 
 
 @app.task(bind=True, name=REANALYSE_IMAGE)

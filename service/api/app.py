@@ -8,6 +8,8 @@ core's message, which names the element or option at fault.
 from __future__ import annotations
 
 import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -15,13 +17,21 @@ from fastapi.responses import JSONResponse
 
 from service.api.routes import batches, jobs, models, rigs, videos
 from service.errors import ConflictError, NotFoundError, QueueUnavailableError
+from service.storage import get_storage
 from service.upload import TooLargeError
 
 logger = logging.getLogger(__name__)
 
 
+@asynccontextmanager
+async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
+    """On start, delete the partial uploads of an API process that died mid-upload."""
+    get_storage().remove_abandoned()
+    yield
+
+
 def create_app() -> FastAPI:
-    app = FastAPI(title="mocap", version="1",
+    app = FastAPI(title="mocap", version="1", lifespan=_lifespan,
                   description="Model-based motion capture as a service: upload models, rigs and "
                               "videos, submit fitting jobs, download angles and histograms.")
     for router in (models.router, rigs.router, videos.router, jobs.router, batches.router):

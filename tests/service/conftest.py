@@ -4,6 +4,8 @@
   dropped afterwards) and Redis (db 9, a queue named for this run).
 - ``embedded``: ``mocap serve`` as a user runs it: SQLite and kombu's filesystem
   transport under a temporary data dir, migrations on start.
+- ``faults`` (module): the ``redis_pg`` layout on a Redis db of its own (the tests flush
+  it), reaper timeouts of seconds, and workers the tests start, kill and stop themselves.
 
 With ``CI=true`` a missing PostgreSQL or Redis fails the tests; elsewhere they skip.
 """
@@ -17,6 +19,7 @@ import sys
 import time
 import uuid
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,6 +36,7 @@ from service.db import make_engine
 EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 PG_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 REDIS_URL = "redis://127.0.0.1:6379/9"
+REDIS_FAULTS_URL = "redis://127.0.0.1:6379/10"  # FLUSHDB'd by the fault tests
 CLIP_IMAGES = 40
 CLIP_SEED = 11
 UPLOAD_LIMIT = 128 * 1024**2  # the cancel test uploads ~80 MB; the 413 test sends 200 MB
@@ -73,12 +77,35 @@ class Deployment:
     database_url: str
     processes: list[subprocess.Popen] = field(default_factory=list)
     engine: Engine | None = None
+    data: Path | None = None
+
+    def start_api(self) -> subprocess.Popen:
+        """uvicorn on this deployment's port, as the ``redis_pg`` layout runs it."""
+        assert self.data is not None
+        port = self.url.removesuffix("/v1").rsplit(":", 1)[1]
+        api = subprocess.Popen(
+            [sys.executable, "-m", "uvicorn", "service.api.app:create_app", "--factory", "--port", port,
+             "--log-level", "warning"], env=self.env, stdout=(self.data / "api.log").open("a"),
+            stderr=subprocess.STDOUT)
+        self.processes.append(api)
+        return api
+
+    def start_worker(self, concurrency: int = 2, **extra_env: str) -> subprocess.Popen:
+        """``mocap worker`` in a process group of its own, so a test can kill it whole."""
+        assert self.data is not None
+        worker = subprocess.Popen(
+            [sys.executable, "-m", "service.cli", "worker", "--concurrency", str(concurrency)],
+            env=self.env | extra_env, stdout=(self.data / "worker.log").open("a"),
+            stderr=subprocess.STDOUT, start_new_session=True)
+        self.processes.append(worker)
+        return worker
 
     def create_lab(self, name: str) -> httpx.Client:
         """A client carrying the key ``mocap admin create-lab`` printed as its last line."""
-        out = subprocess.run([sys.executable, "-m", "service.cli", "admin", "create-lab", name],
-                             env=self.env, capture_output=True, text=True, check=True).stdout
-        key = out.strip().splitlines()[-1]
+        done = subprocess.run([sys.executable, "-m", "service.cli", "admin", "create-lab", name],
+                              env=self.env, capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+        key = done.stdout.strip().splitlines()[-1]
         return httpx.Client(base_url=self.url, headers={"Authorization": f"Bearer {key}"}, timeout=30)
 
     def db(self) -> Engine:
@@ -126,24 +153,23 @@ def _worker(env: dict[str, str], log: Path) -> subprocess.Popen:
                             env=env, stdout=log.open("w"), stderr=subprocess.STDOUT)
 
 
-@pytest.fixture(scope="session")
-def redis_pg(tmp_path_factory) -> Iterator[Deployment]:
+@contextmanager
+def _pg_redis(data: Path, name: str, redis_url: str, worker: bool, **extra_env: str) -> Iterator[Deployment]:
+    """API (+ a worker) on a PostgreSQL schema of its own (dropped afterwards) and ``redis_url``."""
     require_servers()
     schema = f"mocap_test_{uuid.uuid4().hex[:10]}"
     admin = make_engine(PG_ADMIN_URL)
     with admin.begin() as conn:
         conn.execute(text(f'CREATE SCHEMA "{schema}"'))
-    data = tmp_path_factory.mktemp("redis_pg")
-    env = _base_env(data)
+    env = _base_env(data) | extra_env
     env.update(MOCAP_DATABASE_URL=f"{PG_ADMIN_URL}?options=-csearch_path%3D{schema}",
-               MOCAP_BROKER_URL=REDIS_URL, MOCAP_QUEUE=f"mocap-test-{uuid.uuid4().hex[:10]}")
+               MOCAP_BROKER_URL=redis_url, MOCAP_QUEUE=f"mocap-test-{uuid.uuid4().hex[:10]}")
     subprocess.run([sys.executable, "-m", "service.migrate"], env=env, check=True, capture_output=True)
-    port = free_port()
-    deployment = Deployment("redis_pg", f"http://127.0.0.1:{port}/v1", env, env["MOCAP_DATABASE_URL"])
-    deployment.processes.append(subprocess.Popen(
-        [sys.executable, "-m", "uvicorn", "service.api.app:create_app", "--factory", "--port", str(port),
-         "--log-level", "warning"], env=env, stdout=(data / "api.log").open("w"), stderr=subprocess.STDOUT))
-    deployment.processes.append(_worker(env, data / "worker.log"))
+    deployment = Deployment(name, f"http://127.0.0.1:{free_port()}/v1", env, env["MOCAP_DATABASE_URL"],
+                            data=data)
+    deployment.start_api()
+    if worker:
+        deployment.processes.append(_worker(env, data / "worker.log"))
     try:
         wait_healthy(deployment)
         yield deployment
@@ -152,6 +178,22 @@ def redis_pg(tmp_path_factory) -> Iterator[Deployment]:
         with admin.begin() as conn:
             conn.execute(text(f'DROP SCHEMA "{schema}" CASCADE'))
         admin.dispose()
+
+
+@pytest.fixture(scope="session")
+def redis_pg(tmp_path_factory) -> Iterator[Deployment]:
+    with _pg_redis(tmp_path_factory.mktemp("redis_pg"), "redis_pg", REDIS_URL, worker=True) as deployment:
+        yield deployment
+
+
+@pytest.fixture(scope="module")
+def faults(tmp_path_factory) -> Iterator[Deployment]:
+    """Heartbeats stale after 2 s, lost messages sent again after 5 s (planning on a cold worker
+    takes ~3 s), a reaper pass every 0.3 s."""
+    with _pg_redis(tmp_path_factory.mktemp("faults"), "faults", REDIS_FAULTS_URL, worker=False,
+                   MOCAP_HEARTBEAT_TIMEOUT_S="2", MOCAP_QUEUED_TIMEOUT_S="5",
+                   MOCAP_REAP_INTERVAL_S="0.3") as deployment:
+        yield deployment
 
 
 @pytest.fixture(scope="session")

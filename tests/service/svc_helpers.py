@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import Any
 
+import cv2
 import httpx
+
+from core.synth import write_video
 
 EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 TERMINAL = {"succeeded", "failed", "canceled"}
@@ -45,3 +49,22 @@ def wait_for(client: httpx.Client, job_id: int, statuses: set[str] = TERMINAL,
             return job
         time.sleep(0.2)
     raise AssertionError(f"job {job_id} still {job['status']} after {timeout} s: {job}")
+
+
+def repeated(video: Path, times: int, out: Path) -> Path:
+    """The clip's frames ``times`` over: a long video without rendering it."""
+    capture, frames = cv2.VideoCapture(str(video)), []
+    while (frame := capture.read())[0]:
+        frames.append(cv2.cvtColor(frame[1], cv2.COLOR_BGR2GRAY))
+    capture.release()
+    write_video(out, (f for _ in range(times) for f in frames), fps=50.0)
+    return out
+
+
+def slow_rig() -> bytes:
+    """The example rig at half the true scale: no posture explains the markers, so every image
+    runs all its iterations (~40 ms): chunks that last long enough to kill mid-way."""
+    rig = json.loads((EXAMPLE / "rig.json").read_text())
+    for view in rig["views"]:
+        view["projection"]["matrix"][0][0] = 1.5
+    return json.dumps(rig).encode()

@@ -3,17 +3,14 @@
 from __future__ import annotations
 
 import io
-import json
 import time
 import zipfile
-from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from celery import Celery
 from sqlalchemy import text
-from svc_helpers import EXAMPLE, submit, upload_inputs, wait_for
+from svc_helpers import repeated, slow_rig, submit, upload_inputs, wait_for
 
 from core.synth import write_video
 from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE
@@ -46,26 +43,12 @@ def test_images_over_the_threshold_are_requeued_and_every_attempt_recorded(redis
     assert report["reanalysed"] == 40 and report["service"]["attempts_total"] == 120
 
 
-def _repeated(video: Path, times: int, out: Path) -> Path:
-    """The clip's frames ``times`` over: a long video without rendering it."""
-    capture, frames = cv2.VideoCapture(str(video)), []
-    while (frame := capture.read())[0]:
-        frames.append(cv2.cvtColor(frame[1], cv2.COLOR_BGR2GRAY))
-    capture.release()
-    write_video(out, (f for _ in range(times) for f in frames), fps=50.0)
-    return out
-
-
 def test_cancel_stops_a_running_job(redis_pg, clip, tmp_path):
     """A rig that cannot explain the markers makes every image slow (~40 ms, 400 images in two
     chunks: several seconds each); cancel stops a running chunk between images, and a chunk
     no worker has started yet (a busy machine) is canceled at once."""
     client = redis_pg.create_lab("cancel")
-    rig = json.loads((EXAMPLE / "rig.json").read_text())
-    for view in rig["views"]:
-        view["projection"]["matrix"][0][0] = 1.5  # half the true scale: no posture fits
-    ids = upload_inputs(client, _repeated(clip.video, 10, tmp_path / "long.avi"),
-                        rig=json.dumps(rig).encode())
+    ids = upload_inputs(client, repeated(clip.video, 10, tmp_path / "long.avi"), rig=slow_rig())
     job = submit(client, ids, chunk_size=200, max_attempts=1)
     wait_for(client, job["id"], {"running"}, timeout=60)
     time.sleep(1.0)  # both chunks are fitting
