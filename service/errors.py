@@ -13,3 +13,11 @@ class ConflictError(RuntimeError):
 
 class InvalidError(ValueError):
     """A request that names things that do not fit together (422)."""
+
+
+class RateLimitedError(RuntimeError):
+    """A lab over one of its limits (429); ``retry_after`` seconds until it may try again."""
+
+    def __init__(self, message: str, retry_after: int) -> None:
+        super().__init__(message)
+        self.retry_after = max(1, retry_after)

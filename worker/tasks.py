@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from celery import Task
+from celery.exceptions import SoftTimeLimitExceeded
 
 from worker import orchestration
 from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, app
@@ -25,8 +26,17 @@ def _recorded(what: str, record: Callable[[str], None]) -> Iterator[None]:
         yield
     except Exception as exc:
         logger.exception("%s failed", what)
-        record(f"{type(exc).__name__}: {exc}")
+        record(_describe(exc))
         raise
+
+
+def _describe(exc: Exception) -> str:
+    """The failure as the job's error: Celery's soft time limit says nothing by itself."""
+    if isinstance(exc, SoftTimeLimitExceeded):
+        limit = app.conf.task_soft_time_limit
+        return (f"the task ran longer than its time limit of {limit} s (MOCAP_TASK_SOFT_TIME_LIMIT_S); "
+                "submit smaller chunks (options.chunk_size)")
+    return f"{type(exc).__name__}: {exc}"
 
 
 @app.task(bind=True, name=PLAN_JOB)

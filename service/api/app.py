@@ -14,7 +14,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from service.api.routes import batches, jobs, models, rigs, videos
-from service.errors import ConflictError, NotFoundError
+from service.errors import ConflictError, NotFoundError, RateLimitedError
 from service.upload import TooLargeError
 
 logger = logging.getLogger(__name__)
@@ -52,5 +52,11 @@ def _errors(app: FastAPI) -> None:
         )
         return JSONResponse({"detail": problems}, status_code=422)
 
+    async def rate_limited(_request: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, RateLimitedError)
+        return JSONResponse({"detail": str(exc)}, status_code=429,
+                            headers={"Retry-After": str(exc.retry_after)})
+
     app.add_exception_handler(TooLargeError, too_large)
+    app.add_exception_handler(RateLimitedError, rate_limited)
     app.add_exception_handler(RequestValidationError, invalid_request)

@@ -17,6 +17,7 @@ import sys
 import time
 import uuid
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -121,29 +122,32 @@ def _base_env(data_dir: Path) -> dict[str, str]:
     return env
 
 
-def _worker(env: dict[str, str], log: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "service.cli", "worker", "--concurrency", "2"],
-                            env=env, stdout=log.open("w"), stderr=subprocess.STDOUT)
+def _worker(env: dict[str, str], log: Path, concurrency: int = 2) -> subprocess.Popen:
+    command = [sys.executable, "-m", "service.cli", "worker", "--concurrency", str(concurrency)]
+    return subprocess.Popen(command, env=env, stdout=log.open("w"), stderr=subprocess.STDOUT)
 
 
-@pytest.fixture(scope="session")
-def redis_pg(tmp_path_factory) -> Iterator[Deployment]:
+@contextmanager
+def redis_pg_deployment(data: Path, name: str, workers: int = 2, **settings: str) -> Iterator[Deployment]:
+    """uvicorn + ``mocap worker --concurrency workers`` (none for 0) on a PostgreSQL schema and a
+    Redis queue of their own, with ``MOCAP_<NAME>`` overrides from ``settings``."""
     require_servers()
     schema = f"mocap_test_{uuid.uuid4().hex[:10]}"
     admin = make_engine(PG_ADMIN_URL)
     with admin.begin() as conn:
         conn.execute(text(f'CREATE SCHEMA "{schema}"'))
-    data = tmp_path_factory.mktemp("redis_pg")
     env = _base_env(data)
     env.update(MOCAP_DATABASE_URL=f"{PG_ADMIN_URL}?options=-csearch_path%3D{schema}",
                MOCAP_BROKER_URL=REDIS_URL, MOCAP_QUEUE=f"mocap-test-{uuid.uuid4().hex[:10]}")
+    env.update({f"MOCAP_{key.upper()}": value for key, value in settings.items()})
     subprocess.run([sys.executable, "-m", "service.migrate"], env=env, check=True, capture_output=True)
     port = _free_port()
-    deployment = Deployment("redis_pg", f"http://127.0.0.1:{port}/v1", env, env["MOCAP_DATABASE_URL"])
+    deployment = Deployment(name, f"http://127.0.0.1:{port}/v1", env, env["MOCAP_DATABASE_URL"])
     deployment.processes.append(subprocess.Popen(
         [sys.executable, "-m", "uvicorn", "service.api.app:create_app", "--factory", "--port", str(port),
          "--log-level", "warning"], env=env, stdout=(data / "api.log").open("w"), stderr=subprocess.STDOUT))
-    deployment.processes.append(_worker(env, data / "worker.log"))
+    if workers:
+        deployment.processes.append(_worker(env, data / "worker.log", workers))
     try:
         _wait_healthy(deployment)
         yield deployment
@@ -152,6 +156,12 @@ def redis_pg(tmp_path_factory) -> Iterator[Deployment]:
         with admin.begin() as conn:
             conn.execute(text(f'DROP SCHEMA "{schema}" CASCADE'))
         admin.dispose()
+
+
+@pytest.fixture(scope="session")
+def redis_pg(tmp_path_factory) -> Iterator[Deployment]:
+    with redis_pg_deployment(tmp_path_factory.mktemp("redis_pg"), "redis_pg") as deployment:
+        yield deployment
 
 
 @pytest.fixture(scope="session")

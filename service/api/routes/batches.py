@@ -8,7 +8,7 @@ from fastapi import APIRouter, Response
 from fastapi.responses import StreamingResponse
 
 from service import crud
-from service.api.deps import CurrentLab, SessionDep, StorageDep
+from service.api.deps import CurrentLab, SessionDep, SettingsDep, StorageDep
 from service.api.routes.jobs import enqueue, job_entries, job_public
 from service.archive import stream_zip
 from service.models import TERMINAL, Batch, Job, JobStatus
@@ -32,8 +32,9 @@ def _public(batch: Batch, jobs: list[Job]) -> BatchPublic:
 
 
 @router.post("", status_code=202, response_model=BatchPublic, summary="Submit one job per trial")
-def submit(body: BatchCreate, response: Response, session: SessionDep, lab: CurrentLab) -> BatchPublic:
-    batch, jobs = crud.submit_batch(session, lab, body)
+def submit(body: BatchCreate, response: Response, session: SessionDep, settings: SettingsDep,
+           lab: CurrentLab) -> BatchPublic:
+    batch, jobs = crud.submit_batch(session, lab, settings, body)
     for job in jobs:
         enqueue(job)
     response.headers["Location"] = f"/v1/batches/{batch.id}"

@@ -11,7 +11,7 @@ from fastapi.responses import FileResponse, StreamingResponse
 from sqlalchemy.orm import Session
 
 from service import crud
-from service.api.deps import CurrentLab, SessionDep, StorageDep
+from service.api.deps import CurrentLab, SessionDep, SettingsDep, StorageDep
 from service.archive import stream_zip
 from service.models import Job, JobStatus, Lab, Model, RigRow
 from service.schemas import JobCreate, JobPage, JobPublic, Progress
@@ -49,8 +49,9 @@ def enqueue(job: Job) -> None:
 
 @router.post("", status_code=202, response_model=JobPublic,
              summary="Submit a job; poll the Location it returns")
-def submit(body: JobCreate, response: Response, session: SessionDep, lab: CurrentLab) -> JobPublic:
-    job = crud.submit_job(session, lab, body)
+def submit(body: JobCreate, response: Response, session: SessionDep, settings: SettingsDep,
+           lab: CurrentLab) -> JobPublic:
+    job = crud.submit_job(session, lab, settings, body)
     enqueue(job)
     response.headers["Location"] = f"/v1/jobs/{job.id}"
     return job_public(job)
