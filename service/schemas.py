@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -12,7 +12,7 @@ class DetectorOptions(BaseModel):
     """Marker detection (``core.detect.DetectorParams``)."""
 
     model_config = ConfigDict(extra="forbid")
-    threshold: float | Literal["otsu"] = 100.0
+    threshold: Annotated[float, Field(ge=0, le=255)] | Literal["otsu"] = 100.0
     channel: Literal["grey", "red", "green", "blue"] = "grey"
     blur: int = Field(default=0, ge=0, le=99)
     erode: int = Field(default=0, ge=0, le=20)
@@ -31,12 +31,12 @@ class JobOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
     deinterlace: bool = False
     field_order: Literal["even-first", "odd-first"] = "even-first"
-    error_threshold_px: float = Field(default=10.0, gt=0)
+    error_threshold_px: float = Field(default=10.0, gt=0, allow_inf_nan=False)
     max_attempts: int = Field(default=5, ge=1, le=100)
     iterations: int = Field(default=35000, ge=1, le=10_000_000)
     seed: int = Field(default=0, ge=0, lt=2**63)
     chunk_size: int | None = Field(default=None, ge=1, le=1_000_000)
-    marker_diameter_px: float | Literal["auto"] = Field(
+    marker_diameter_px: Annotated[float, Field(ge=0, le=1000)] | Literal["auto"] = Field(
         default="auto", description="markers' diameter in pixels, closer markers may image as one "
         "blob: a number >= 0 (0: the paper's plain Eq. 5) or 'auto' (from the blobs of the first "
         "images, as `mocap fit` does)")

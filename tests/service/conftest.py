@@ -25,6 +25,7 @@ import httpx
 import numpy as np
 import pytest
 from sqlalchemy import Engine, text
+from svc_helpers import submit, upload_inputs, wait_for
 
 from core.model import KinematicModel
 from core.rig import Rig
@@ -181,6 +182,20 @@ def embedded(tmp_path_factory) -> Iterator[Deployment]:
         yield deployment
     finally:
         deployment.stop()
+
+
+@pytest.fixture(scope="session")
+def owner_job(redis_pg, clip):
+    """Lab "owner": its model, rig, video, a succeeded job and a batch (submitted, not awaited)."""
+    client = redis_pg.create_lab("owner")
+    ids = upload_inputs(client, clip.video)
+    job = wait_for(client, submit(client, ids, marker_diameter_px=4.0, chunk_size=40)["id"])
+    assert job["status"] == "succeeded", job
+    batch = client.post("/batches", json={"model_id": ids["model_id"], "rig_id": ids["rig_id"],
+                                          "trials": [{"video_ids": [ids["video_id"]]}],
+                                          "options": {"chunk_size": 40}})
+    assert batch.status_code == 202
+    return client, {**ids, "job_id": job["id"], "batch_id": batch.json()["id"]}
 
 
 @dataclass(frozen=True)
