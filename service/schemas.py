@@ -7,6 +7,11 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+# Ids and versions are 32-bit integer columns: a larger number is refused (422), not sent to
+# PostgreSQL (where it would fail the query: a 500). Found by tests/service/test_schemathesis.py.
+MAX_DB_INT = 2**31 - 1
+DbId = Annotated[int, Field(ge=1, le=MAX_DB_INT)]
+
 
 class DetectorOptions(BaseModel):
     """Marker detection (``core.detect.DetectorParams``)."""
@@ -40,7 +45,7 @@ class JobOptions(BaseModel):
         default="auto", description="markers' diameter in pixels, closer markers may image as one "
         "blob: a number >= 0 (0: the paper's plain Eq. 5) or 'auto' (from the blobs of the first "
         "images, as `mocap fit` does)")
-    histogram_version: int | None = Field(default=None, ge=1)
+    histogram_version: DbId | None = None
     detector: DetectorOptions = Field(default_factory=DetectorOptions)
 
 
@@ -70,21 +75,21 @@ class VideoPublic(BaseModel):
 
 class JobCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    model_id: int
-    rig_id: int
-    video_ids: list[int] = Field(min_length=1, max_length=16)
+    model_id: DbId
+    rig_id: DbId
+    video_ids: list[DbId] = Field(min_length=1, max_length=16)
     options: JobOptions = Field(default_factory=JobOptions)
 
 
 class Trial(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    video_ids: list[int] = Field(min_length=1, max_length=16)
+    video_ids: list[DbId] = Field(min_length=1, max_length=16)
 
 
 class BatchCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    model_id: int
-    rig_id: int
+    model_id: DbId
+    rig_id: DbId
     trials: list[Trial] = Field(min_length=1, max_length=1000)
     options: JobOptions = Field(default_factory=JobOptions)
 

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Response
 from fastapi.responses import StreamingResponse
 
 from service import crud
-from service.api.deps import CurrentLab, SessionDep, SettingsDep, StorageDep
+from service.api.deps import CurrentLab, PathId, SessionDep, SettingsDep, StorageDep
 from service.api.routes.jobs import enqueue, job_entries, job_public
 from service.archive import stream_zip
 from service.models import TERMINAL, Batch, Job, JobStatus
@@ -42,14 +42,14 @@ def submit(body: BatchCreate, response: Response, session: SessionDep, settings:
 
 
 @router.get("/{batch_id}", response_model=BatchPublic)
-def get_batch(batch_id: int, session: SessionDep, lab: CurrentLab) -> BatchPublic:
+def get_batch(batch_id: PathId, session: SessionDep, lab: CurrentLab) -> BatchPublic:
     batch = crud.owned(session, Batch, batch_id, lab)
     return _public(batch, crud.batch_jobs(session, batch))
 
 
 @router.get("/{batch_id}/archive.zip", response_class=StreamingResponse,
             summary="Every trial's results in its own folder (409 until all have succeeded)")
-def archive(batch_id: int, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> StreamingResponse:
+def archive(batch_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> StreamingResponse:
     batch = crud.owned(session, Batch, batch_id, lab)
     entries = [
         entry for job in crud.batch_jobs(session, batch)

@@ -6,7 +6,7 @@ from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
 
 from service import crud, limits
-from service.api.deps import CurrentLab, SessionDep, SettingsDep, StorageDep
+from service.api.deps import CurrentLab, PathId, SessionDep, SettingsDep, StorageDep
 from service.models import Video
 from service.schemas import VideoPublic
 from service.upload import MULTIPART_SLACK, check_length, declared_length, receive_video
@@ -38,5 +38,5 @@ async def upload_video(request: Request, session: SessionDep, storage: StorageDe
 
 
 @router.get("/{video_id}", response_model=VideoPublic)
-def get_video(video_id: int, session: SessionDep, lab: CurrentLab) -> VideoPublic:
+def get_video(video_id: PathId, session: SessionDep, lab: CurrentLab) -> VideoPublic:
     return _public(crud.owned(session, Video, video_id, lab))
