@@ -47,14 +47,13 @@ def check_upload(session: Session, lab: Lab, settings: Settings, incoming: int) 
         .where(Video.lab_id == lab.id, Video.created_at > since)
     ).one()
     if files + 1 > settings.upload_files_per_hour:
-        raise RateLimitedError(
-            f"this lab uploaded {files} videos in the last hour; at most {settings.upload_files_per_hour}"
-            " per hour (MOCAP_UPLOAD_FILES_PER_HOUR)", _until_out_of_window(oldest))
+        _refuse(lab, f"this lab uploaded {files} videos in the last hour; at most "
+                f"{settings.upload_files_per_hour} per hour (MOCAP_UPLOAD_FILES_PER_HOUR)",
+                _until_out_of_window(oldest))
     if used + incoming > settings.upload_bytes_per_hour:
-        raise RateLimitedError(
-            f"this lab uploaded {used} bytes in the last hour, this upload is {incoming}; at most "
-            f"{settings.upload_bytes_per_hour} bytes per hour (MOCAP_UPLOAD_BYTES_PER_HOUR)",
-            _until_out_of_window(oldest))
+        _refuse(lab, f"this lab uploaded {used} bytes in the last hour, this upload is {incoming}; at "
+                f"most {settings.upload_bytes_per_hour} bytes per hour (MOCAP_UPLOAD_BYTES_PER_HOUR)",
+                _until_out_of_window(oldest))
 
 
 def check_active_jobs(session: Session, lab: Lab, settings: Settings, new: int) -> None:
@@ -62,10 +61,9 @@ def check_active_jobs(session: Session, lab: Lab, settings: Settings, new: int) 
     active = session.scalar(select(func.count()).where(Job.lab_id == lab.id,
                                                        Job.status.not_in(list(TERMINAL)))) or 0
     if active + new > settings.max_active_jobs_per_lab:
-        raise RateLimitedError(
-            f"this lab has {active} queued or running jobs and submits {new}; at most "
-            f"{settings.max_active_jobs_per_lab} at once (MOCAP_MAX_ACTIVE_JOBS_PER_LAB)",
-            ACTIVE_JOBS_RETRY_S)
+        _refuse(lab, f"this lab has {active} queued or running jobs and submits {new}; at most "
+                f"{settings.max_active_jobs_per_lab} at once (MOCAP_MAX_ACTIVE_JOBS_PER_LAB)",
+                ACTIVE_JOBS_RETRY_S)
 
 
 def check_frames(videos: Sequence[Video], settings: Settings) -> None:
@@ -76,6 +74,12 @@ def check_frames(videos: Sequence[Video], settings: Settings) -> None:
         raise InvalidError(f"the job's videos hold {frames} frames; this server fits at most "
                            f"{settings.max_frames_per_job} per job (MOCAP_MAX_FRAMES_PER_JOB): "
                            "split the trial")
+
+
+def _refuse(lab: Lab, message: str, retry_after: int) -> None:
+    """Log (an operator sees which lab pushes the limits) and raise the 429."""
+    logger.info("lab %s refused: %s", lab.id, message)
+    raise RateLimitedError(message, retry_after)
 
 
 def _until_out_of_window(oldest: datetime | None) -> int:
