@@ -36,6 +36,9 @@ bench = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(bench)
 
 TERMINAL = {"succeeded", "failed", "canceled"}
+# A Redis db of its own: the fault tests FLUSHDB db 10 (bench/service.py's), which once dropped
+# three of this script's queued chunks when both ran at the same time.
+REDIS_URL = "redis://127.0.0.1:6379/11"
 OPTIONS = {"marker_diameter_px": 4.0, "chunk_size": 50, "max_attempts": 2}
 
 
@@ -62,7 +65,7 @@ def complete(angles: str, images: int) -> bool:
 
 
 async def trial(client: httpx.AsyncClient, rec: Recorder, video: Path, ids: dict[str, int],
-                images: int, poll_s: float) -> str:
+                images: int, poll_s: float, timeout_s: float) -> str:
     """One trial from upload to checked result: 'complete' or what went wrong."""
     uploaded = await rec.request(client, "POST /videos", "POST", "/videos",
                                  files={"file": (video.name, video.read_bytes(), "video/x-msvideo")})
@@ -72,12 +75,14 @@ async def trial(client: httpx.AsyncClient, rec: Recorder, video: Path, ids: dict
     submitted = await rec.request(client, "POST /jobs", "POST", "/jobs", json=body)
     if submitted.status_code != 202:
         return f"submit {submitted.status_code}"
-    job_id = submitted.json()["id"]
+    job_id, deadline = submitted.json()["id"], time.monotonic() + timeout_s
     while True:
         await asyncio.sleep(poll_s)
         polled = await rec.request(client, "GET /jobs/{id}", "GET", f"/jobs/{job_id}")
         if polled.status_code == 200 and polled.json()["status"] in TERMINAL:
             break
+        if time.monotonic() > deadline:
+            return f"lost: still {polled.json()['status']} after {timeout_s:.0f} s"
     if polled.json()["status"] != "succeeded":
         return f"job {polled.json()['status']}: {polled.json()['error']}"
     angles = await rec.request(client, "GET /jobs/{id}/angles.csv", "GET", f"/jobs/{job_id}/angles.csv")
@@ -85,12 +90,14 @@ async def trial(client: httpx.AsyncClient, rec: Recorder, video: Path, ids: dict
 
 
 async def run_clients(url: str, key: str, videos: list[Path], ids: dict[str, int], trials: int,
-                      clients: int, images: int, poll_s: float) -> tuple[Recorder, Counter[str]]:
+                      clients: int, images: int, poll_s: float,
+                      timeout_s: float) -> tuple[Recorder, Counter[str]]:
     rec, outcomes = Recorder(), Counter[str]()
     async with httpx.AsyncClient(base_url=url, headers={"Authorization": key}, timeout=120) as client:
         async def one_client(c: int) -> None:
             for t in range(c, trials, clients):  # client c: trials c, c + clients, …
-                outcomes[await trial(client, rec, videos[t % len(videos)], ids, images, poll_s)] += 1
+                video = videos[t % len(videos)]
+                outcomes[await trial(client, rec, video, ids, images, poll_s, timeout_s)] += 1
         await asyncio.gather(*(one_client(c) for c in range(clients)))
     return rec, outcomes
 
@@ -118,12 +125,16 @@ def main() -> None:
     parser.add_argument("--distinct", type=int, default=10, help="distinct rendered trials (reused)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--poll-interval", type=float, default=0.5)
+    parser.add_argument("--job-timeout", type=float, default=300.0,
+                        help="seconds after submission a job still not ended counts as lost")
     parser.add_argument("--embedded", action="store_true")
     args = parser.parse_args()
     with TemporaryDirectory() as tmp:
         data = Path(tmp)
         videos = bench.render_trials(data, args.distinct, args.images)
         env, schema = bench.environment(data / "service", args.embedded)
+        if schema:
+            env["MOCAP_BROKER_URL"] = REDIS_URL
         port = bench.free_port()
         url = f"http://127.0.0.1:{port}/v1"
         api = bench.start_api(env, port, data / "api.log")
@@ -135,7 +146,7 @@ def main() -> None:
             t0 = time.perf_counter()
             rec, outcomes = asyncio.run(run_clients(
                 url, lab.headers["Authorization"], videos, {"model_id": model, "rig_id": rig},
-                args.trials, args.clients, args.images, args.poll_interval))
+                args.trials, args.clients, args.images, args.poll_interval, args.job_timeout))
             seconds = time.perf_counter() - t0
             sizes = [videos[t % len(videos)].stat().st_size for t in range(args.trials)]
             report(rec, outcomes, seconds, args.trials, args.images, sum(sizes) / 1e6)
