@@ -144,15 +144,6 @@ def test_a_rig_view_naming_a_video_the_job_does_not_give_is_422_at_submission(ow
     _refused(client.post("/jobs", json=job), 422, "expects 2 video(s), the job names 1")
 
 
-def test_a_rig_roi_outside_the_video_is_422_at_submission(owner_job):
-    client, ids = owner_job
-    rig = client.post("/rigs", json=_rig(_view("side", 0, roi=[0, 0, 2000, 288])))
-    assert rig.status_code == 201
-    job = {"model_id": ids["model_id"], "rig_id": rig.json()["id"], "video_ids": [ids["video_id"]]}
-    _refused(client.post("/jobs", json=job), 422, "roi")
-    assert ids["job_id"] == client.get("/jobs").json()["items"][-1]["id"]
-
-
 # ---- videos --------------------------------------------------------------------------------------
 
 def _avi(n: int) -> bytes:

@@ -119,21 +119,20 @@ def test_batch_one_job_per_trial_and_archive_with_a_folder_each(redis_pg, clip):
     assert client.get("/jobs", params={"status": "failed"}).json()["items"] == []
 
 
-def test_footage_that_does_not_fit_the_rig_fails_the_job_with_its_message(redis_pg, tmp_path):
-    """Footage smaller than the rig's regions of interest: planning probes the video, finds
-    that the rig does not fit it (``core.rig.Rig.check_videos``) and fails the job with that
-    message before any chunk is created."""
+def test_footage_that_does_not_fit_the_rig_is_refused_at_submission(redis_pg, tmp_path):
+    """Footage smaller than the rig's regions of interest: the job is refused (422) with
+    ``core.rig.Rig.check_videos``' message from the probed sizes of the videos, before any job
+    exists (it used to fail in planning, after a worker had probed the videos again)."""
     client = redis_pg.create_lab("failing")
     small = tmp_path / "small.avi"
     write_video(small, (np.zeros((100, 100), np.uint8) for _ in range(12)), fps=50.0)
     ids = upload_inputs(client, small)
-    job = wait_for(client, submit(client, ids, chunk_size=6)["id"])
-    assert job["status"] == "failed"
-    assert "view 'side': roi [0, 0, 360, 288] lies outside the 100×100 frame of video 0" in job["error"]
-    with redis_pg.db().connect() as conn:
-        chunks = conn.execute(text("SELECT count(*) FROM chunks WHERE job_id = :j"),
-                              {"j": job["id"]}).scalar_one()
-    assert chunks == 0
+    response = client.post("/jobs", json={"model_id": ids["model_id"], "rig_id": ids["rig_id"],
+                                          "video_ids": [ids["video_id"]]})
+    assert response.status_code == 422
+    detail = response.json()["detail"]
+    assert detail == "view 'side': roi [0, 0, 360, 288] lies outside the 100×100 frame of video 0"
+    assert client.get("/jobs").json()["items"] == []
 
 
 def test_messages_delivered_again_change_nothing(redis_pg, clip):
