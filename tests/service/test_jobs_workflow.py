@@ -67,7 +67,14 @@ def test_cancel_stops_a_running_job(redis_pg, clip, tmp_path):
                         rig=json.dumps(rig).encode())
     job = submit(client, ids, chunk_size=200, max_attempts=1)
     wait_for(client, job["id"], {"running"}, timeout=60)
-    time.sleep(1.0)  # both chunks are fitting
+    t0 = time.monotonic()  # both chunks fitting (a fixed sleep lost this race on a loaded machine)
+    while time.monotonic() - t0 < 60:
+        with redis_pg.db().connect() as conn:
+            running = conn.execute(text("SELECT count(*) FROM chunks WHERE job_id = :j "
+                                        "AND status = 'running'"), {"j": job["id"]}).scalar_one()
+        if running == 2:
+            break
+        time.sleep(0.05)
     canceled = client.post(f"/jobs/{job['id']}/cancel")
     assert canceled.status_code == 200 and canceled.json()["status"] == "canceled"
     t0 = time.monotonic()

@@ -7,7 +7,10 @@ limit test starts a worker with the deployment's settings only for itself.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import re
+import select
 import socket
 import subprocess
 import sys
@@ -106,37 +109,57 @@ def test_upload_bytes_per_hour_are_capped_declared_or_streamed(limited, clip):
     assert len(client.get("/jobs").json()["items"]) == 0
 
 
+def _raw_request(deployment, client, head: str) -> socket.socket:
+    """A socket that has sent a POST /videos request line and headers (with the lab's key)."""
+    url = urlsplit(deployment.url)
+    s = socket.create_connection((url.hostname, url.port), timeout=10)
+    key = client.headers["Authorization"]
+    s.sendall(f"POST {url.path}/videos HTTP/1.1\r\nHost: x\r\nAuthorization: {key}\r\n"
+              f"Content-Type: multipart/form-data; boundary=b\r\n{head}\r\n".encode())
+    return s
+
+
+def _reply(s: socket.socket) -> str:
+    """The response on ``s``: headers and a body of its Content-Length (it may come in pieces)."""
+    data = b""
+    with contextlib.suppress(ConnectionResetError, TimeoutError):
+        while chunk := s.recv(65536):
+            data += chunk
+            head, _, body = data.partition(b"\r\n\r\n")
+            length = re.search(rb"content-length: (\d+)", head, re.IGNORECASE)
+            if length and len(body) >= int(length.group(1)):
+                break
+    return data.decode()
+
+
 def test_upload_over_the_size_limit_is_413_while_streaming(limited):
-    """A body of limit + 1 MB streamed from a generator (a '4 GB' upload in small): 413, the
-    client stops sending before the end, nothing stays on disk."""
+    """A body 16 MB over the limit, sent chunked (no length to refuse it by) 1 MB at a time
+    (a '4 GB' upload in small): the 413 arrives while the client is still sending, and
+    nothing stays on disk."""
     client = limited.create_lab("big")
     limit = int(limited.env["MOCAP_MAX_UPLOAD_BYTES"])
-    sent = [0]
-
-    def body():  # never built in memory
-        yield b'--b\r\nContent-Disposition: form-data; name="file"; filename="x.avi"\r\n\r\n'
-        for _ in range(limit // (1 << 20) + 1):
-            sent[0] += 1 << 20
-            yield bytes(1 << 20)
-
+    chunks = limit // (1 << 20) + 16
     before = _storage(limited)
-    response = client.post("/videos", content=body(),
-                           headers={"Content-Type": "multipart/form-data; boundary=b"})
-    assert response.status_code == 413
-    assert "larger" in response.json()["detail"]
+    part = b'--b\r\nContent-Disposition: form-data; name="file"; filename="x.avi"\r\n\r\n'
+    with _raw_request(limited, client, "Transfer-Encoding: chunked\r\n") as s:
+        s.sendall(b"%x\r\n%s\r\n" % (len(part), part))
+        sent = 0
+        with contextlib.suppress(BrokenPipeError, ConnectionResetError):  # the server may close first
+            while sent < chunks and not select.select([s], [], [], 0.02)[0]:
+                s.sendall(b"100000\r\n" + bytes(1 << 20) + b"\r\n")
+                sent += 1
+        reply = _reply(s)
+    assert reply.startswith("HTTP/1.1 413"), reply
+    assert "larger than this server accepts" in reply
+    assert limit // (1 << 20) <= sent < chunks, (sent, chunks)  # refused once past the limit
     assert _storage(limited) == before  # no partial file, no byte of disk kept
-    assert sent[0] < limit + (1 << 20), sent[0]  # refused while the body was still streaming
 
 
 def test_a_declared_4_gib_body_is_413_before_any_byte_is_read(limited):
     client = limited.create_lab("four-gib")
-    url = urlsplit(limited.url)
-    key = client.headers["Authorization"]
-    with socket.create_connection((url.hostname, url.port), timeout=10) as s:
-        s.sendall(f"POST {url.path}/videos HTTP/1.1\r\nHost: x\r\nAuthorization: {key}\r\n"
-                  "Content-Type: multipart/form-data; boundary=b\r\nContent-Length: 4294967296\r\n\r\n"
-                  "--b\r\n".encode())
-        reply = s.recv(4096).decode()
+    with _raw_request(limited, client, "Content-Length: 4294967296\r\n") as s:
+        s.sendall(b"--b\r\n")
+        reply = _reply(s)
     assert reply.startswith("HTTP/1.1 413"), reply
     assert "larger than this server accepts" in reply
 
