@@ -14,7 +14,6 @@ import select
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -31,7 +30,7 @@ pytestmark = [pytest.mark.service, pytest.mark.slow]
 FILES_PER_HOUR = 3
 ACTIVE_JOBS = 2
 FRAMES_PER_JOB = 50  # the clip has 40
-SOFT_LIMIT_S, HARD_LIMIT_S = 2, 4
+SOFT_LIMIT_S, HARD_LIMIT_S = 1, 3
 
 
 @pytest.fixture(scope="module")
@@ -201,8 +200,11 @@ def test_active_jobs_per_lab_are_capped_until_one_ends(limited, clip):
 
 
 def test_a_chunk_over_the_time_limit_fails_its_job_with_a_clear_message(limited, clip, tmp_path):
-    """MOCAP_TASK_SOFT_TIME_LIMIT_S reaches the worker: a rig no posture fits and 10x the
-    iterations make each image take ~0.4 s, so a 40-image chunk passes the 2 s limit."""
+    """MOCAP_TASK_SOFT_TIME_LIMIT_S reaches the worker: a rig no posture fits makes each image
+    take ~40 ms, and de-interlacing makes the 40 frames 80 images in one chunk (~3 s), past the
+    1 s limit. (More iterations would not do: SA stops once polishing stops gaining.) Planning
+    probes the video in ~0.5 s; on a loaded machine it may be the task that passes the limit,
+    and the message is the same."""
     client = limited.create_lab("time-limit")
     rig = json.loads((EXAMPLE / "rig.json").read_text())
     for view in rig["views"]:
@@ -210,20 +212,17 @@ def test_a_chunk_over_the_time_limit_fails_its_job_with_a_clear_message(limited,
     ids = upload_inputs(client, clip.video, rig=json.dumps(rig).encode())
     response = client.post("/jobs", json={"model_id": ids["model_id"], "rig_id": ids["rig_id"],
                                           "video_ids": [ids["video_id"]],
-                                          "options": {"marker_diameter_px": 4.0, "chunk_size": 40,
-                                                      "iterations": 350_000, "max_attempts": 1}})
-    assert response.status_code == 202
+                                          "options": {"marker_diameter_px": 4.0, "chunk_size": 80,
+                                                      "deinterlace": True, "max_attempts": 1}})
+    assert response.status_code == 202, response.text
     log = (tmp_path / "worker.log").open("w")
     worker = subprocess.Popen([sys.executable, "-m", "service.cli", "worker", "--concurrency", "1"],
                               env=limited.env, stdout=log, stderr=subprocess.STDOUT)
     try:
-        t0 = time.monotonic()
         job = wait_for(client, response.json()["id"], timeout=90)
-        elapsed = time.monotonic() - t0
     finally:
         worker.terminate()
         worker.wait(timeout=30)
     assert job["status"] == "failed", job
-    assert job["error"].startswith("chunk 0 (images 0-39) failed: the task ran longer than its time "
-                                   f"limit of {SOFT_LIMIT_S} s (MOCAP_TASK_SOFT_TIME_LIMIT_S)"), job["error"]
-    assert elapsed < 60
+    assert (f"the task ran longer than its time limit of {SOFT_LIMIT_S} s (MOCAP_TASK_SOFT_TIME_LIMIT_S); "
+            "submit smaller chunks") in job["error"], job["error"]
