@@ -17,7 +17,7 @@ from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 from core.video import probe
-from service import histstore
+from service import histstore, limits
 from service.errors import ConflictError, InvalidError, NotFoundError
 from service.fitjob import detector_params, fit_params
 from service.models import (
@@ -35,6 +35,7 @@ from service.models import (
     Video,
 )
 from service.schemas import BatchCreate, JobCreate, JobOptions
+from service.settings import Settings
 from service.storage import Storage
 
 logger = logging.getLogger(__name__)
@@ -101,11 +102,15 @@ def create_rig(session: Session, lab: Lab, spec: Any) -> RigRow:
 
 
 def register_video(
-    session: Session, storage: Storage, lab: Lab, *, key: str, filename: str, size: int, sha256: str
+    session: Session, storage: Storage, lab: Lab, settings: Settings, *, key: str, filename: str, size: int,
+    sha256: str,
 ) -> Video:
-    """Probe a fully stored upload and register it; an unusable file is deleted (VideoError → 422)."""
+    """Probe a fully stored upload and register it within the lab's hourly upload limits;
+    an unusable or over-limit file is deleted (VideoError → 422, RateLimitedError → 429)."""
     try:
         info = probe(storage.path(key))
+        limits.lock_lab(session, lab)
+        limits.check_upload(session, lab, settings, size)
     except BaseException:
         storage.delete(key)
         raise
@@ -117,20 +122,25 @@ def register_video(
 
 
 # ---- jobs and batches ---------------------------------------------------------------------------
-def submit_job(session: Session, lab: Lab, body: JobCreate) -> Job:
-    """Create a queued job (committed); the caller enqueues its planning task."""
-    job = _new_job(session, lab, body.model_id, body.rig_id, body.video_ids, body.options)
+def submit_job(session: Session, lab: Lab, settings: Settings, body: JobCreate) -> Job:
+    """Create a queued job (committed) within the lab's limits; the caller enqueues its planning task."""
+    limits.lock_lab(session, lab)
+    limits.check_active_jobs(session, lab, settings, 1)
+    job = _new_job(session, lab, settings, body.model_id, body.rig_id, body.video_ids, body.options)
     session.commit()
     return job
 
 
-def submit_batch(session: Session, lab: Lab, body: BatchCreate) -> tuple[Batch, list[Job]]:
-    """One job per trial, all or none (committed together)."""
+def submit_batch(session: Session, lab: Lab, settings: Settings,
+                 body: BatchCreate) -> tuple[Batch, list[Job]]:
+    """One job per trial, all or none (committed together), within the lab's limits."""
+    limits.lock_lab(session, lab)
+    limits.check_active_jobs(session, lab, settings, len(body.trials))
     batch = Batch(lab_id=lab.id)
     session.add(batch)
     session.flush()
     jobs = [
-        _new_job(session, lab, body.model_id, body.rig_id, trial.video_ids, body.options,
+        _new_job(session, lab, settings, body.model_id, body.rig_id, trial.video_ids, body.options,
                  batch=batch, trial=i)
         for i, trial in enumerate(body.trials)
     ]
@@ -139,14 +149,16 @@ def submit_batch(session: Session, lab: Lab, body: BatchCreate) -> tuple[Batch, 
 
 
 def _new_job(
-    session: Session, lab: Lab, model_id: int, rig_id: int, video_ids: list[int], options: JobOptions,
-    *, batch: Batch | None = None, trial: int | None = None,
+    session: Session, lab: Lab, settings: Settings, model_id: int, rig_id: int, video_ids: list[int],
+    options: JobOptions, *, batch: Batch | None = None, trial: int | None = None,
 ) -> Job:
     model = owned(session, Model, model_id, lab)
     rig = Rig.from_dict(owned(session, RigRow, rig_id, lab).spec)
     videos = [owned(session, Video, v, lab) for v in video_ids]
     if len(videos) != rig.n_videos:
         raise InvalidError(f"rig {rig_id} expects {rig.n_videos} video(s), the job names {len(videos)}")
+    rig.check_videos([(v.width, v.height) for v in videos])  # a roi outside its frame → 422 now
+    limits.check_frames(videos, settings)
     fit_params(options)  # ValueError naming the option → 422
     detector_params(options)
     start = histogram_version(session, model, options.histogram_version)

@@ -17,3 +17,11 @@ class InvalidError(ValueError):
 
 class QueueUnavailableError(RuntimeError):
     """The broker could not take a job's task (503); the job was failed, not left queued."""
+
+
+class RateLimitedError(RuntimeError):
+    """A lab over one of its limits (429); ``retry_after`` seconds until it may try again."""
+
+    def __init__(self, message: str, retry_after: int) -> None:
+        super().__init__(message)
+        self.retry_after = max(1, retry_after)

@@ -15,12 +15,17 @@ def _utc(moment: datetime | None) -> datetime | None:
 
 UtcDatetime = Annotated[datetime, AfterValidator(_utc)]
 
+# Ids and versions are 32-bit integer columns: a larger number is refused (422), not sent to
+# PostgreSQL (where it would fail the query: a 500). Found by tests/service/test_schemathesis.py.
+MAX_DB_INT = 2**31 - 1
+DbId = Annotated[int, Field(ge=1, le=MAX_DB_INT)]
+
 
 class DetectorOptions(BaseModel):
     """Marker detection (``core.detect.DetectorParams``)."""
 
     model_config = ConfigDict(extra="forbid")
-    threshold: float | Literal["otsu"] = 100.0
+    threshold: Annotated[float, Field(ge=0, le=255)] | Literal["otsu"] = 100.0
     channel: Literal["grey", "red", "green", "blue"] = "grey"
     blur: int = Field(default=0, ge=0, le=99)
     erode: int = Field(default=0, ge=0, le=20)
@@ -39,16 +44,16 @@ class JobOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
     deinterlace: bool = False
     field_order: Literal["even-first", "odd-first"] = "even-first"
-    error_threshold_px: float = Field(default=10.0, gt=0)
+    error_threshold_px: float = Field(default=10.0, gt=0, allow_inf_nan=False)
     max_attempts: int = Field(default=5, ge=1, le=100)
     iterations: int = Field(default=35000, ge=1, le=10_000_000)
     seed: int = Field(default=0, ge=0, lt=2**63)
     chunk_size: int | None = Field(default=None, ge=1, le=1_000_000)
-    marker_diameter_px: float | Literal["auto"] = Field(
+    marker_diameter_px: Annotated[float, Field(ge=0, le=1000)] | Literal["auto"] = Field(
         default="auto", description="markers' diameter in pixels, closer markers may image as one "
         "blob: a number >= 0 (0: the paper's plain Eq. 5) or 'auto' (from the blobs of the first "
         "images, as `mocap fit` does)")
-    histogram_version: int | None = Field(default=None, ge=1)
+    histogram_version: DbId | None = None
     detector: DetectorOptions = Field(default_factory=DetectorOptions)
 
 
@@ -78,21 +83,21 @@ class VideoPublic(BaseModel):
 
 class JobCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    model_id: int
-    rig_id: int
-    video_ids: list[int] = Field(min_length=1, max_length=16)
+    model_id: DbId
+    rig_id: DbId
+    video_ids: list[DbId] = Field(min_length=1, max_length=16)
     options: JobOptions = Field(default_factory=JobOptions)
 
 
 class Trial(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    video_ids: list[int] = Field(min_length=1, max_length=16)
+    video_ids: list[DbId] = Field(min_length=1, max_length=16)
 
 
 class BatchCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    model_id: int
-    rig_id: int
+    model_id: DbId
+    rig_id: DbId
     trials: list[Trial] = Field(min_length=1, max_length=1000)
     options: JobOptions = Field(default_factory=JobOptions)
 

@@ -26,6 +26,12 @@ class Settings(BaseSettings):
     queue: str = "mocap"
     max_upload_bytes: int = Field(default=2 * 1024**3, gt=0)
     default_chunk_size: int = Field(default=50, ge=1)
+    # Limits per lab (README "Limits that protect the service"): a lab's uploads in the last
+    # hour (files and bytes, from videos.created_at), its queued + running jobs, a job's frames.
+    upload_files_per_hour: int = Field(default=1000, ge=1)
+    upload_bytes_per_hour: int = Field(default=200 * 1024**3, ge=1)
+    max_active_jobs_per_lab: int = Field(default=1000, ge=1)
+    max_frames_per_job: int = Field(default=1_000_000, ge=1)
     # Cancel is cooperative: a fitting worker reads its job's status this often (seconds).
     cancel_check_s: float = Field(default=0.5, gt=0)
     # A fitting chunk writes its heartbeat at most this often (seconds); the reaper

@@ -68,7 +68,7 @@ class _FilePart:
         self._disposition = b""
         self._writing = not self._done and params.get(b"name") == b"file"
         if self._writing:
-            self.filename = params.get(b"filename", b"upload").decode("utf-8", "replace")
+            self.filename = display_name(params.get(b"filename", b"upload").decode("utf-8", "replace"))
 
     def _on_data(self, data: bytes, start: int, end: int) -> None:
         if not self._writing:
@@ -89,7 +89,7 @@ async def receive_video(request: Request, storage: Storage, limit: int) -> Recei
     content_type, params = parse_options_header(request.headers.get("content-type", ""))
     if content_type != b"multipart/form-data" or b"boundary" not in params:
         raise InvalidError("upload the video as multipart/form-data with a field named 'file'")
-    _check_length(request, limit + MULTIPART_SLACK)
+    check_length(request, limit + MULTIPART_SLACK)
     key = f"videos/{uuid.uuid4().hex}"
     with storage.writer(key) as out:
         part = _FilePart(out, limit)
@@ -103,12 +103,12 @@ async def receive_video(request: Request, storage: Storage, limit: int) -> Recei
         parser.finalize()
         if part.filename is None:
             raise InvalidError("the multipart body has no field named 'file'")
-    return Received(key, part.filename[:255], part.size, part.digest.hexdigest())
+    return Received(key, part.filename, part.size, part.digest.hexdigest())
 
 
 async def read_document(request: Request, limit: int) -> bytes:
     """A small document (model XML, rig JSON): the raw body, or a multipart field ``file``."""
-    _check_length(request, limit + MULTIPART_SLACK)
+    check_length(request, limit + MULTIPART_SLACK)
     content_type, _ = parse_options_header(request.headers.get("content-type", ""))
     if content_type == b"multipart/form-data":
         form = await request.form(max_files=1, max_fields=10, max_part_size=limit)
@@ -129,7 +129,21 @@ async def read_document(request: Request, limit: int) -> bytes:
     return data
 
 
-def _check_length(request: Request, limit: int) -> None:
-    length = request.headers.get("content-length")
-    if length is not None and length.isdigit() and int(length) > limit:
+def display_name(filename: str) -> str:
+    """The client's filename as shown back: its last path component, without control characters
+    (PostgreSQL text cannot hold NUL), at most 255 characters. Never used as a path."""
+    name = filename.replace("\\", "/").rsplit("/", 1)[-1]
+    name = "".join(c for c in name if c.isprintable()).strip()
+    return (name if name not in ("", ".", "..") else "upload")[:255]
+
+
+def declared_length(request: Request) -> int:
+    """The body's Content-Length, 0 when absent or not a number (chunked uploads)."""
+    length = request.headers.get("content-length", "")
+    return int(length) if length.isdigit() else 0
+
+
+def check_length(request: Request, limit: int) -> None:
+    """413 at once for a body that declares more than ``limit`` bytes."""
+    if declared_length(request) > limit:
         raise TooLargeError

@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from celery import Task
+from celery.exceptions import SoftTimeLimitExceeded
 
 from worker import orchestration
 from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, RESUME_JOB, app
@@ -25,8 +26,26 @@ def _recorded(what: str, record: Callable[[str], None]) -> Iterator[None]:
         yield
     except Exception as exc:
         logger.exception("%s failed", what)
-        record(f"{type(exc).__name__}: {exc}")
+        record(_describe(exc))
         raise
+
+
+def _describe(exc: Exception) -> str:
+    """The failure as the job's error: Celery's soft time limit says nothing by itself, and when
+    its signal lands inside a numba kernel it surfaces as a SystemError caused by it."""
+    if _caused_by(exc, SoftTimeLimitExceeded):
+        limit = app.conf.task_soft_time_limit
+        return (f"the task ran longer than its time limit of {limit} s (MOCAP_TASK_SOFT_TIME_LIMIT_S); "
+                "submit smaller chunks (options.chunk_size)")
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _caused_by(exc: BaseException | None, kind: type[BaseException]) -> bool:
+    while exc is not None:
+        if isinstance(exc, kind):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 @app.task(bind=True, name=PLAN_JOB)

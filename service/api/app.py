@@ -16,7 +16,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from service.api.routes import batches, jobs, models, rigs, videos
-from service.errors import ConflictError, NotFoundError, QueueUnavailableError
+from service.errors import ConflictError, NotFoundError, QueueUnavailableError, RateLimitedError
 from service.storage import get_storage
 from service.upload import TooLargeError
 
@@ -63,5 +63,11 @@ def _errors(app: FastAPI) -> None:
         )
         return JSONResponse({"detail": problems}, status_code=422)
 
+    async def rate_limited(_request: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, RateLimitedError)
+        return JSONResponse({"detail": str(exc)}, status_code=429,
+                            headers={"Retry-After": str(exc.retry_after)})
+
     app.add_exception_handler(TooLargeError, too_large)
+    app.add_exception_handler(RateLimitedError, rate_limited)
     app.add_exception_handler(RequestValidationError, invalid_request)

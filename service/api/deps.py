@@ -5,13 +5,14 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Request, status
+from fastapi import Depends, HTTPException, Path, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
 from service.db import read_session_factory, session_factory
 from service.labs import lab_for_key
 from service.models import Lab
+from service.schemas import MAX_DB_INT
 from service.settings import Settings, get_settings
 from service.storage import LocalStorage, get_storage
 
@@ -24,6 +25,8 @@ def get_session(request: Request) -> Iterator[Session]:
 
 
 SessionDep = Annotated[Session, Depends(get_session)]
+# A resource id in a URL: within the 32-bit id columns (larger ones are 422, never a failed query).
+PathId = Annotated[int, Path(ge=1, le=MAX_DB_INT)]
 StorageDep = Annotated[LocalStorage, Depends(get_storage)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 

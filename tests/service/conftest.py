@@ -27,6 +27,7 @@ import httpx
 import numpy as np
 import pytest
 from sqlalchemy import Engine, text
+from svc_helpers import submit, upload_inputs, wait_for
 
 from core.model import KinematicModel
 from core.rig import Rig
@@ -148,28 +149,32 @@ def _base_env(data_dir: Path) -> dict[str, str]:
     return env
 
 
-def _worker(env: dict[str, str], log: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "service.cli", "worker", "--concurrency", "2"],
-                            env=env, stdout=log.open("w"), stderr=subprocess.STDOUT)
+def _worker(env: dict[str, str], log: Path, concurrency: int = 2) -> subprocess.Popen:
+    command = [sys.executable, "-m", "service.cli", "worker", "--concurrency", str(concurrency)]
+    return subprocess.Popen(command, env=env, stdout=log.open("w"), stderr=subprocess.STDOUT)
 
 
 @contextmanager
-def _pg_redis(data: Path, name: str, redis_url: str, worker: bool, **extra_env: str) -> Iterator[Deployment]:
-    """API (+ a worker) on a PostgreSQL schema of its own (dropped afterwards) and ``redis_url``."""
+def redis_pg_deployment(data: Path, name: str, *, redis_url: str = REDIS_URL, workers: int = 2,
+                        **settings: str) -> Iterator[Deployment]:
+    """uvicorn + ``mocap worker --concurrency workers`` (none for 0) on a PostgreSQL schema of its
+    own (dropped afterwards) and ``redis_url`` with a queue of its own, with ``MOCAP_<NAME>``
+    overrides from ``settings``."""
     require_servers()
     schema = f"mocap_test_{uuid.uuid4().hex[:10]}"
     admin = make_engine(PG_ADMIN_URL)
     with admin.begin() as conn:
         conn.execute(text(f'CREATE SCHEMA "{schema}"'))
-    env = _base_env(data) | extra_env
+    env = _base_env(data)
     env.update(MOCAP_DATABASE_URL=f"{PG_ADMIN_URL}?options=-csearch_path%3D{schema}",
                MOCAP_BROKER_URL=redis_url, MOCAP_QUEUE=f"mocap-test-{uuid.uuid4().hex[:10]}")
+    env.update({f"MOCAP_{key.upper()}": value for key, value in settings.items()})
     subprocess.run([sys.executable, "-m", "service.migrate"], env=env, check=True, capture_output=True)
     deployment = Deployment(name, f"http://127.0.0.1:{free_port()}/v1", env, env["MOCAP_DATABASE_URL"],
                             data=data)
     deployment.start_api()
-    if worker:
-        deployment.processes.append(_worker(env, data / "worker.log"))
+    if workers:
+        deployment.processes.append(_worker(env, data / "worker.log", workers))
     try:
         wait_healthy(deployment)
         yield deployment
@@ -182,7 +187,7 @@ def _pg_redis(data: Path, name: str, redis_url: str, worker: bool, **extra_env: 
 
 @pytest.fixture(scope="session")
 def redis_pg(tmp_path_factory) -> Iterator[Deployment]:
-    with _pg_redis(tmp_path_factory.mktemp("redis_pg"), "redis_pg", REDIS_URL, worker=True) as deployment:
+    with redis_pg_deployment(tmp_path_factory.mktemp("redis_pg"), "redis_pg") as deployment:
         yield deployment
 
 
@@ -190,9 +195,9 @@ def redis_pg(tmp_path_factory) -> Iterator[Deployment]:
 def faults(tmp_path_factory) -> Iterator[Deployment]:
     """Heartbeats stale after 2 s, lost messages sent again after 5 s (planning on a cold worker
     takes ~3 s), a reaper pass every 0.3 s."""
-    with _pg_redis(tmp_path_factory.mktemp("faults"), "faults", REDIS_FAULTS_URL, worker=False,
-                   MOCAP_HEARTBEAT_TIMEOUT_S="2", MOCAP_QUEUED_TIMEOUT_S="5",
-                   MOCAP_REAP_INTERVAL_S="0.3") as deployment:
+    with redis_pg_deployment(tmp_path_factory.mktemp("faults"), "faults", redis_url=REDIS_FAULTS_URL,
+                             workers=0, heartbeat_timeout_s="2", queued_timeout_s="5",
+                             reap_interval_s="0.3") as deployment:
         yield deployment
 
 
@@ -213,6 +218,20 @@ def embedded(tmp_path_factory) -> Iterator[Deployment]:
         yield deployment
     finally:
         deployment.stop()
+
+
+@pytest.fixture(scope="session")
+def owner_job(redis_pg, clip):
+    """Lab "owner": its model, rig, video, a succeeded job and a batch (submitted, not awaited)."""
+    client = redis_pg.create_lab("owner")
+    ids = upload_inputs(client, clip.video)
+    job = wait_for(client, submit(client, ids, marker_diameter_px=4.0, chunk_size=40)["id"])
+    assert job["status"] == "succeeded", job
+    batch = client.post("/batches", json={"model_id": ids["model_id"], "rig_id": ids["rig_id"],
+                                          "trials": [{"video_ids": [ids["video_id"]]}],
+                                          "options": {"chunk_size": 40}})
+    assert batch.status_code == 202
+    return client, {**ids, "job_id": job["id"], "batch_id": batch.json()["id"]}
 
 
 @dataclass(frozen=True)

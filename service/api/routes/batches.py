@@ -8,7 +8,7 @@ from fastapi import APIRouter, Response
 from fastapi.responses import StreamingResponse
 
 from service import crud
-from service.api.deps import CurrentLab, SessionDep, StorageDep
+from service.api.deps import CurrentLab, PathId, SessionDep, SettingsDep, StorageDep
 from service.api.routes.jobs import enqueue, job_entries, job_public
 from service.archive import stream_zip
 from service.models import TERMINAL, Batch, Job, JobStatus
@@ -32,22 +32,23 @@ def _public(batch: Batch, jobs: list[Job]) -> BatchPublic:
 
 
 @router.post("", status_code=202, response_model=BatchPublic, summary="Submit one job per trial")
-def submit(body: BatchCreate, response: Response, session: SessionDep, lab: CurrentLab) -> BatchPublic:
-    batch, jobs = crud.submit_batch(session, lab, body)
+def submit(body: BatchCreate, response: Response, session: SessionDep, settings: SettingsDep,
+           lab: CurrentLab) -> BatchPublic:
+    batch, jobs = crud.submit_batch(session, lab, settings, body)
     enqueue(session, jobs)
     response.headers["Location"] = f"/v1/batches/{batch.id}"
     return _public(batch, jobs)
 
 
 @router.get("/{batch_id}", response_model=BatchPublic)
-def get_batch(batch_id: int, session: SessionDep, lab: CurrentLab) -> BatchPublic:
+def get_batch(batch_id: PathId, session: SessionDep, lab: CurrentLab) -> BatchPublic:
     batch = crud.owned(session, Batch, batch_id, lab)
     return _public(batch, crud.batch_jobs(session, batch))
 
 
 @router.get("/{batch_id}/archive.zip", response_class=StreamingResponse,
             summary="Every trial's results in its own folder (409 until all have succeeded)")
-def archive(batch_id: int, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> StreamingResponse:
+def archive(batch_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> StreamingResponse:
     batch = crud.owned(session, Batch, batch_id, lab)
     entries = [
         entry for job in crud.batch_jobs(session, batch)

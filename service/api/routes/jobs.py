@@ -13,11 +13,11 @@ from kombu.exceptions import OperationalError
 from sqlalchemy.orm import Session
 
 from service import crud
-from service.api.deps import CurrentLab, SessionDep, StorageDep
+from service.api.deps import CurrentLab, PathId, SessionDep, SettingsDep, StorageDep
 from service.archive import stream_zip
 from service.errors import QueueUnavailableError
 from service.models import Job, JobStatus, Lab, Model, RigRow
-from service.schemas import JobCreate, JobPage, JobPublic, Progress
+from service.schemas import MAX_DB_INT, JobCreate, JobPage, JobPublic, Progress
 from service.storage import Storage
 from worker.celery_app import PLAN_JOB
 from worker.celery_app import app as celery
@@ -69,8 +69,9 @@ def enqueue(session: Session, jobs: list[Job]) -> None:
 
 @router.post("", status_code=202, response_model=JobPublic,
              summary="Submit a job; poll the Location it returns")
-def submit(body: JobCreate, response: Response, session: SessionDep, lab: CurrentLab) -> JobPublic:
-    job = crud.submit_job(session, lab, body)
+def submit(body: JobCreate, response: Response, session: SessionDep, settings: SettingsDep,
+           lab: CurrentLab) -> JobPublic:
+    job = crud.submit_job(session, lab, settings, body)
     enqueue(session, [job])
     response.headers["Location"] = f"/v1/jobs/{job.id}"
     return job_public(job)
@@ -78,25 +79,26 @@ def submit(body: JobCreate, response: Response, session: SessionDep, lab: Curren
 
 @router.get("", response_model=JobPage, summary="The lab's jobs, newest first")
 def list_jobs(session: SessionDep, lab: CurrentLab, status: JobStatus | None = None,
-              cursor: Annotated[int | None, Query(ge=1, description="next_cursor of the last page")] = None,
+              cursor: Annotated[int | None, Query(ge=1, le=MAX_DB_INT,
+                                                  description="next_cursor of the last page")] = None,
               limit: Annotated[int, Query(ge=1, le=200)] = 50) -> JobPage:
     rows, next_cursor = crud.list_jobs(session, lab, status=status, cursor=cursor, limit=limit)
     return JobPage(items=[job_public(j) for j in rows], next_cursor=next_cursor)
 
 
 @router.get("/{job_id}", response_model=JobPublic)
-def get_job(job_id: int, session: SessionDep, lab: CurrentLab) -> JobPublic:
+def get_job(job_id: PathId, session: SessionDep, lab: CurrentLab) -> JobPublic:
     return job_public(crud.owned(session, Job, job_id, lab))
 
 
 @router.post("/{job_id}/cancel", response_model=JobPublic,
              summary="Cancel a job; workers stop between images")
-def cancel(job_id: int, session: SessionDep, lab: CurrentLab) -> JobPublic:
+def cancel(job_id: PathId, session: SessionDep, lab: CurrentLab) -> JobPublic:
     return job_public(crud.cancel_job(session, lab, job_id))
 
 
 def _result(name: str):  # type: ignore[no-untyped-def]
-    def download(job_id: int, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> FileResponse:
+    def download(job_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> FileResponse:
         key = crud.result_key(session, lab, job_id, name)
         return FileResponse(storage.path(key), media_type=RESULTS[name], filename=f"job-{job_id}-{name}")
 
@@ -111,7 +113,7 @@ for _name in RESULTS:
 
 @router.get("/{job_id}/archive.zip", response_class=StreamingResponse,
             summary="angles.csv, histograms.xml, report.json, model.xml and rig.json in one zip")
-def archive(job_id: int, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> StreamingResponse:
+def archive(job_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> StreamingResponse:
     entries = list(job_entries(session, storage, lab, job_id, folder=""))
     return StreamingResponse(stream_zip(entries), media_type="application/zip",
                              headers={"Content-Disposition": f'attachment; filename="job-{job_id}.zip"'})

@@ -7,9 +7,9 @@ from fastapi.concurrency import run_in_threadpool
 
 from core.model import KinematicModel
 from service import crud, histstore
-from service.api.deps import CurrentLab, SessionDep, StorageDep
+from service.api.deps import CurrentLab, PathId, SessionDep, StorageDep
 from service.models import Model
-from service.schemas import ModelPublic
+from service.schemas import MAX_DB_INT, ModelPublic
 from service.upload import read_document
 
 router = APIRouter(prefix="/models", tags=["models"])
@@ -33,19 +33,19 @@ async def create_model(request: Request, session: SessionDep, storage: StorageDe
 
 
 @router.get("/{model_id}", response_model=ModelPublic)
-def get_model(model_id: int, session: SessionDep, lab: CurrentLab) -> ModelPublic:
+def get_model(model_id: PathId, session: SessionDep, lab: CurrentLab) -> ModelPublic:
     return _public(session, crud.owned(session, Model, model_id, lab))
 
 
 @router.get("/{model_id}/model.xml", response_class=Response)
-def get_model_xml(model_id: int, session: SessionDep, lab: CurrentLab) -> Response:
+def get_model_xml(model_id: PathId, session: SessionDep, lab: CurrentLab) -> Response:
     return Response(crud.owned(session, Model, model_id, lab).xml, media_type=XML)
 
 
 @router.get("/{model_id}/histograms.xml", response_class=Response,
             summary="The model's histogram archive: the latest version, or ?version=N")
-def get_histograms(model_id: int, session: SessionDep, storage: StorageDep, lab: CurrentLab,
-                   version: int | None = Query(default=None, ge=1)) -> Response:
+def get_histograms(model_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab,
+                   version: int | None = Query(default=None, ge=1, le=MAX_DB_INT)) -> Response:
     row = crud.owned(session, Model, model_id, lab)
     stored = crud.histogram_version(session, row, version)
     histograms = histstore.load(storage, stored.storage_key, KinematicModel.from_xml(row.xml))

@@ -9,7 +9,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from core.rig import Rig
 from service import crud
-from service.api.deps import CurrentLab, SessionDep
+from service.api.deps import CurrentLab, PathId, SessionDep
 from service.errors import InvalidError
 from service.models import RigRow
 from service.schemas import RigPublic
@@ -38,7 +38,7 @@ async def create_rig(request: Request, session: SessionDep, lab: CurrentLab) -> 
 
 
 @router.get("/{rig_id}", response_model=RigPublic)
-def get_rig(rig_id: int, session: SessionDep, lab: CurrentLab) -> RigPublic:
+def get_rig(rig_id: PathId, session: SessionDep, lab: CurrentLab) -> RigPublic:
     return _public(crud.owned(session, RigRow, rig_id, lab))
 
 

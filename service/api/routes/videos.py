@@ -5,11 +5,11 @@ from __future__ import annotations
 from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
 
-from service import crud
-from service.api.deps import CurrentLab, SessionDep, SettingsDep, StorageDep
+from service import crud, limits
+from service.api.deps import CurrentLab, PathId, SessionDep, SettingsDep, StorageDep
 from service.models import Video
 from service.schemas import VideoPublic
-from service.upload import receive_video
+from service.upload import MULTIPART_SLACK, check_length, declared_length, receive_video
 
 router = APIRouter(prefix="/videos", tags=["videos"])
 
@@ -20,15 +20,23 @@ def _public(row: Video) -> VideoPublic:
 
 
 @router.post("", status_code=201, response_model=VideoPublic,
-             summary="Upload a video (multipart field 'file'); 413 past MOCAP_MAX_UPLOAD_BYTES")
+             summary="Upload a video (multipart field 'file'); 413 past MOCAP_MAX_UPLOAD_BYTES, "
+             "429 past the lab's hourly upload limits")
 async def upload_video(request: Request, session: SessionDep, storage: StorageDep,
                        settings: SettingsDep, lab: CurrentLab) -> VideoPublic:
+    # Refused before a byte is read when the lab is already over its hourly limits (the declared
+    # length less the multipart overhead: never more than the file; checked exactly on registering).
+    check_length(request, settings.max_upload_bytes + MULTIPART_SLACK)  # 413 before 429: never fits
+    incoming = max(0, declared_length(request) - MULTIPART_SLACK)
+    await run_in_threadpool(limits.check_upload, session, lab, settings, incoming)
+    # End the transaction while the body streams (minutes): on SQLite it holds the write lock.
+    session.rollback()
     got = await receive_video(request, storage, settings.max_upload_bytes)
-    row = await run_in_threadpool(crud.register_video, session, storage, lab, key=got.key,
+    row = await run_in_threadpool(crud.register_video, session, storage, lab, settings, key=got.key,
                                   filename=got.filename, size=got.size, sha256=got.sha256)
     return _public(row)
 
 
 @router.get("/{video_id}", response_model=VideoPublic)
-def get_video(video_id: int, session: SessionDep, lab: CurrentLab) -> VideoPublic:
+def get_video(video_id: PathId, session: SessionDep, lab: CurrentLab) -> VideoPublic:
     return _public(crud.owned(session, Video, video_id, lab))
