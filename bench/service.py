@@ -55,6 +55,10 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+# Redis db 12: tests use 9 and 10 (which the fault tests flush), bench/load.py 11.
+REDIS_URL = "redis://127.0.0.1:6379/12"
+
+
 def environment(data: Path, embedded: bool) -> tuple[dict[str, str], str | None]:
     env = dict(os.environ, MOCAP_DATA_DIR=str(data), PYTHONUNBUFFERED="1")
     if embedded:
@@ -63,7 +67,7 @@ def environment(data: Path, embedded: bool) -> tuple[dict[str, str], str | None]
     with create_engine(PG).begin() as conn:
         conn.execute(text(f'CREATE SCHEMA "{schema}"'))
     env.update(MOCAP_DATABASE_URL=f"{PG}?options=-csearch_path%3D{schema}",
-               MOCAP_BROKER_URL="redis://127.0.0.1:6379/10", MOCAP_QUEUE=f"bench-{schema}")
+               MOCAP_BROKER_URL=REDIS_URL, MOCAP_QUEUE=f"bench-{schema}")
     return env, schema
 
 
