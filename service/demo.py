@@ -113,9 +113,17 @@ def _fit_over_http(client: httpx.Client, video: Path, seed: int) -> bytes:
         raise RuntimeError(f"job refused: {submitted.status_code} {submitted.text}")
     t0 = time.monotonic()
     job = submitted.json()
+    print(f"job {job['id']} submitted; a first run compiles the fitting kernels in every worker "
+          "(1-3 min), later runs start at once", flush=True)
+    shown = None
     while job["status"] not in ("succeeded", "failed", "canceled"):
         time.sleep(0.5)
         job = client.get(f"/jobs/{job['id']}").json()
+        state = (job["status"], job["progress"]["images_done"])
+        if state != shown:
+            print(f"  {time.monotonic() - t0:5.0f} s  {state[0]}, {state[1]}/"
+                  f"{job['progress']['images_total']} images", flush=True)
+            shown = state
     print(f"job {job['id']} {job['status']} in {time.monotonic() - t0:.1f} s: "
           f"{job['progress']['images_done']} images, "
           f"{job['progress']['images_over_threshold']} over threshold", flush=True)
