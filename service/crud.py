@@ -19,7 +19,7 @@ from core.rig import Rig
 from core.video import probe
 from service import histstore, limits
 from service.errors import ConflictError, InvalidError, NotFoundError
-from service.fitjob import detector_params, fit_params
+from service.fitjob import detector_params, fit_params, marker_diameter
 from service.models import (
     TERMINAL,
     Batch,
@@ -159,7 +159,7 @@ def _new_job(
         raise InvalidError(f"rig {rig_id} expects {rig.n_videos} video(s), the job names {len(videos)}")
     rig.check_videos([(v.width, v.height) for v in videos])  # a roi outside its frame → 422 now
     limits.check_frames(videos, settings)
-    fit_params(options)  # ValueError naming the option → 422
+    fit_params(options, marker_diameter(options, None))  # ValueError naming the option → 422
     detector_params(options)
     start = histogram_version(session, model, options.histogram_version)
     job = Job(lab_id=lab.id, model_id=model.id, rig_id=rig_id, options=options.model_dump(),

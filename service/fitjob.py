@@ -23,16 +23,27 @@ from service.schemas import JobOptions
 from service.storage import Storage
 
 
-def fit_params(options: JobOptions, marker_diameter_px: float = 0.0) -> FitParams:
+def fit_params(options: JobOptions, marker_diameter_px: float) -> FitParams:
     """``FitParams`` of the options, as ``mocap fit`` builds them (raises ValueError).
 
-    marker_diameter_px : the diameter when the options say 'auto' (estimated from the videos).
+    marker_diameter_px : the diameter :func:`marker_diameter` resolved for these options.
     """
-    diameter = marker_diameter_px if options.marker_diameter_px == "auto" else options.marker_diameter_px
     return FitParams(anneal=AnnealParams().with_iterations(options.iterations),
                      error_threshold_px=options.error_threshold_px,
                      max_attempts=options.max_attempts,
-                     fusion_px=fusion_distance(diameter))
+                     fusion_px=fusion_distance(marker_diameter_px))
+
+
+def marker_diameter(options: JobOptions, source: VideoSource | None) -> float:
+    """The options' marker diameter; 'auto' is estimated from the first images of ``source``
+    (0 without a source, to validate the other options at submission).
+
+    Every process that builds the job estimates it the same way (deterministic), so all
+    chunks and re-analyses fit with the same fusion distance.
+    """
+    if options.marker_diameter_px != "auto":
+        return options.marker_diameter_px
+    return (estimate_marker_diameter(source) or 0.0) if source is not None else 0.0
 
 
 def detector_params(options: JobOptions) -> DetectorParams:
@@ -54,8 +65,5 @@ def build_fit_job(session: Session, job: Job, storage: Storage, default_chunk_si
     ).all()
     paths: tuple[Path, ...] = tuple(storage.path(k) for k in keys)
     source = VideoSource(paths, rig, detector_params(options), options.deinterlace, options.field_order)
-    # 'auto' is estimated from the first images here, by every process that builds the job:
-    # deterministic, so all chunks and re-analyses fit with the same fusion distance.
-    diameter = (estimate_marker_diameter(source) or 0.0) if options.marker_diameter_px == "auto" else 0.0
-    return FitJob(source, model, fit_params(options, diameter), options.seed,
+    return FitJob(source, model, fit_params(options, marker_diameter(options, source)), options.seed,
                   chunk_size(options, default_chunk_size))
