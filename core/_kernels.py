@@ -1266,32 +1266,37 @@ def detect_regions(image, binary, pixels, min_area, max_area, index):
 _SUBCOLUMNS = 16  # midpoint rule across a pixel column: disc edge integrated to ~1e-3 px²
 
 
-@njit(cache=True, inline="always")
-def _disc_in_pixel(cu, cv, r, x0, y0):
-    """Area of the disc (centre cu, cv; radius r) inside the unit pixel [x0, x0+1) × [y0, y0+1).
-
-    Exact along y (the chord's overlap with the pixel), midpoint rule across x.
-    """
-    total = 0.0
-    for s in range(_SUBCOLUMNS):
-        dx = x0 + (s + 0.5) / _SUBCOLUMNS - cu
-        if abs(dx) < r:
-            h = math.sqrt(r * r - dx * dx)
-            lo = max(y0, cv - h)
-            hi = min(y0 + 1.0, cv + h)
-            if hi > lo:
-                total += hi - lo
-    return total / _SUBCOLUMNS
-
-
 @njit(cache=True)
-def _disc_model(cu, cv, r, xs, ys, out):
-    """Each window pixel's area inside the disc; pixels clear of it are 0 without integrating."""
-    for i in range(xs.size):
-        if abs(xs[i] + 0.5 - cu) > r + 0.5 or abs(ys[i] + 0.5 - cv) > r + 0.5:
+def _disc_model(cu, cv, r, xcols, yrows, out):
+    """Each window pixel's area inside the disc (centre cu, cv; radius r), row by row.
+
+    Pixel (row k, column c) is [xcols[c], +1) × [yrows[k], +1): exact along y (the
+    chord's overlap with the pixel), midpoint rule over :data:`_SUBCOLUMNS` across x.
+    The chords' half-heights depend on the column alone, so they are computed once
+    for all rows (a window holds 3-5 rows); pixels clear of the disc are 0.
+    """
+    ncols = xcols.size
+    half = np.empty(ncols * _SUBCOLUMNS)  # -1: the subcolumn misses the disc
+    for c in range(ncols):
+        for s in range(_SUBCOLUMNS):
+            dx = xcols[c] + (s + 0.5) / _SUBCOLUMNS - cu
+            half[c * _SUBCOLUMNS + s] = math.sqrt(r * r - dx * dx) if abs(dx) < r else -1.0
+    for k in range(yrows.size):
+        y0 = yrows[k]
+        for c in range(ncols):
+            i = k * ncols + c
             out[i] = 0.0
-        else:
-            out[i] = _disc_in_pixel(cu, cv, r, xs[i], ys[i])
+            if abs(xcols[c] + 0.5 - cu) > r + 0.5 or abs(y0 + 0.5 - cv) > r + 0.5:
+                continue
+            total = 0.0
+            for s in range(c * _SUBCOLUMNS, (c + 1) * _SUBCOLUMNS):
+                h = half[s]
+                if h >= 0.0:
+                    lo = max(y0, cv - h)
+                    hi = min(y0 + 1.0, cv + h)
+                    if hi > lo:
+                        total += hi - lo
+            out[i] = total / _SUBCOLUMNS
 
 
 @njit(cache=True)
@@ -1305,7 +1310,7 @@ def fit_field_discs(image, centres, radii, x_off, y_off, pitch, fitted, misfit):
     the disc's area inside it. Gauss–Newton fits centre, radius and brightness to the
     pixels around each detection (minus the mean of the window's border).
 
-    image : (h, w) float64, one view's roi of a field.
+    image : (h, w) uint8 or float, one view's roi of a field.
     centres : (K, 2) frame-pixel (u, v) of its detections; radii : (K,) their starting
         radii, frame pixels.
     fitted : (K, 2) out, the disc centres; misfit : (K,) out, the fit's residual energy
@@ -1327,13 +1332,16 @@ def fit_field_discs(image, centres, radii, x_off, y_off, pitch, fitted, misfit):
         if j1 - j0 < 3 or k1 - k0 < 3:
             continue
         n = (j1 - j0) * (k1 - k0)
-        data, xs, ys = np.empty(n), np.empty(n), np.empty(n)
+        data = np.empty(n)
+        xcols, yrows = np.empty(j1 - j0), np.empty(k1 - k0)
+        for col in range(j0, j1):
+            xcols[col - j0] = col + x_off
+        for row in range(k0, k1):
+            yrows[row - k0] = pitch * row + y_off
         border, border2, n_border, i = 0.0, 0.0, 0, 0
         for row in range(k0, k1):
             for col in range(j0, j1):
                 data[i] = image[row, col]
-                xs[i] = col + x_off
-                ys[i] = pitch * row + y_off
                 if row == k0 or row == k1 - 1 or col == j0 or col == j1 - 1:
                     border += data[i]
                     border2 += data[i] * data[i]
@@ -1343,19 +1351,19 @@ def fit_field_discs(image, centres, radii, x_off, y_off, pitch, fitted, misfit):
         data -= mean
         noise = max(0.0, border2 / n_border - mean * mean) * (n - 4)  # residual energy of a perfect fit
         theta = np.array([cu, cv, r0])
-        if not _gauss_newton_disc(theta, data, xs, ys):
+        if not _gauss_newton_disc(theta, data, xcols, yrows):
             continue
         if abs(theta[0] - cu) < 1.0 and abs(theta[1] - cv) < 1.0 and 0.5 * r0 < theta[2] < 2.0 * r0:
             fitted[k, 0], fitted[k, 1] = theta[0], theta[1]
-            misfit[k] = _relative_misfit(theta, data, xs, ys, noise)
+            misfit[k] = _relative_misfit(theta, data, xcols, yrows, noise)
 
 
 @njit(cache=True)
-def _relative_misfit(theta, data, xs, ys, noise):
+def _relative_misfit(theta, data, xcols, yrows, noise):
     """Residual energy of the best-scaled disc beyond ``noise`` (the background's share),
     over the data's energy."""
     model = np.empty(data.size)
-    _disc_model(theta[0], theta[1], theta[2], xs, ys, model)
+    _disc_model(theta[0], theta[1], theta[2], xcols, yrows, model)
     mm, dm, dd = 0.0, 0.0, 0.0
     for i in range(data.size):
         mm += model[i] * model[i]
@@ -1367,7 +1375,7 @@ def _relative_misfit(theta, data, xs, ys, noise):
 
 
 @njit(cache=True)
-def _gauss_newton_disc(theta, data, xs, ys):
+def _gauss_newton_disc(theta, data, xcols, yrows):
     """Fit ``a``·disc(theta) to ``data`` by Gauss–Newton, numeric derivatives; True if it converged."""
     n = data.size
     model, plus, minus = np.empty(n), np.empty(n), np.empty(n)
@@ -1375,7 +1383,7 @@ def _gauss_newton_disc(theta, data, xs, ys):
     JtJ, Jtr = np.empty((4, 4)), np.empty(4)
     step = 0.01
     for _ in range(12):
-        _disc_model(theta[0], theta[1], theta[2], xs, ys, model)
+        _disc_model(theta[0], theta[1], theta[2], xcols, yrows, model)
         mm, dm = 0.0, 0.0
         for i in range(n):
             mm += model[i] * model[i]
@@ -1385,9 +1393,9 @@ def _gauss_newton_disc(theta, data, xs, ys):
         a = dm / mm
         for p in range(3):
             theta[p] += step
-            _disc_model(theta[0], theta[1], theta[2], xs, ys, plus)
+            _disc_model(theta[0], theta[1], theta[2], xcols, yrows, plus)
             theta[p] -= 2.0 * step
-            _disc_model(theta[0], theta[1], theta[2], xs, ys, minus)
+            _disc_model(theta[0], theta[1], theta[2], xcols, yrows, minus)
             theta[p] += step
             for i in range(n):
                 J[i, p] = a * (plus[i] - minus[i]) / (2.0 * step)

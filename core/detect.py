@@ -35,7 +35,9 @@ from core import _kernels
 from core.error import Detections
 from core.rig import Rig
 
-__all__ = ["CHANNELS", "DetectorParams", "detect", "marker_diameter"]
+__all__ = [
+    "CHANNELS", "DetectorParams", "detect", "detect_views", "marker_diameter", "view_images",
+]
 
 CHANNELS = ("grey", "red", "green", "blue")
 _BGR_INDEX = {"blue": 0, "green": 1, "red": 2}
@@ -132,11 +134,27 @@ def detect(
         (H, W) or (H, W, 3), a colour channel is asked of a grey frame, or a roi
         lies outside its frame.
     """
+    return detect_views(view_images(frames, rig, params), rig=rig, params=params)
+
+
+def view_images(
+    frames: Sequence[np.ndarray], rig: Rig, params: DetectorParams
+) -> list[np.ndarray]:
+    """Each view's roi of its frame in ``params.channel`` (:func:`view_image`), frames checked.
+
+    What :func:`detect_views` reads: de-interlacing cuts its fields from these, so
+    that each roi is converted once per frame however many images it gives.
+    """
     if not isinstance(params, DetectorParams):
         raise ValueError(f"params must be a DetectorParams, got {type(params).__name__}")
     frames = _validate_frames(frames, rig)
-    found = [_detect_view(view_image(frames, rig, v, params.channel), params, rig, v)
-             for v in range(len(rig.views))]
+    return [view_image(frames, rig, v, params.channel) for v in range(len(rig.views))]
+
+
+def detect_views(images: Sequence[np.ndarray], *, rig: Rig, params: DetectorParams) -> Detections:
+    """Detections in each view's (h, w) uint8 image, its roi of ``rig`` already cut
+    (:func:`view_images`); centroids in the frame pixels of ``rig``."""
+    found = [_detect_view(image, params, rig, v) for v, image in enumerate(images)]
     return Detections.from_views([f[0] for f in found], [f[1] for f in found])
 
 
@@ -194,7 +212,9 @@ def _detect_view(
     image: np.ndarray, params: DetectorParams, rig: Rig, index: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """(N, 2) float64 full-frame centroids of the marker regions of one view's image, and
-    their (N,) areas in pixels."""
+    their (N,) areas in pixels (none in an empty image: a one-row roi has no rows of one field)."""
+    if image.size == 0:
+        return np.empty((0, 2)), np.empty(0)
     work = image
     if params.blur > 1:
         work = cv2.GaussianBlur(work, (params.blur, params.blur), 0)

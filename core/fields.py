@@ -40,9 +40,9 @@ from dataclasses import replace
 import numpy as np
 
 from core import _kernels
-from core.detect import DetectorParams, detect, view_image
+from core.detect import DetectorParams, detect_views, view_images
 from core.error import Detections
-from core.rig import Rig
+from core.rig import Rig, View
 
 __all__ = ["FIELD_ORDERS", "FIELD_ROW_PITCH", "detect_fields", "field_rig"]
 
@@ -97,21 +97,31 @@ def detect_fields(
     """
     parities = field_parities(field_order)
     per_parity = rigs if rigs is not None else (field_rig(rig, 0), field_rig(rig, 1))
+    views = view_images(frames, rig, params)
     out = []
     for parity in parities:
-        fields = [f[parity::2] for f in frames]
-        det = detect(fields, rig=per_parity[parity], params=params)
+        fields = [_field_rows(image, view, parity) for image, view in zip(views, rig.views, strict=True)]
+        det = detect_views(fields, rig=per_parity[parity], params=params)
         points = det.points.copy()
         points[:, 1] = 2.0 * points[:, 1] - 0.5 + parity
         areas = det.areas * FIELD_ROW_PITCH  # frame pixels
-        _fit_discs(fields, per_parity[parity], params.channel, parity, points, areas, det.start)
+        _fit_discs(fields, per_parity[parity], parity, points, areas, det.start)
         out.append(Detections(points, det.start, areas))
     return out[0], out[1]
 
 
-def _fit_discs(fields, rig, channel, parity, points, areas, start) -> None:
+def _field_rows(image: np.ndarray, view: View, parity: int) -> np.ndarray:
+    """The rows of one field in a view's roi image (:func:`field_rig`'s roi of it), C-contiguous."""
+    y = view.roi[1] if view.roi is not None else 0
+    return np.ascontiguousarray(image[(parity - y) % 2 :: 2])
+
+
+def _fit_discs(fields, rig, parity, points, areas, start) -> None:
     """Replace each detection's centroid by its disc-model centre where a sharp disc
-    explains its pixels (``_kernels.fit_field_discs``, misfit below :data:`DISC_MISFIT_MAX`)."""
+    explains its pixels (``_kernels.fit_field_discs``, misfit below :data:`DISC_MISFIT_MAX`).
+
+    fields : each view's field image, as detected.
+    """
     radii = np.sqrt(areas / np.pi)
     fitted, misfit = np.empty_like(points), np.empty(len(points))
     for v, view in enumerate(rig.views):
@@ -119,8 +129,7 @@ def _fit_discs(fields, rig, channel, parity, points, areas, start) -> None:
         if hi == lo:
             continue
         x, first = (view.roi[0], view.roi[1]) if view.roi is not None else (0, 0)
-        image = view_image(fields, rig, v, channel).astype(np.float64)
-        _kernels.fit_field_discs(image, points[lo:hi], radii[lo:hi], float(x),
+        _kernels.fit_field_discs(fields[v], points[lo:hi], radii[lo:hi], float(x),
                                  FIELD_ROW_PITCH * first + parity, FIELD_ROW_PITCH,
                                  fitted[lo:hi], misfit[lo:hi])
     sharp = misfit < DISC_MISFIT_MAX  # NaN: not fitted
