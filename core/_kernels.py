@@ -1418,6 +1418,6 @@ def _gauss_newton_disc(theta, data, xcols, yrows):
             theta[p] += max(-0.5, min(0.5, delta[p]))
         if theta[2] <= 0.25:
             return False
-        if abs(delta[0]) < 1e-4 and abs(delta[1]) < 1e-4:
+        if abs(delta[0]) < 1e-3 and abs(delta[1]) < 1e-3:
             return True
     return abs(delta[1]) < 1e-2
