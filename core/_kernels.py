@@ -664,6 +664,8 @@ def refine(q0, lower, upper, kin, views, offset, det, start, penalty, fuse_px, u
             _cholesky_solve(H, g, L, delta)
             for i in range(D):
                 trial[i] = min(max(q[i] + delta[i], lower[i]), upper[i])
+            if np.max(np.abs(trial - q)) < 1e-6:
+                break  # converged: more damping only shortens the step (saves ~15 trials)
             _residuals(trial, kin, views, offset, det, start, penalty, fuse_px, unseen, targets, work, res2,
                        valid)
             new_cost = _huber_cost(res2, valid, huber_c)
@@ -1025,8 +1027,10 @@ def circular_stats(probs, lower, upper, sin_c, cos_c):
         centre = 0.5 * (lo + hi) if undirected else raw
         if total > 0.0:
             var = 0.0
-            for k in range(B):
-                d = ((k + 0.5) * width - centre + 180.0) % 360.0 - 180.0
+            c0 = centre % 360.0
+            for k in range(B):  # d: bin centre - c0 wrapped into [-180, 180), no fmod per bin
+                d = (k + 0.5) * width - c0
+                d = d - 360.0 if d >= 180.0 else (d + 360.0 if d < -180.0 else d)
                 var += probs[r, k] * d * d
             stds[r] = math.sqrt(var / total)
         else:

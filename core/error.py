@@ -99,7 +99,9 @@ class Detections:
         out = np.ones((len(self.points), 3))
         out[:, :2] = self.points
         if self.areas is not None and len(self.areas):
-            out[:, 2] = self.areas >= MERGED_AREA_RATIO * np.median(self.areas)
+            ranked = np.sort(self.areas)  # the median; np.median costs 20 us on a dozen areas
+            median = 0.5 * (ranked[(len(ranked) - 1) // 2] + ranked[len(ranked) // 2])
+            out[:, 2] = self.areas >= MERGED_AREA_RATIO * median
         return out
 
     @property
