@@ -108,3 +108,32 @@ def test_field_centroids_are_unbiased_over_the_sub_pixel_position(parity):
     assert np.abs(errors[:, 0]).max() < 0.01
     assert np.abs(errors[:, 1]).max() < 0.01
 
+
+
+@pytest.mark.parametrize("roi_y", [50, 51])
+@pytest.mark.parametrize("parity", [0, 1])
+def test_a_marker_in_one_field_is_found_there_whatever_the_parity_of_the_roi_top(roi_y, parity):
+    """The fields are cut from the converted roi: a roi starting on an odd row must still
+    give each field its own rows (frame row 2r + parity)."""
+    rig = Rig.from_dict({"views": [{"roi": [10, roi_y, 50, 100], "projection": {
+        "type": "affine", "matrix": [[1, 0, 0, 0], [0, 1, 0, 0]]}}]})
+    painter = _Painter(width=80, height=200, radius=2.0, sigma=0.0, background=20, gain=210,
+                       rng=np.random.default_rng(0))
+    centre = np.array([[30.4, 100.3]])
+    frame = painter.paint(centre, np.array([[0.0, 0.0, 80.0, 200.0]]), np.array([parity]))
+    fields = detect_fields([frame], rig=rig)  # even-first: (parity 0, parity 1)
+    assert fields[1 - parity].counts.tolist() == [0]
+    assert fields[parity].counts.tolist() == [1]
+    assert np.abs(fields[parity].points[0] - centre[0]).max() < 0.01
+
+
+@pytest.mark.parametrize("roi_y", [100, 101])
+def test_a_one_row_roi_gives_its_row_to_one_field_and_nothing_to_the_other(roi_y):
+    rig = Rig.from_dict({"views": [{"roi": [0, roi_y, 64, 1], "projection": {
+        "type": "affine", "matrix": [[1, 0, 0, 0], [0, 1, 0, 0]]}}]})
+    frame = np.zeros((200, 64), dtype=np.uint8)
+    frame[roi_y, 30:34] = 250
+    fields = detect_fields([frame], rig=rig)
+    assert fields[roi_y % 2].counts.tolist() == [1]
+    assert fields[1 - roi_y % 2].counts.tolist() == [0]
+    assert fields[roi_y % 2].points[0, 1] == pytest.approx(roi_y + 0.5)

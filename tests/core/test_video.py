@@ -142,3 +142,12 @@ def test_a_missing_file_and_a_directory_are_refused(tmp_path):
 def test_a_name_that_looks_like_an_image_sequence_is_read_as_one_file(tmp_path):
     path = write(tmp_path / "trial%03d.avi", "FFV1", 4)
     assert probe(path).frames == 4
+
+
+def test_each_open_video_decodes_on_one_thread(video):
+    """--jobs N runs N processes: FFmpeg's own threads would put more than a core under each."""
+    capture = video_module._open(video)
+    try:
+        assert capture.get(cv2.CAP_PROP_N_THREADS) == video_module.DECODE_THREADS == 1
+    finally:
+        capture.release()
