@@ -369,10 +369,9 @@ def _eq5_at(side, top, det, fusion_px=0.0):
     fused = np.empty_like(raw)
     if fusion_px > 0:
         _kernels.fuse_projections(raw, fusion_px, fused)
-    work = (np.empty(0), np.empty(0), np.empty((4, 3)), raw, fused, np.empty(4, dtype=np.int64),
-            np.empty(4), np.empty(len(det.points), dtype=np.int64))
-    return _kernels.blob_error(raw, fused, det.kernel_points, det.start, 5.0, fusion_px, 0.0, np.inf, work,
-                               _kernels.NO_UNSEEN)
+    index, dist, claims = np.empty(4, dtype=np.int64), np.empty(4), np.empty(len(det.points), dtype=np.int64)
+    return _kernels.blob_error(raw, fused, det.kernel_points, det.start, 5.0, fusion_px, 0.0, np.inf,
+                               index, dist, claims, _kernels.NO_UNSEEN)
 
 
 def test_a_blob_left_unexplained_beside_two_markers_on_one_blob_is_charged(locust):
