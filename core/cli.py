@@ -109,7 +109,7 @@ def fit(
     iterations: Annotated[int, Opt(help="SA iterations N_end (N_l, N_tau scale along)")] = 35000,
     seed: Annotated[int, Opt(help="random seed: same seed, same result")] = 0,
     histograms: Annotated[Path | None, Opt("--histograms", help="starting histograms.xml")] = None,
-    jobs: Annotated[int, Opt(min=1, max=256, help="processes fitting chunks in parallel")] = 1,
+    jobs: Annotated[int, Opt(min=1, max=256, help="processes fitting chunks in parallel, one core each")] = 1,
     chunk_size: Annotated[
         int | None, Opt(min=1, help="images per chunk (default: 4 per process with --jobs)")] = None,
     marker_diameter_px: Annotated[
