@@ -673,13 +673,14 @@ def refine(q0, lower, upper, kin, views, offset, det, start, penalty, fuse_px, u
             _cholesky_solve(H, g, L, delta)
             for i in range(D):
                 trial[i] = min(max(q[i] + delta[i], lower[i]), upper[i])
-            if np.max(np.abs(trial - q)) < 1e-6:
+            moved = np.max(np.abs(trial - q))
+            if moved < 1e-6:
                 break  # converged: more damping only shortens the step (saves ~15 trials)
             _residuals(trial, kin, views, offset, det, start, penalty, fuse_px, unseen, targets, work, res2,
                        valid)
             new_cost = _huber_cost(res2, valid, huber_c)
             if new_cost < cost:
-                step = np.max(np.abs(trial - q))
+                step = moved
                 gain = cost - new_cost
                 q[:] = trial
                 res[:] = res2

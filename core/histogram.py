@@ -236,7 +236,6 @@ def _check_bins_limit(bins: int) -> None:
 
 
 @functools.cache
-@functools.lru_cache(maxsize=4)
 def _centre_trig(bins: int) -> tuple[np.ndarray, np.ndarray]:
     """Sine and cosine of the bin centres, (bins,) each: constants of the bin count."""
     centres = np.radians((np.arange(bins) + 0.5) * (360.0 / bins))
