@@ -752,8 +752,8 @@ def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_
 
 @njit(cache=True)
 def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start, penalty, fuse_px,
-           lost_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience, huber_c,
-           state):
+           lost_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience, draws,
+           huber_c, state):
     """Simulated Annealing of Eq. 5 over the DOFs (paper Eq. 6 and §2.3).
 
     Proposals by :func:`_propose`; Metropolis acceptance at temperature ``tau``;
@@ -767,7 +767,10 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
     polished postures: SA still chooses the basins, refinement reads off their
     bottom instead of waiting for the step length to shrink, and a basin SA is
     passing through counts even when SA has not sampled near its bottom.
-    0 is the paper's plain SA.
+    0 is the paper's plain SA. While the best stays at or above ``eps`` after a round's
+    polishes, ``draws`` postures drawn from the histograms (:func:`draw_posture`) are
+    polished too: where SA has not found the basin yet, the histograms propose where
+    this animal's joints usually are.
 
     ``patience`` > 0 (with polishing): SA also stops after that many polish
     rounds in a row without lowering the best error by 1 % (the
@@ -822,6 +825,15 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
                 if e_hop < e_best:
                     best[:] = cand
                     e_best = e_hop
+            for _ in range(draws):
+                if e_best < eps:
+                    break
+                draw_posture(lower, upper, hist, state, cand)
+                e_draw = _polish(cand, np.inf, lower, upper, kin, views, offset, det, start,
+                                 penalty, fuse_px, lost_px, huber_c, cand)
+                if e_draw < e_best:
+                    best[:] = cand
+                    e_best = e_draw
             if e_best < e_mark * 0.99:
                 e_mark, stale = e_best, 0
             else:
@@ -937,7 +949,7 @@ def _refit_unseen(q, objective, lower, upper, kin, views, offset, det, start, pe
 @njit(cache=True)
 def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
                 penalty, fuse_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience,
-                huber_c, refine_result, restarts, state):
+                draws, huber_c, refine_result, restarts, state):
     """One attempt on one image: SA, restarted while above ``eps``, each result refined.
 
     The first run starts from ``start_q`` (the histogram means), or from a posture
@@ -971,7 +983,7 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
         lost_px = penalty if run > 0 else 0.0
         q, value, its = anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
                                penalty, fuse_px, lost_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau,
-                               eps, polish_every, patience, huber_c, state)
+                               eps, polish_every, patience, draws, huber_c, state)
         iterations += its
         if refine_result:
             polished = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,

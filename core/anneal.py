@@ -53,6 +53,13 @@ class AnnealParams:
     ``patience``: with polishing, SA also stops after that many polish rounds
     without lowering its best error by 1 % (scipy basin-hopping's
     ``niter_success``); 0 keeps the paper's stop rules alone.
+    ``draws``: at every polish round that leaves the best at or above ε, that
+    many postures drawn from the histograms are polished as well (random
+    restarts of the refinement where SA has not found the basin yet). Measured
+    on the DV-field locust benchmark (seeds 2004, 1, 2, 3, both views): 3 draws
+    take SA from 511-575 to 310-377 iterations per image and the four fits from
+    1.25 to 1.05-1.11 s (2 draws 1.11, 1 draw 1.14), every RMSE the same to the
+    third decimal; 0 turns them off.
     ``huber_px`` is the refinement's least-squares radius.
     """
 
@@ -67,6 +74,7 @@ class AnnealParams:
     plausibility_threshold: float = 1e-4
     polish_every: int = 250
     patience: int = 10
+    draws: int = 3
     huber_px: float = 1.0
 
     def __post_init__(self) -> None:
@@ -74,7 +82,7 @@ class AnnealParams:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive whole number, got {value!r}")
-        for name in ("polish_every", "patience"):
+        for name in ("polish_every", "patience", "draws"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"{name} must be a whole number >= 0, got {value!r}")
@@ -179,8 +187,7 @@ def anneal(
         model.arrays, rig.arrays, view_offsets(offsets, rig), detections.kernel_points,
         detections.start, float(empty_view_penalty_px), check_fusion(fusion_px), 0.0, p.n_end, p.n_l, p.n_tau,
         float(p.tau0), float(p.l0), float(p.c_l), float(p.c_tau), float(p.eps), int(p.polish_every),
-        int(p.patience),
-        float(p.huber_px), state,
+        int(p.patience), int(p.draws), float(p.huber_px), state,
     )
     stop = StopReason.BELOW_EPSILON if err < p.eps else StopReason.ITERATIONS
     return AnnealResult(best, float(err), int(it), stop)

@@ -267,7 +267,8 @@ def fit_image(
         float(a.plausibility_threshold), model.arrays, rig.arrays, view_offsets(offsets, rig),
         detections.kernel_points, detections.start, float(params.empty_view_penalty_px),
         float(params.fusion_px), a.n_end, a.n_l, a.n_tau, float(a.tau0), float(a.l0), float(a.c_l),
-        float(a.c_tau), float(a.eps), a.polish_every, a.patience, float(a.huber_px), params.refine,
+        float(a.c_tau), float(a.eps), a.polish_every, a.patience, a.draws, float(a.huber_px),
+        params.refine,
         params.restarts, stream,
     )
     return dofs, float(error), float(objective), int(iterations)

@@ -134,7 +134,7 @@ def test_anneal_redraws_implausible_angles(locust):
     ("field", "value"),
     [("n_end", 0), ("n_l", -1), ("n_tau", 1.5), ("tau0", 0.0), ("l0", -1.0), ("c_l", 1.5),
      ("c_tau", 0.0), ("eps", -1.0), ("plausibility_threshold", 1.0), ("huber_px", 0.0),
-     ("polish_every", -1), ("polish_every", 2.5)],
+     ("polish_every", -1), ("polish_every", 2.5), ("draws", -1), ("draws", 2.5)],
 )
 def test_anneal_params_validation(field, value):
     with pytest.raises(ValueError, match=field):
@@ -340,6 +340,22 @@ def test_patience_stops_annealing_once_the_best_stops_improving(locust):
     assert endless.iterations == FAST.n_end
     assert patient.iterations < FAST.n_end
     assert patient.error == pytest.approx(endless.error, rel=0.05)
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+def test_postures_drawn_at_polish_rounds_find_a_basin_sa_cannot_reach(locust, seed):
+    """SA frozen at its start (step 1e-9) polishes a wrong basin; postures drawn from the
+    histograms at each polish round find the posture."""
+    model, rig = locust
+    q = _postures(model, 1, seed=seed)[0]
+    det = _detections(model, rig, q)[0]
+    frozen = replace(FAST, l0=1e-9, n_end=10, polish_every=1, patience=0)
+    common = dict(model=model, rig=rig, space=search_space(model, Histograms.uniform(model)))
+    alone = anneal(det, params=replace(frozen, draws=0), rng=np.random.default_rng(0), **common)
+    drawn = anneal(det, params=replace(frozen, draws=5), rng=np.random.default_rng(0), **common)
+    assert alone.error > 10.0 and alone.iterations == frozen.n_end
+    assert drawn.stop is StopReason.BELOW_EPSILON
+    assert np.abs(drawn.dofs - q).max() < 0.1
 
 
 # ---- blobs, lost markers, outliers ------------------------------------------------------------
