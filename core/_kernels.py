@@ -768,9 +768,10 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
     bottom instead of waiting for the step length to shrink, and a basin SA is
     passing through counts even when SA has not sampled near its bottom.
     0 is the paper's plain SA. While the best stays at or above ``eps`` after a round's
-    polishes, ``draws`` postures drawn from the histograms (:func:`draw_posture`) are
-    polished too: where SA has not found the basin yet, the histograms propose where
-    this animal's joints usually are.
+    polishes, ``draws`` postures are drawn from the histograms (:func:`draw_posture`) and
+    the one of lowest error is polished too: where SA has not found the basin yet, the
+    histograms propose where this animal's joints usually are (screening costs one error
+    evaluation a draw; polishing every draw cost more than it saved).
 
     ``patience`` > 0 (with polishing): SA also stops after that many polish
     rounds in a row without lowering the best error by 1 % (the
@@ -787,7 +788,7 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
         turns[i] = -1.0 if np.isnan(hist[i, 0]) else np.floor(lower[i] / 360.0)
     work = workspace(kin, views, D, det.shape[0])
     raw, fused, index, dist, claims = work[3], work[4], work[5], work[6], work[7]
-    cur, cand, best = q0.copy(), q0.copy(), q0.copy()
+    cur, cand, best, seed_q = q0.copy(), q0.copy(), q0.copy(), q0.copy()
     e_cur = e_best = np.inf  # the first pass evaluates q0 itself and always accepts it
     tau, step = tau0, l0
     it = -1
@@ -825,11 +826,17 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
                 if e_hop < e_best:
                     best[:] = cand
                     e_best = e_hop
-            for _ in range(draws):
-                if e_best < eps:
-                    break
-                draw_posture(lower, upper, hist, state, cand)
-                e_draw = _polish(cand, np.inf, lower, upper, kin, views, offset, det, start,
+            if e_best >= eps and draws > 0:
+                e_seed = np.inf
+                for _ in range(draws):
+                    draw_posture(lower, upper, hist, state, cand)
+                    project_posture(cand, kin, views, offset, fuse_px, work)
+                    e_new = blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, e_seed,
+                                       index, dist, claims, NO_UNSEEN)
+                    if e_new < e_seed:
+                        e_seed = e_new
+                        seed_q[:] = cand
+                e_draw = _polish(seed_q, e_seed, lower, upper, kin, views, offset, det, start,
                                  penalty, fuse_px, lost_px, huber_c, cand)
                 if e_draw < e_best:
                     best[:] = cand

@@ -54,12 +54,13 @@ class AnnealParams:
     without lowering its best error by 1 % (scipy basin-hopping's
     ``niter_success``); 0 keeps the paper's stop rules alone.
     ``draws``: at every polish round that leaves the best at or above ε, that
-    many postures drawn from the histograms are polished as well (random
-    restarts of the refinement where SA has not found the basin yet). Measured
-    on the DV-field locust benchmark (seeds 2004, 1, 2, 3, both views): 3 draws
-    take SA from 511-575 to 310-377 iterations per image and the four fits from
-    1.25 to 1.05-1.11 s (2 draws 1.11, 1 draw 1.14), every RMSE the same to the
-    third decimal; 0 turns them off.
+    many postures are drawn from the histograms and the one of lowest error is
+    polished as well (a restart of the refinement where SA has not found the
+    basin yet). Measured on the DV-field locust benchmark (seeds 2004, 1, 2, 3,
+    both views, one core): 32 draws take SA from 511-575 to 304-373 iterations
+    per image and the four fits from 1.25 to 0.96 s (8: 1.02, 16: 1.01, 64:
+    1.05; polishing 3 draws instead of screening: 1.05-1.11), every RMSE the
+    same to the third decimal; 0 turns them off.
     ``huber_px`` is the refinement's least-squares radius.
     """
 
@@ -74,7 +75,7 @@ class AnnealParams:
     plausibility_threshold: float = 1e-4
     polish_every: int = 250
     patience: int = 10
-    draws: int = 3
+    draws: int = 32
     huber_px: float = 1.0
 
     def __post_init__(self) -> None:

@@ -344,18 +344,18 @@ def test_patience_stops_annealing_once_the_best_stops_improving(locust):
 
 @pytest.mark.parametrize("seed", [0, 4])
 def test_postures_drawn_at_polish_rounds_find_a_basin_sa_cannot_reach(locust, seed):
-    """SA frozen at its start (step 1e-9) polishes a wrong basin; postures drawn from the
-    histograms at each polish round find the posture."""
+    """SA frozen at its start (step 1e-9) polishes a wrong basin; the best of the postures
+    drawn from the histograms at each polish round, polished, finds the posture."""
     model, rig = locust
     q = _postures(model, 1, seed=seed)[0]
     det = _detections(model, rig, q)[0]
     frozen = replace(FAST, l0=1e-9, n_end=10, polish_every=1, patience=0)
     common = dict(model=model, rig=rig, space=search_space(model, Histograms.uniform(model)))
     alone = anneal(det, params=replace(frozen, draws=0), rng=np.random.default_rng(0), **common)
-    drawn = anneal(det, params=replace(frozen, draws=5), rng=np.random.default_rng(0), **common)
+    drawn = anneal(det, params=replace(frozen, draws=32), rng=np.random.default_rng(0), **common)
     assert alone.error > 10.0 and alone.iterations == frozen.n_end
     assert drawn.stop is StopReason.BELOW_EPSILON
-    assert np.abs(drawn.dofs - q).max() < 0.1
+    assert np.abs(drawn.dofs - q).max() < 1.0  # the basin; eps (1 px) ends the search there
 
 
 # ---- blobs, lost markers, outliers ------------------------------------------------------------
