@@ -1333,6 +1333,9 @@ def _disc_model(cu, cv, r, xcols, yrows, out, jac):
     edge_h, edge_asin = np.empty(_SUBCOLUMNS + 1), np.empty(_SUBCOLUMNS + 1)
     width = 1.0 / _SUBCOLUMNS
     for c in range(ncols):
+        if abs(xcols[c] + 0.5 - cu) > r + 0.5:  # the column misses the disc: no square roots
+            half[c * _SUBCOLUMNS:(c + 1) * _SUBCOLUMNS] = -1.0
+            continue
         for s in range(_SUBCOLUMNS):
             dx = xcols[c] + (s + 0.5) * width - cu
             half[c * _SUBCOLUMNS + s] = math.sqrt(r * r - dx * dx) if abs(dx) < r else -1.0
@@ -1340,8 +1343,11 @@ def _disc_model(cu, cv, r, xcols, yrows, out, jac):
             continue
         # the averages of dx/h and r/h over a subcolumn, from h and asin at its edges
         for s in range(_SUBCOLUMNS + 1):
-            e = max(-r, min(r, xcols[c] + s * width - cu))
-            edge_h[s], edge_asin[s] = math.sqrt(r * r - e * e), math.asin(e / r)
+            e = xcols[c] + s * width - cu
+            if abs(e) < r:
+                edge_h[s], edge_asin[s] = math.sqrt(r * r - e * e), math.asin(e / r)
+            else:
+                edge_h[s], edge_asin[s] = 0.0, math.copysign(0.5 * math.pi, e)
         for s in range(_SUBCOLUMNS):
             dh_du[c * _SUBCOLUMNS + s] = (edge_h[s] - edge_h[s + 1]) / width
             dh_dr[c * _SUBCOLUMNS + s] = r * (edge_asin[s + 1] - edge_asin[s]) / width
