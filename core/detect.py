@@ -155,7 +155,7 @@ def detect_views(images: Sequence[np.ndarray], *, rig: Rig, params: DetectorPara
     """Detections in each view's (h, w) uint8 image, its roi of ``rig`` already cut
     (:func:`view_images`); centroids in the frame pixels of ``rig``."""
     found = [_detect_view(image, params, rig, v) for v, image in enumerate(images)]
-    return Detections.from_views([f[0] for f in found], [f[1] for f in found])
+    return Detections._of_views([f[0] for f in found], [f[1] for f in found])
 
 
 # ---- per view ------------------------------------------------------------------------------

@@ -92,6 +92,14 @@ class Detections:
                 raise ValueError(f"{flat.size} areas for {len(points)} detections")
         return cls(np.ascontiguousarray(points), start, flat)
 
+    @classmethod
+    def _of_views(cls, points: Sequence[np.ndarray], areas: Sequence[np.ndarray]) -> Detections:
+        """:meth:`from_views` without its checks, for detectors whose (N_v, 2) float64
+        centroids are finite by construction (a frame's detection is on the hot path)."""
+        start = np.zeros(len(points) + 1, dtype=np.int64)
+        start[1:] = np.cumsum([len(p) for p in points])
+        return cls(np.concatenate(points), start, np.concatenate(areas))
+
     @cached_property
     def kernel_points(self) -> np.ndarray:
         """(N, 3) float64 for the kernels: u, v, and 1.0 where the detection may be merged

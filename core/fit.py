@@ -320,7 +320,7 @@ def fit_chunk(
 
 
 def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed, geometry) -> ImageFit:
-    counts = tuple(int(c) for c in det.counts)
+    counts = tuple(det.counts.tolist())
     if not any(counts):
         nan = np.full(len(model.dofs), np.nan)
         return ImageFit(sample, nan, math.nan, math.nan, 0, Status.NO_DETECTIONS, 0, counts)
