@@ -45,11 +45,13 @@ class AnnealParams:
     ``plausibility_threshold`` is T_h, compared with a histogram bin's probability.
     ``polish_every``: every that many iterations SA's best and current postures
     are refined (``core.refine``) and the ``E < eps`` stop is tested on them
-    (see ``core._kernels.anneal``); 0 gives the paper's plain SA. 250 is a
-    sixth of N_τ: measured on the locust benchmark (seeds 2004, 1, 2, 3), most
-    images end at their first polish, and 250 fits 20-35 % more images/s than
-    500 with the same both-view RMSE to the third decimal; polishing at every
-    cooling step (1500) needs 2.6 times more iterations than 500.
+    (see ``core._kernels.anneal``); 0 gives the paper's plain SA. Measured on
+    the locust benchmark (seeds 2004, 1, 2, 3), most images end at their first
+    polish; 250 fitted 20-35 % more images/s than 500 with the same both-view
+    RMSE to the third decimal (polishing at every cooling step, 1500, needed 2.6
+    times more iterations than 500); once polishes took 10 LM steps and drew
+    postures (``draws``), 100 fitted the DV-field benchmark 6-8 % faster than
+    250 (three runs each; 50: as 250, 125: between), RMSE again unchanged.
     ``patience``: with polishing, SA also stops after that many polish rounds
     without lowering its best error by 1 % (scipy basin-hopping's
     ``niter_success``); 0 keeps the paper's stop rules alone.
@@ -73,7 +75,7 @@ class AnnealParams:
     c_tau: float = 0.75
     eps: float = 1.0
     plausibility_threshold: float = 1e-4
-    polish_every: int = 250
+    polish_every: int = 100
     patience: int = 10
     draws: int = 32
     huber_px: float = 1.0
