@@ -39,6 +39,14 @@ __all__ = [
     "CHANNELS", "DetectorParams", "detect", "detect_views", "marker_diameter", "view_images",
 ]
 
+# OpenCV's threads per process, set when this module is imported. One: the filters run on
+# a view's roi (a few hundred kB), where OpenCV's thread pool costs more than it saves, and
+# processes are the unit of parallelism (`mocap fit --jobs N`, one service worker per core),
+# as for decoding (``core.video.DECODE_THREADS``). Measured, DV benchmark end to end on one
+# core: analysis 0.83-0.93 ms per field with OpenCV's default pool, 0.66 with one thread.
+OPENCV_THREADS = 1
+cv2.setNumThreads(OPENCV_THREADS)
+
 CHANNELS = ("grey", "red", "green", "blue")
 _BGR_INDEX = {"blue": 0, "green": 1, "red": 2}
 _KERNEL3 = np.ones((3, 3), dtype=np.uint8)

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
-from core.detect import DetectorParams, detect
+from core.detect import OPENCV_THREADS, DetectorParams, detect
 from core.error import Detections
 from core.model import KinematicModel
 from core.rig import Rig
@@ -188,3 +189,9 @@ def test_colour_channel_of_a_grey_frame():
     with pytest.raises(ValueError, match="colour"):
         detect([np.zeros((8, 8), np.uint8)], rig=pixel_rig(None),
                params=DetectorParams(channel="green"))
+
+
+def test_opencv_uses_one_thread_per_process():
+    """Processes are the unit of parallelism (`--jobs`, workers): OpenCV's own pool of
+    threads would put more than a core under each."""
+    assert cv2.getNumThreads() == OPENCV_THREADS == 1
