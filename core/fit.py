@@ -485,7 +485,8 @@ def fit_sequence(
         adapt over the whole sequence, as in the paper). A chunked fit reproduces exactly
         what workers fitting those chunks in parallel produce.
     progress : called with every image fitted in this process.
-    map_chunks : ``map`` or an executor's ``map``, to fit chunks in other processes.
+    map_chunks : ``map`` or an executor's ``map``, to fit chunks, then re-analyse images, in
+        other processes.
     """
     n = len(images)
     if offsets is not None and len(offsets) != n:
@@ -495,17 +496,24 @@ def fit_sequence(
     merged = merge_chunks(histograms, (c.observed for c in chunks))
     fits = [f for c in chunks for f in c.fits]
     typical = typical_objective(fits)
-    for i, fit in enumerate(fits):
-        if not needs_reanalysis(fit, params, typical):
-            continue
-        det = images[i]
-        while needs_reanalysis(fit, params, typical):
-            fit = reanalyse_image(
-                det, fit, model=model, rig=rig, histograms=merged, params=params, seed=seed,
-                offsets=None if offsets is None else offsets[i], typical=typical,
-            )
+    todo = [i for i, fit in enumerate(fits) if needs_reanalysis(fit, params, typical)]
+    redo = partial(_reanalyse, images, model, rig, merged, params, seed, offsets, typical)
+    for i, fit in zip(todo, map_chunks(redo, [fits[i] for i in todo]), strict=True):
         fits[i] = fit
     return finish_sequence(histograms, fits, model=model, params=params)
+
+
+def _reanalyse(images, model, rig, histograms, params, seed, offsets, typical, fit) -> ImageFit:
+    """Step 4 for one image of :func:`fit_sequence`: attempts while it needs them (a
+    module-level function, so that the processes fitting the chunks share the re-analyses;
+    an image's attempts depend on nothing but itself and ``histograms``)."""
+    det = images[fit.sample]
+    while needs_reanalysis(fit, params, typical):
+        fit = reanalyse_image(
+            det, fit, model=model, rig=rig, histograms=histograms, params=params, seed=seed,
+            offsets=None if offsets is None else offsets[fit.sample], typical=typical,
+        )
+    return fit
 
 
 def _fit_range(images, model, rig, histograms, params, seed, offsets, progress, bounds) -> ChunkResult:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -221,6 +222,30 @@ def test_over_threshold_images_are_reanalysed_up_to_max_attempts(locust):
         assert fit.error > 0.01
     # Unchanged histograms: no image was accepted.
     np.testing.assert_array_equal(result.histograms.counts, Histograms.uniform(model).counts)
+
+
+def test_reanalyses_in_other_processes_equal_those_in_this_one(locust):
+    """fit_sequence hands the re-analyses to ``map_chunks`` as well (``--jobs``): each image's
+    attempts depend on nothing but itself and the merged histograms."""
+    model, rig = locust
+    dets = _detections(model, rig, _postures(model, 4, seed=7), noise=0.3)
+    params = FitParams(anneal=FAST, error_threshold_px=0.01, max_attempts=3)
+    kwargs = dict(model=model, rig=rig, histograms=Histograms.uniform(model), params=params,
+                  seed=2, chunk_size=2)
+    here = fit_sequence(dets, **kwargs)
+    mapped = []
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        def pool_map(fn, items):
+            items = list(items)
+            mapped.append(len(items))
+            return pool.map(fn, items)
+
+        there = fit_sequence(dets, map_chunks=pool_map, **kwargs)
+    assert mapped == [2, 4]  # two chunks, then four images to re-analyse
+    assert [f.attempts for f in there.fits] == [3, 3, 3, 3]
+    for got, want in zip(there.fits, here.fits, strict=True):
+        np.testing.assert_array_equal(got.dofs, want.dofs)
+        assert got.objective == want.objective and got.sample == want.sample
 
 
 def test_reanalysis_keeps_the_best_attempt(locust):
