@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import json
 import subprocess
 import sys
@@ -76,6 +77,7 @@ def test_two_jobs_give_the_same_result_as_one_with_the_same_chunks(clip, tmp_pat
     one = _fit(clip, tmp_path / "one", "--chunk-size", "20", "--jobs", "1")
     two = _fit(clip, tmp_path / "two", "--chunk-size", "20", "--jobs", "2")
     assert one.exit_code == 0 and two.exit_code == 0, one.output + two.output
+    assert gc.get_freeze_count() == 0  # the heap frozen for the forks is collected again
     a = read_angles_csv(tmp_path / "one" / "angles.csv")
     b = read_angles_csv(tmp_path / "two" / "angles.csv")
     np.testing.assert_array_equal(a.dofs, b.dofs)
