@@ -260,8 +260,8 @@ def run_fit(
     :data:`CHUNKS_PER_PROCESS` chunks per process, handed out as processes free
     up (images differ in cost: equal halves left one process idle for 20 % of
     the time); chunks are fitted from ``histograms`` and merged by counts,
-    exactly as distributed workers do. ``progress`` then reports the
-    re-analysed images only.
+    exactly as distributed workers do, and so are the re-analyses. ``progress``
+    is then not called: every image is fitted in another process.
     """
     if jobs < 1:
         raise ValueError(f"jobs must be at least 1, got {jobs}")
