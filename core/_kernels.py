@@ -1329,7 +1329,8 @@ def _disc_model(cu, cv, r, xcols, yrows, out, jac):
     ncols = xcols.size
     derive = jac.shape[0] > 0
     half = np.empty(ncols * _SUBCOLUMNS)  # -1: the subcolumn misses the disc
-    dh_du, dh_dr = np.empty(ncols * _SUBCOLUMNS), np.empty(ncols * _SUBCOLUMNS)
+    slopes = ncols * _SUBCOLUMNS if derive else 0  # h's derivatives, only when asked for
+    dh_du, dh_dr = np.empty(slopes), np.empty(slopes)
     edge_h, edge_asin = np.empty(_SUBCOLUMNS + 1), np.empty(_SUBCOLUMNS + 1)
     width = 1.0 / _SUBCOLUMNS
     for c in range(ncols):
@@ -1369,11 +1370,12 @@ def _disc_model(cu, cv, r, xcols, yrows, out, jac):
                     lo = max(y0, bottom)
                     if hi > lo:
                         total += hi - lo
-                        if derive:
-                            ends = (1.0 if top < y0 + 1.0 else 0.0) + (1.0 if bottom > y0 else 0.0)
-                            d_v += (1.0 if top < y0 + 1.0 else 0.0) - (1.0 if bottom > y0 else 0.0)
-                            d_u += ends * dh_du[s]
-                            d_r += ends * dh_dr[s]
+                        if derive:  # a chord end inside the pixel moves it: top +, bottom -
+                            top_in = 1.0 if top < y0 + 1.0 else 0.0
+                            bottom_in = 1.0 if bottom > y0 else 0.0
+                            d_v += top_in - bottom_in
+                            d_u += (top_in + bottom_in) * dh_du[s]
+                            d_r += (top_in + bottom_in) * dh_dr[s]
             out[i] = total / _SUBCOLUMNS
             if derive:
                 jac[i, 0], jac[i, 1], jac[i, 2] = d_u / _SUBCOLUMNS, d_v / _SUBCOLUMNS, d_r / _SUBCOLUMNS

@@ -82,8 +82,7 @@ class Detections:
         for i, a in enumerate(arrays):
             if not np.all(np.isfinite(a)):
                 raise ValueError(f"detections of view {i} contain a non-finite coordinate")
-        start = np.zeros(len(arrays) + 1, dtype=np.int64)
-        start[1:] = np.cumsum([len(a) for a in arrays])
+        start = _group_starts(arrays)
         points = np.concatenate(arrays) if arrays else np.zeros((0, 2))
         flat = None
         if areas is not None:
@@ -96,9 +95,7 @@ class Detections:
     def _of_views(cls, points: Sequence[np.ndarray], areas: Sequence[np.ndarray]) -> Detections:
         """:meth:`from_views` without its checks, for detectors whose (N_v, 2) float64
         centroids are finite by construction (a frame's detection is on the hot path)."""
-        start = np.zeros(len(points) + 1, dtype=np.int64)
-        start[1:] = np.cumsum([len(p) for p in points])
-        return cls(np.concatenate(points), start, np.concatenate(areas))
+        return cls(np.concatenate(points), _group_starts(points), np.concatenate(areas))
 
     @cached_property
     def kernel_points(self) -> np.ndarray:
@@ -129,6 +126,13 @@ class Detections:
         areas = None if self.areas is None else [
             self.areas[self.start[v] : self.start[v + 1]] for v in indices]
         return Detections.from_views([self.view(v) for v in indices], areas)
+
+
+def _group_starts(groups: Sequence[np.ndarray]) -> np.ndarray:
+    """(G + 1,) int64 offsets of consecutive groups in their concatenation: ``Detections.start``."""
+    start = np.zeros(len(groups) + 1, dtype=np.int64)
+    start[1:] = np.cumsum([len(g) for g in groups])
+    return start
 
 
 def view_error(
