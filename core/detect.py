@@ -44,6 +44,8 @@ __all__ = [
 # processes are the unit of parallelism (`mocap fit --jobs N`, one service worker per core),
 # as for decoding (``core.video.DECODE_THREADS``). Measured, DV benchmark end to end on one
 # core: analysis 0.83-0.93 ms per field with OpenCV's default pool, 0.66 with one thread.
+# OpenCV has no per-call setting; a program embedding core that wants OpenCV's pool for
+# its own work calls cv2.setNumThreads after importing core.
 OPENCV_THREADS = 1
 cv2.setNumThreads(OPENCV_THREADS)
 
