@@ -104,7 +104,9 @@ def fit(
     out: Annotated[Path, Opt("--out", help="output directory")],
     deinterlace: Annotated[bool, Opt("--deinterlace", help="fit both fields of every frame")] = False,
     field_order: Annotated[str, Opt(help="even-first or odd-first (DV is odd-first)")] = "even-first",
-    error_threshold_px: Annotated[float, Opt(help="re-analyse images above this error")] = 10.0,
+    error_threshold_px: Annotated[float, Opt(
+        help="re-analyse images whose error per compared marker projection is above this "
+             "(the paper's 10 px over 4 markers x 2 views is 1.25)")] = 1.25,
     max_attempts: Annotated[int, Opt(help="fits per image at most")] = 5,
     iterations: Annotated[int, Opt(help="SA iterations N_end (N_l, N_tau scale along)")] = 35000,
     seed: Annotated[int, Opt(help="random seed: same seed, same result")] = 0,

@@ -47,6 +47,7 @@ from core.error import (
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
+from core.tree import reach_points
 
 __all__ = [
     "ChunkResult",
@@ -78,7 +79,10 @@ class Status(enum.StrEnum):
 class FitParams:
     """Everything that decides a fit besides the data, the model, the rig and the seed.
 
-    error_threshold_px : an image whose Eq. 5 error is above this is re-analysed (paper: 10).
+    error_threshold_px : an image whose Eq. 5 error per compared marker projection
+        (:meth:`ImageFit.error_per_marker`) is above this is re-analysed and, if it stays
+        above, reported ``over_threshold``; per projection, so that it means the same for
+        8 or 160 projections (the paper's 10 px over 4 markers × 2 views is 1.25 px).
     max_attempts : fits per image at most, the first included (paper: 5).
     refine : polish SA's best posture by bounded least squares (``core.refine``).
     empty_view_penalty_px : Eq. 5 charge per marker of a view without detections.
@@ -99,7 +103,7 @@ class FitParams:
     """
 
     anneal: AnnealParams = field(default_factory=AnnealParams)
-    error_threshold_px: float = 10.0
+    error_threshold_px: float = 1.25
     max_attempts: int = 5
     refine: bool = True
     empty_view_penalty_px: float = DEFAULT_EMPTY_VIEW_PENALTY_PX
@@ -160,6 +164,40 @@ class ImageFit:
     detections: tuple[int, ...]
     alternatives: tuple[Candidate, ...] = ()
 
+    def compared(self, n_markers: int) -> int:
+        """Marker projections compared with detections: markers × views with any detection."""
+        return _compared(self.detections, n_markers)
+
+    def error_per_marker(self, n_markers: int) -> float:
+        """``error`` divided by :meth:`compared` (FORMATS §3 ``error_per_marker_px``); NaN
+        without detections.
+
+        >>> fit = ImageFit(0, np.zeros(1), 6.0, 6.0, 1, Status.OK, 1, (3, 0, 2))
+        >>> fit.compared(3), fit.error_per_marker(3)
+        (6, 1.0)
+        """
+        compared = self.compared(n_markers)
+        return self.error / compared if compared and math.isfinite(self.error) else math.nan
+
+    def alternative_deg(self, rotational: np.ndarray) -> float:
+        """Largest absolute rotational DOF difference (degrees, the shorter way round) between
+        the posture and its best alternative (FORMATS §3 ``alternative_deg``); NaN when the
+        image has none.
+
+        Alternatives are postures whose objective is within
+        ``FitParams.alternative_tolerance_px`` of the fit (``core.ambiguity``).
+
+        >>> alt = Candidate(np.array([10.0, 350.0]), 0.1, 0.1)
+        >>> fit = ImageFit(0, np.array([30.0, 5.0]), 0.1, 0.1, 1, Status.OK, 1, (4,), (alt,))
+        >>> fit.alternative_deg(np.array([True, True]))
+        20.0
+        """
+        if not self.alternatives or not rotational.any():
+            return math.nan
+        best = min(self.alternatives, key=lambda c: c.objective)
+        diff = np.abs((best.dofs - self.dofs + 180.0) % 360.0 - 180.0)[rotational]
+        return float(diff.max())
+
     def to_record(self) -> dict:
         """The fit as JSON-safe values (None for NaN), for a database row or a message.
 
@@ -219,6 +257,7 @@ class SequenceResult:
 
 
 _UINT64 = (1 << 64) - 1
+EPS_PROJECTIONS = 8  # the paper's ε (1 px) is for its 4 markers × 2 views
 
 
 def image_stream(seed: int, sample: int, attempt: int) -> np.ndarray:
@@ -261,17 +300,94 @@ def fit_image(
     (dofs (D,), plain Eq. 5 error in pixels, minimised objective, SA iterations)
     """
     check_views(detections, rig)
-    a = params.anneal
-    dofs, error, objective, iterations = _kernels.fit_attempt(
-        space.mean, draw_start, model.lower, model.upper, space.sigma, space.table,
-        float(a.plausibility_threshold), model.arrays, rig.arrays, view_offsets(offsets, rig),
-        detections.kernel_points, detections.start, float(params.empty_view_penalty_px),
-        float(params.fusion_px), a.n_end, a.n_l, a.n_tau, float(a.tau0), float(a.l0), float(a.c_l),
-        float(a.c_tau), float(a.eps), a.polish_every, a.patience, a.draws, float(a.huber_px),
-        params.refine,
-        params.restarts, stream,
+    off = view_offsets(offsets, rig)
+    if model.tree is not None:
+        return _fit_tree(detections, model, rig, model.tree, space, params, stream, draw_start, off)
+    dofs, error, objective, iterations = _attempt_kernel(
+        np.arange(len(model.dofs)), model.arrays, detections.kernel_points, detections.start,
+        model, rig, space, params, params.anneal.eps, stream, draw_start, off,
     )
     return dofs, float(error), float(objective), int(iterations)
+
+
+def _attempt_kernel(dofs, kin, points, start, model, rig, space, params, eps, stream, draw_start, off):
+    """``_kernels.fit_attempt`` over the DOFs ``dofs`` of ``model`` posed by ``kin`` (the whole
+    model, or one part of its tree) against detections ``points`` (N, 3) grouped by ``start``."""
+    a = params.anneal
+    return _kernels.fit_attempt(
+        space.mean[dofs], draw_start, model.lower[dofs], model.upper[dofs], space.sigma[dofs],
+        np.ascontiguousarray(space.table[dofs]), float(a.plausibility_threshold), kin, rig.arrays,
+        off, points, start, float(params.empty_view_penalty_px), float(params.fusion_px), a.n_end,
+        a.n_l, a.n_tau, float(a.tau0), float(a.l0), float(a.c_l), float(a.c_tau), float(eps),
+        a.polish_every, a.patience, a.draws, float(a.huber_px), params.refine, params.restarts,
+        stream,
+    )
+
+
+def _fit_tree(det, model, rig, tree, space, params, stream, draw_start, off):
+    """:func:`fit_image` for a model with a trunk and branches (``core.tree``): the trunk, then
+    each branch given the trunk, each by SA over its own DOFs and markers; then the whole
+    posture refined jointly, kept where that lowers the objective. ε is the paper's per
+    8 marker projections, scaled to each part's."""
+    q = space.mean.copy()
+    iterations = 0
+    views_seen = int(np.count_nonzero(det.counts))
+    points = det.kernel_points
+    if tree.trunk is not None:
+        part = tree.trunk
+        eps = params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
+        q[part.dofs], _, _, its = _attempt_kernel(part.dofs, part.kin, points, det.start, model, rig,
+                                                  space, params, eps, stream, draw_start, off)
+        iterations += its
+    rot, pos = np.empty((len(model.joints), 3, 3)), np.empty((len(model.joints), 3))
+    _kernels.forward_kinematics(q, model.arrays, rot, pos)
+    for part in tree.branches:
+        near, start = _within_reach(det, rig, pos[part.base], part.reach, off)
+        eps = params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
+        q[part.dofs], _, _, its = _attempt_kernel(
+            part.dofs, part.at(rot[part.base], pos[part.base]), near, start, model, rig, space,
+            params, eps, stream, draw_start, off)
+        iterations += its
+    return (*_refine_whole(q, det, model, rig, params, off), iterations)
+
+
+def _within_reach(det: Detections, rig: Rig, origin: np.ndarray, reach: float,
+                  off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Kernel points (n, 3) and view starts (V + 1,) of the detections a branch hanging at
+    ``origin`` can reach: within its projected reach sphere (``core.tree.reach_points``)."""
+    proj = rig.project(reach_points(origin, reach)) + off[:, None, :]
+    radius = np.linalg.norm(proj[:, 1:] - proj[:, :1], axis=2).max(axis=1)
+    keep = np.zeros(len(det.points), dtype=bool)
+    for v in range(det.n_views):
+        a, b = det.start[v], det.start[v + 1]
+        keep[a:b] = np.linalg.norm(det.points[a:b] - proj[v, 0], axis=1) <= radius[v]
+    start = np.zeros_like(det.start)
+    start[1:] = np.cumsum([keep[det.start[v]:det.start[v + 1]].sum() for v in range(det.n_views)])
+    return np.ascontiguousarray(det.kernel_points[keep]), start
+
+
+def _refine_whole(q, det, model, rig, params, off) -> tuple[np.ndarray, float, float]:
+    """Joint refinement of an assembled posture: (posture, plain Eq. 5 error, objective), the
+    objective as :func:`_kernels.fit_attempt` reports it (fusion, a lost marker per view)."""
+    a, kin, views = params.anneal, model.arrays, rig.arrays
+    points, start = det.kernel_points, det.start
+    penalty, fuse = float(params.empty_view_penalty_px), float(params.fusion_px)
+
+    def objective(p):
+        return _kernels.posture_error(p, kin, views, off, points, start, penalty, fuse,
+                                      _kernels.NO_UNSEEN, penalty)
+
+    value = objective(q)
+    if params.refine:
+        polished = _kernels.refine(q, model.lower, model.upper, kin, views, off, points, start,
+                                   penalty, fuse, _kernels.NO_UNSEEN, float(a.huber_px), 50, 1e-5,
+                                   _kernels.NO_TARGETS)
+        if (e := objective(polished)) <= value:
+            q, value = polished, e
+        value = _kernels._refit_unseen(q, value, model.lower, model.upper, kin, views, off, points,
+                                       start, penalty, fuse, float(a.huber_px))
+    error = _kernels.posture_error(q, kin, views, off, points, start, penalty, 0.0, _kernels.NO_UNSEEN)
+    return q, float(error), float(value)
 
 
 def fit_chunk(
@@ -328,8 +444,9 @@ def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed, g
         det, model, rig, search_space(model, histograms), params, image_stream(seed, sample, 1),
         False, offsets, geometry,
     )
-    return ImageFit(sample, best.dofs, best.error, best.objective, 1, _status(best.error, params),
-                    its, counts, alternatives)
+    status = _status(best.error, counts, len(model.markers), params)
+    return ImageFit(sample, best.dofs, best.error, best.objective, 1, status, its, counts,
+                    alternatives)
 
 
 def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry):
@@ -381,9 +498,9 @@ def reanalyse_image(
     if not best.objective < previous.objective:
         best = Candidate(previous.dofs, previous.error, previous.objective)
         alternatives = previous.alternatives
-    return ImageFit(previous.sample, best.dofs, best.error, best.objective, attempt,
-                    _status(best.error, params), previous.iterations + its, previous.detections,
-                    alternatives)
+    status = _status(best.error, previous.detections, len(model.markers), params)
+    return ImageFit(previous.sample, best.dofs, best.error, best.objective, attempt, status,
+                    previous.iterations + its, previous.detections, alternatives)
 
 
 def plan_chunks(n_images: int, chunk_size: int | None) -> list[tuple[int, int]]:
@@ -437,7 +554,7 @@ def finish_sequence(
     """
     ordered = sorted(fits, key=lambda f: f.sample)
     if params.choose_by_continuity:
-        ordered = _chosen_by_continuity(ordered, params)
+        ordered = _chosen_by_continuity(ordered, len(model.markers), params)
     observed = Histograms.empty(model, bins=prior.bins)
     for fit in ordered:
         if fit.status is Status.OK:
@@ -445,7 +562,7 @@ def finish_sequence(
     return SequenceResult(ordered, prior.merge(observed), observed)
 
 
-def _chosen_by_continuity(fits: list[ImageFit], params: FitParams) -> list[ImageFit]:
+def _chosen_by_continuity(fits: list[ImageFit], n_markers: int, params: FitParams) -> list[ImageFit]:
     candidates = [
         [] if f.status is Status.NO_DETECTIONS
         else [Candidate(f.dofs, f.error, f.objective), *f.alternatives]
@@ -456,7 +573,7 @@ def _chosen_by_continuity(fits: list[ImageFit], params: FitParams) -> list[Image
         if k:
             chosen = cands[k]
             fit = replace(fit, dofs=chosen.dofs, error=chosen.error, objective=chosen.objective,
-                          status=_status(chosen.error, params),
+                          status=_status(chosen.error, fit.detections, n_markers, params),
                           alternatives=tuple(c for i, c in enumerate(cands) if i != k))
         out.append(fit)
     return out
@@ -537,5 +654,11 @@ def _float_array(values: Sequence[float | None]) -> np.ndarray:
     return np.array([_float(v) for v in values], dtype=np.float64)
 
 
-def _status(error: float, params: FitParams) -> Status:
-    return Status.OK if error <= params.error_threshold_px else Status.OVER_THRESHOLD
+def _status(error: float, detections: tuple[int, ...], n_markers: int, params: FitParams) -> Status:
+    """ok or over_threshold, from the error per compared marker projection."""
+    limit = params.error_threshold_px * _compared(detections, n_markers)
+    return Status.OK if error <= limit else Status.OVER_THRESHOLD
+
+
+def _compared(detections: tuple[int, ...], n_markers: int) -> int:
+    return n_markers * sum(1 for c in detections if c > 0)

@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 from xml.etree.ElementTree import Element, TreeBuilder
 
 import defusedxml.ElementTree as SafeET
@@ -24,6 +24,9 @@ from defusedxml import DefusedXmlException
 
 from core import _kernels
 from core._files import read_bounded
+
+if TYPE_CHECKING:
+    from core.tree import Tree
 
 __all__ = [
     "MAX_ABS_VALUE", "MAX_ATTRIBUTE_CHARS", "MAX_JOINTS", "MAX_MARKERS", "MAX_XML_ATTRIBUTES",
@@ -212,6 +215,13 @@ class KinematicModel:
     def arrays(self) -> KinematicArrays:
         """The model as flat arrays for the kernels (joints in topological order)."""
         return _build_arrays(self)
+
+    @cached_property
+    def tree(self) -> Tree | None:
+        """Trunk and branches for part-by-part fitting, None to fit as a whole (``core.tree``)."""
+        from core.tree import decompose  # core.tree builds on this module's arrays
+
+        return decompose(self)
 
     # ---- forward kinematics ------------------------------------------------------
     def marker_positions(self, dofs: np.ndarray) -> np.ndarray:

@@ -301,9 +301,14 @@ def write_outputs(out: Path, job: FitJob, outcome: FitOutcome) -> dict[str, Any]
 
 
 def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
-    """Images, throughput, error statistics, over-threshold images, detections and settings."""
+    """Images, throughput, error statistics (total and per compared marker projection),
+    over-threshold and ambiguous images (an alternative posture in angles.csv's
+    ``alternative_deg``), detections and settings."""
     fits = outcome.result.fits
-    errors = np.array([f.error for f in fits if f.status is not Status.NO_DETECTIONS])
+    fitted = [f for f in fits if f.status is not Status.NO_DETECTIONS]
+    errors = np.array([f.error for f in fitted])
+    n_markers, rotational = len(job.model.markers), job.model.rotational
+    ambiguous = [f.sample for f in fitted if math.isfinite(f.alternative_deg(rotational))]
     counts = np.array([f.detections for f in fits]).reshape(len(fits), -1)
     views = [v.name for v in job.source.rig.views]
     return {
@@ -316,8 +321,12 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
         "jobs": outcome.jobs,
         "status": {s.value: sum(f.status is s for f in fits) for s in Status},
         "error_px": _stats(errors),
+        "error_per_marker_px": _stats(np.array([f.error_per_marker(n_markers) for f in fitted])),
+        "error_threshold_per_marker_px": job.params.error_threshold_px,
         "reanalysed": sum(f.attempts > 1 for f in fits),
         "over_threshold_images": [f.sample for f in fits if f.status is Status.OVER_THRESHOLD],
+        "ambiguous": len(ambiguous),
+        "ambiguous_images": ambiguous,
         "detections_per_view": {
             name: {"mean": round(float(counts[:, v].mean()), 3) if len(fits) else None,
                    "min": int(counts[:, v].min()) if len(fits) else None,

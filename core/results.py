@@ -1,8 +1,12 @@
 """The per-image results table ``angles.csv`` (FORMATS §3) and the timing of samples.
 
-Columns: ``sample,frame,field,time_s,<dof names in model order>,error_px,attempts,status``.
-DOFs are reported in their own range (no wrapping), C-locale decimals. An image
-without detections has empty DOF and error cells: there is no posture to report.
+Columns: ``sample,frame,field,time_s,<dof names in model order>,error_px,attempts,status``,
+then FORMATS §3's two optional columns, always written here:
+``error_per_marker_px`` (``error_px`` per compared marker projection, what the threshold
+is compared with) and ``alternative_deg`` (empty, or how far in degrees the best distinct
+alternative posture lies: the image is ambiguous). DOFs are reported in their own range
+(no wrapping), C-locale decimals. An image without detections has empty DOF and error
+cells: there is no posture to report.
 """
 
 from __future__ import annotations
@@ -57,8 +61,12 @@ class SampleClock:
         return (sample // 2) / self.fps + (sample % 2) / (2.0 * self.fps)
 
 
+_FIXED_TAIL = ["error_px", "attempts", "status"]
+OPTIONAL_COLUMNS = ["error_per_marker_px", "alternative_deg"]
+
+
 def angles_header(model: KinematicModel) -> list[str]:
-    return ["sample", "frame", "field", "time_s", *model.dof_names, "error_px", "attempts", "status"]
+    return ["sample", "frame", "field", "time_s", *model.dof_names, *_FIXED_TAIL, *OPTIONAL_COLUMNS]
 
 
 def write_angles_csv(
@@ -71,18 +79,26 @@ def write_angles_csv(
         return
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(angles_header(model))
+    n_markers, rotational = len(model.markers), model.rotational
     for f in fits:
-        dofs = ["" if not math.isfinite(v) else f"{v:.6f}" for v in f.dofs]
-        error = "" if not math.isfinite(f.error) else f"{f.error:.4f}"
         writer.writerow(
             [f.sample, clock.frame(f.sample), clock.field(f.sample), f"{clock.time(f.sample):.6f}",
-             *dofs, error, f.attempts, f.status.value]
+             *(_cell(v, 6) for v in f.dofs), _cell(f.error, 4), f.attempts, f.status.value,
+             _cell(f.error_per_marker(n_markers), 4), _cell(f.alternative_deg(rotational), 3)]
         )
+
+
+def _cell(value: float, decimals: int) -> str:
+    return "" if not math.isfinite(value) else f"{value:.{decimals}f}"
 
 
 @dataclass(frozen=True)
 class AnglesTable:
-    """angles.csv read back: DOF values (N, D) with NaN for empty cells, and the other columns."""
+    """angles.csv read back: DOF values (N, D) with NaN for empty cells, and the other columns.
+
+    ``error_per_marker`` and ``alternative_deg`` are NaN where the file leaves them
+    empty or lacks the optional columns.
+    """
 
     dof_names: list[str]
     samples: np.ndarray
@@ -93,6 +109,8 @@ class AnglesTable:
     errors: np.ndarray
     attempts: np.ndarray
     statuses: list[Status]
+    error_per_marker: np.ndarray
+    alternative_deg: np.ndarray
 
 
 def read_angles_csv(path: Path) -> AnglesTable:
@@ -100,16 +118,27 @@ def read_angles_csv(path: Path) -> AnglesTable:
     with path.open(newline="") as fh:
         rows = list(csv.reader(fh))
     if not rows:
-        raise ValueError(f"{path}: empty file, expected an angles.csv header")
+        raise ValueError(f"{path.name}: empty file, expected an angles.csv header")
     header = rows[0]
-    fixed_head, fixed_tail = ["sample", "frame", "field", "time_s"], ["error_px", "attempts", "status"]
-    if header[:4] != fixed_head or header[-3:] != fixed_tail or len(header) < 8:
-        raise ValueError(f"{path}: header {header} is not an angles.csv header (FORMATS §3)")
-    names = header[4:-3]
+    try:
+        status_at = len(header) - 1 - header[::-1].index("status")
+    except ValueError:
+        status_at = -1
+    names = header[4:status_at - 2]
+    if header[:4] != ["sample", "frame", "field", "time_s"] or status_at < 7 \
+            or header[status_at - 2:status_at + 1] != _FIXED_TAIL:
+        raise ValueError(f"{path.name}: header {header} is not an angles.csv header (FORMATS §3)")
+    extra = header[status_at + 1:]
     body: Sequence[list[str]] = rows[1:]
 
     def num(cell: str) -> float:
         return math.nan if cell == "" else float(cell)
+
+    def optional(name: str) -> np.ndarray:
+        if name not in extra:
+            return np.full(len(body), np.nan)
+        k = status_at + 1 + extra.index(name)
+        return np.array([num(r[k]) for r in body])
 
     return AnglesTable(
         dof_names=names,
@@ -117,8 +146,10 @@ def read_angles_csv(path: Path) -> AnglesTable:
         frames=np.array([int(r[1]) for r in body], dtype=np.int64),
         fields=[r[2] for r in body],
         times=np.array([float(r[3]) for r in body]),
-        dofs=np.array([[num(c) for c in r[4:-3]] for r in body]).reshape(len(body), len(names)),
-        errors=np.array([num(r[-3]) for r in body]),
-        attempts=np.array([int(r[-2]) for r in body], dtype=np.int64),
-        statuses=[Status(r[-1]) for r in body],
+        dofs=np.array([[num(c) for c in r[4:status_at - 2]] for r in body]).reshape(len(body), len(names)),
+        errors=np.array([num(r[status_at - 2]) for r in body]),
+        attempts=np.array([int(r[status_at - 1]) for r in body], dtype=np.int64),
+        statuses=[Status(r[status_at]) for r in body],
+        error_per_marker=optional("error_per_marker_px"),
+        alternative_deg=optional("alternative_deg"),
     )

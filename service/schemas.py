@@ -44,7 +44,11 @@ class JobOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
     deinterlace: bool = False
     field_order: Literal["even-first", "odd-first"] = "even-first"
-    error_threshold_px: float = Field(default=10.0, gt=0, allow_inf_nan=False)
+    error_threshold_px: float = Field(
+        default=1.25, gt=0, allow_inf_nan=False,
+        description="Eq. 5 error per compared marker projection (markers x views with any "
+                    "detection) above which an image is re-analysed and reported over_threshold; "
+                    "the paper's 10 px over 4 markers x 2 views is 1.25 px.")
     max_attempts: int = Field(default=5, ge=1, le=100)
     iterations: int = Field(default=35000, ge=1, le=10_000_000)
     seed: int = Field(default=0, ge=0, lt=2**63)

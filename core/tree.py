@@ -1,0 +1,201 @@
+"""Whole animals: a kinematic tree split into parts fitted one after another (paper §4).
+
+Annealing every DOF of a six-legged insect at once cannot work: the search space
+grows with the product of the legs' spaces, while each leg's markers inform only
+that leg. A kinematic tree decomposes. Walking down from the root while a joint
+has a single child carrying markers gives the **trunk**; the subtrees hanging
+from the trunk's last joint (where it first splits) are the **branches**. Each
+part is fitted by the paper's SA (Eq. 6 over its own DOFs, Eq. 5 over its own
+markers, the histograms as constraints) with everything above it fixed, then the
+whole posture is refined jointly. The cost of an image grows with the number of
+branches, not with the product of their search spaces.
+
+The decomposition is read from the model alone. A single chain (the locust leg)
+has no split, so it stays one part and is fitted exactly as before; a trunk with
+DOFs is fitted first only when its own markers can fix its pose (at least three,
+or one for a trunk that only translates): otherwise the whole tree is fitted at
+once.
+
+A branch sees only the detections within its reach (the sphere its joints and
+markers can sweep about its base, projected into each view, with a margin): the
+other branches' blobs elsewhere in the image are not its business, and the
+nearest-detection search stays short.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from core.model import KinematicArrays, KinematicModel, _topological_order
+
+__all__ = ["Part", "Tree", "decompose"]
+
+REACH_MARGIN = 1.25  # a branch's projected reach is widened by this factor
+_SPHERE = np.array(
+    [[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if (x, y, z) != (0, 0, 0)],
+    dtype=np.float64,
+)
+_SPHERE /= np.linalg.norm(_SPHERE, axis=1, keepdims=True)
+
+
+@dataclass(frozen=True)
+class Part:
+    """A part of the tree fitted on its own.
+
+    name : its top joint's name.
+    dofs : (d,) int64, indices into ``model.dofs`` (the part's posture layout).
+    markers : (m,) int64, indices into ``model.markers``.
+    base : topological index (in the whole model) of the fixed joint the part hangs from,
+        -1 for the trunk, which holds the root.
+    kin : the part alone as kernel arrays; for a branch, joint 0 is the base, whose world
+        frame :meth:`at` sets per image.
+    reach : model units, radius about the base origin that the part's markers can reach.
+    """
+
+    name: str
+    dofs: np.ndarray
+    markers: np.ndarray
+    base: int
+    kin: KinematicArrays
+    reach: float
+
+    def at(self, rotation: np.ndarray, origin: np.ndarray) -> KinematicArrays:
+        """The part's arrays with its base joint at this world frame ((3, 3), (3,))."""
+        if self.base < 0:
+            return self.kin
+        offset, rest, identity = self.kin.offset.copy(), self.kin.rest.copy(), self.kin.rest_identity.copy()
+        offset[0], rest[0], identity[0] = origin, rotation, False
+        return self.kin._replace(offset=offset, rest=rest, rest_identity=identity)
+
+
+@dataclass(frozen=True)
+class Tree:
+    """A model's decomposition: the trunk (None when it has no DOFs), then the branches."""
+
+    trunk: Part | None
+    branches: tuple[Part, ...]
+
+    @property
+    def parts(self) -> tuple[Part, ...]:
+        return (self.trunk, *self.branches) if self.trunk is not None else self.branches
+
+
+def decompose(model: KinematicModel) -> Tree | None:
+    """The trunk and branches of ``model``, or None when it is fitted as a whole.
+
+    None for a single chain (no joint with two children carrying markers and DOFs)
+    and for a trunk whose DOFs its own markers cannot fix.
+
+    >>> from core.model import KinematicModel
+    >>> leg = open("examples/locust_hind_leg/model.xml").read()
+    >>> decompose(KinematicModel.from_xml(leg)) is None
+    True
+    """
+    topo = model.arrays
+    J = len(model.joints)
+    children: list[list[int]] = [[] for _ in range(J)]
+    for k in range(1, J):
+        children[topo.parent[k]].append(k)
+    below = _subtrees(topo.parent)
+    has_marker = np.zeros(J, dtype=bool)
+    has_marker[topo.marker_joint] = True
+    dof_joint = _dof_joints(model)
+    has_dof = np.zeros(J, dtype=bool)
+    has_dof[dof_joint] = True
+    carrying = [c for c in range(J) if below[c][has_marker].any() and below[c][has_dof].any()]
+    split = 0
+    while len(kids := [c for c in children[split] if c in carrying]) == 1:
+        split = kids[0]
+    if len(kids) < 2:
+        return None
+    in_branch = below[kids].any(axis=0)
+    trunk_part = _trunk(model, np.flatnonzero(~in_branch), dof_joint)
+    if trunk_part is False:
+        return None
+    branches = tuple(_branch(model, split, np.flatnonzero(below[c]), dof_joint) for c in kids)
+    return Tree(trunk_part, branches)
+
+
+def _subtrees(parent: np.ndarray) -> np.ndarray:
+    """(J, J) bool: ``[j, k]`` is True when k is j or lies below j (topological order)."""
+    J = len(parent)
+    below = np.eye(J, dtype=bool)
+    for k in range(1, J):
+        below[:, k] |= below[:, parent[k]]
+    return below
+
+
+def _dof_joints(model: KinematicModel) -> np.ndarray:
+    """(D,) int64: topological index of each DOF's joint."""
+    order = _topological_order(model.joints)
+    topo = {model.joints[i].name: k for k, i in enumerate(order)}
+    return np.array([topo[d.joint] for d in model.dofs], dtype=np.int64)
+
+
+def _trunk(model: KinematicModel, joints: np.ndarray, dof_joint: np.ndarray) -> Part | bool | None:
+    """The trunk (every joint in no branch) as a part; None without DOFs; False when its
+    markers cannot fix its DOFs."""
+    dofs = np.flatnonzero(np.isin(dof_joint, joints))
+    if len(dofs) == 0:
+        return None
+    markers = np.flatnonzero(np.isin(model.arrays.marker_joint, joints))
+    rotates = bool(model.rotational[dofs].any())
+    if len(markers) < (3 if rotates else 1):
+        return False
+    kin = _part_arrays(model.arrays, joints, dofs, markers, base=-1)
+    return Part(_name(model, int(joints[0])), dofs, markers, -1, kin, np.inf)
+
+
+def _branch(model: KinematicModel, base: int, joints: np.ndarray, dof_joint: np.ndarray) -> Part:
+    """The subtree of ``joints`` hanging from joint ``base``, as a part with its base first."""
+    dofs = np.flatnonzero(np.isin(dof_joint, joints))
+    markers = np.flatnonzero(np.isin(model.arrays.marker_joint, joints))
+    kin = _part_arrays(model.arrays, joints, dofs, markers, base=base)
+    return Part(_name(model, int(joints[0])), dofs, markers, base, kin, _reach(kin))
+
+
+def _part_arrays(full: KinematicArrays, joints: np.ndarray, dofs: np.ndarray, markers: np.ndarray,
+                 base: int) -> KinematicArrays:
+    """Kernel arrays of ``joints`` (topological indices, parents first) with local DOF and
+    joint indices; a base joint (identity frame until :meth:`Part.at`) first when ``base`` >= 0."""
+    rows = np.concatenate([[base], joints]) if base >= 0 else joints
+    local = {int(j): i for i, j in enumerate(rows)}
+    n_dofs = int(max(full.rot_dof.max(initial=-1), full.trans_dof.max(initial=-1))) + 1
+    dof_local = np.full(n_dofs + 1, -1, dtype=np.int64)  # index -1 (a locked axis) stays -1
+    dof_local[dofs] = np.arange(len(dofs))
+    parent = np.array([local.get(int(full.parent[j]), -1) for j in rows], dtype=np.int64)
+    offset, rest = full.offset[rows].copy(), full.rest[rows].copy()
+    identity = full.rest_identity[rows].copy()
+    rot_dof = np.where(full.rot_dof[rows] >= 0, dof_local[full.rot_dof[rows]], -1)
+    trans_dof = np.where(full.trans_dof[rows] >= 0, dof_local[full.trans_dof[rows]], -1)
+    if base >= 0:
+        parent[0] = -1
+        offset[0], rest[0], identity[0] = 0.0, np.eye(3), True
+        rot_dof[0], trans_dof[0] = -1, -1
+    marker_joint = np.array([local[int(full.marker_joint[m])] for m in markers], dtype=np.int64)
+    return KinematicArrays(parent, offset, rest, identity, rot_dof.astype(np.int64),
+                           trans_dof.astype(np.int64), marker_joint,
+                           full.marker_pos[markers].copy().reshape(-1, 3))
+
+
+def _reach(kin: KinematicArrays) -> float:
+    """Upper bound on how far any marker of a branch lies from its base origin (model units):
+    the longest chain of offsets from the base, plus the marker's own offset."""
+    J = len(kin.parent)
+    dist = np.zeros(J)
+    for k in range(1, J):
+        dist[k] = dist[kin.parent[k]] + float(np.linalg.norm(kin.offset[k]))
+    marker = dist[kin.marker_joint] + np.linalg.norm(kin.marker_pos, axis=1)
+    return float(marker.max(initial=0.0))
+
+
+def _name(model: KinematicModel, topo_index: int) -> str:
+    return model.joints[_topological_order(model.joints)[topo_index]].name
+
+
+def reach_points(origin: np.ndarray, reach: float) -> np.ndarray:
+    """(27, 3) world points: the base origin and 26 points of the sphere of ``reach`` about it,
+    whose projections bound where a branch's markers can appear in a view."""
+    return np.vstack([origin, origin + REACH_MARGIN * reach * _SPHERE])
