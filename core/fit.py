@@ -47,7 +47,7 @@ from core.error import (
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
-from core.tree import reach_points
+from core.treefit import attempt_kernel, fit_tree
 
 __all__ = [
     "ChunkResult",
@@ -257,7 +257,6 @@ class SequenceResult:
 
 
 _UINT64 = (1 << 64) - 1
-EPS_PROJECTIONS = 8  # the paper's ε (1 px) is for its 4 markers × 2 views
 
 
 def image_stream(seed: int, sample: int, attempt: int) -> np.ndarray:
@@ -302,92 +301,12 @@ def fit_image(
     check_views(detections, rig)
     off = view_offsets(offsets, rig)
     if model.tree is not None:
-        return _fit_tree(detections, model, rig, model.tree, space, params, stream, draw_start, off)
-    dofs, error, objective, iterations = _attempt_kernel(
+        return fit_tree(detections, model, rig, model.tree, space, params, stream, draw_start, off)
+    dofs, error, objective, iterations = attempt_kernel(
         np.arange(len(model.dofs)), model.arrays, detections.kernel_points, detections.start,
         model, rig, space, params, params.anneal.eps, stream, draw_start, off,
     )
     return dofs, float(error), float(objective), int(iterations)
-
-
-def _attempt_kernel(dofs, kin, points, start, model, rig, space, params, eps, stream, draw_start, off):
-    """``_kernels.fit_attempt`` over the DOFs ``dofs`` of ``model`` posed by ``kin`` (the whole
-    model, or one part of its tree) against detections ``points`` (N, 3) grouped by ``start``."""
-    a = params.anneal
-    return _kernels.fit_attempt(
-        space.mean[dofs], draw_start, model.lower[dofs], model.upper[dofs], space.sigma[dofs],
-        np.ascontiguousarray(space.table[dofs]), float(a.plausibility_threshold), kin, rig.arrays,
-        off, points, start, float(params.empty_view_penalty_px), float(params.fusion_px), a.n_end,
-        a.n_l, a.n_tau, float(a.tau0), float(a.l0), float(a.c_l), float(a.c_tau), float(eps),
-        a.polish_every, a.patience, a.draws, float(a.huber_px), params.refine, params.restarts,
-        stream,
-    )
-
-
-def _fit_tree(det, model, rig, tree, space, params, stream, draw_start, off):
-    """:func:`fit_image` for a model with a trunk and branches (``core.tree``): the trunk, then
-    each branch given the trunk, each by SA over its own DOFs and markers; then the whole
-    posture refined jointly, kept where that lowers the objective. ε is the paper's per
-    8 marker projections, scaled to each part's."""
-    q = space.mean.copy()
-    iterations = 0
-    views_seen = int(np.count_nonzero(det.counts))
-    points = det.kernel_points
-    if tree.trunk is not None:
-        part = tree.trunk
-        eps = params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
-        q[part.dofs], _, _, its = _attempt_kernel(part.dofs, part.kin, points, det.start, model, rig,
-                                                  space, params, eps, stream, draw_start, off)
-        iterations += its
-    rot, pos = np.empty((len(model.joints), 3, 3)), np.empty((len(model.joints), 3))
-    _kernels.forward_kinematics(q, model.arrays, rot, pos)
-    for part in tree.branches:
-        near, start = _within_reach(det, rig, pos[part.base], part.reach, off)
-        eps = params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
-        q[part.dofs], _, _, its = _attempt_kernel(
-            part.dofs, part.at(rot[part.base], pos[part.base]), near, start, model, rig, space,
-            params, eps, stream, draw_start, off)
-        iterations += its
-    return (*_refine_whole(q, det, model, rig, params, off), iterations)
-
-
-def _within_reach(det: Detections, rig: Rig, origin: np.ndarray, reach: float,
-                  off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Kernel points (n, 3) and view starts (V + 1,) of the detections a branch hanging at
-    ``origin`` can reach: within its projected reach sphere (``core.tree.reach_points``)."""
-    proj = rig.project(reach_points(origin, reach)) + off[:, None, :]
-    radius = np.linalg.norm(proj[:, 1:] - proj[:, :1], axis=2).max(axis=1)
-    keep = np.zeros(len(det.points), dtype=bool)
-    for v in range(det.n_views):
-        a, b = det.start[v], det.start[v + 1]
-        keep[a:b] = np.linalg.norm(det.points[a:b] - proj[v, 0], axis=1) <= radius[v]
-    start = np.zeros_like(det.start)
-    start[1:] = np.cumsum([keep[det.start[v]:det.start[v + 1]].sum() for v in range(det.n_views)])
-    return np.ascontiguousarray(det.kernel_points[keep]), start
-
-
-def _refine_whole(q, det, model, rig, params, off) -> tuple[np.ndarray, float, float]:
-    """Joint refinement of an assembled posture: (posture, plain Eq. 5 error, objective), the
-    objective as :func:`_kernels.fit_attempt` reports it (fusion, a lost marker per view)."""
-    a, kin, views = params.anneal, model.arrays, rig.arrays
-    points, start = det.kernel_points, det.start
-    penalty, fuse = float(params.empty_view_penalty_px), float(params.fusion_px)
-
-    def objective(p):
-        return _kernels.posture_error(p, kin, views, off, points, start, penalty, fuse,
-                                      _kernels.NO_UNSEEN, penalty)
-
-    value = objective(q)
-    if params.refine:
-        polished = _kernels.refine(q, model.lower, model.upper, kin, views, off, points, start,
-                                   penalty, fuse, _kernels.NO_UNSEEN, float(a.huber_px), 50, 1e-5,
-                                   _kernels.NO_TARGETS)
-        if (e := objective(polished)) <= value:
-            q, value = polished, e
-        value = _kernels._refit_unseen(q, value, model.lower, model.upper, kin, views, off, points,
-                                       start, penalty, fuse, float(a.huber_px))
-    error = _kernels.posture_error(q, kin, views, off, points, start, penalty, 0.0, _kernels.NO_UNSEEN)
-    return q, float(error), float(value)
 
 
 def fit_chunk(

@@ -1,0 +1,204 @@
+"""One attempt on one image of a tree-shaped model, part by part (``core.tree``).
+
+The trunk is fitted first, then each branch given the trunk, each by the paper's
+SA (``core._kernels.fit_attempt``) over its own DOFs and markers; then the whole
+posture is refined jointly. ε, the paper's SA stop (1 px for its 4 markers × 2
+views), is scaled to each part's marker projections.
+
+Branches compete for blobs. Eq. 5 charges each marker its nearest blob and never
+charges a blob no marker explains, so a leg that settles on its neighbour's
+blobs costs nothing: both legs explain the same blobs, and the blobs of the
+stolen leg stay unexplained. After the first pass, any blob claimed by markers of
+two branches is a conflict; each branch in a conflict is fitted again without the
+blobs the other branches claim, and the new posture is kept where it lowers the
+*two-sided* error (:func:`two_sided_error`: Eq. 5 plus, for every blob within the
+branches' reach, its distance to the nearest marker, capped), which does charge
+the stolen leg's blobs. A real fusion (two markers imaged as one blob) survives:
+refitting without the shared blob raises the error, and the first posture stays.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from core import _kernels
+from core.error import Detections
+from core.model import KinematicModel
+from core.rig import Rig
+from core.tree import Part, Tree, reach_points
+
+if TYPE_CHECKING:
+    from core.anneal import SearchSpace
+    from core.fit import FitParams
+
+__all__ = ["attempt_kernel", "fit_tree", "two_sided_error"]
+
+EPS_PROJECTIONS = 8  # the paper's ε is for its 4 markers × 2 views
+CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
+CONFLICT_SWEEPS = 2
+
+
+def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
+                   model: KinematicModel, rig: Rig, space: SearchSpace, params: FitParams,
+                   eps: float, stream: np.ndarray, draw_start: bool, off: np.ndarray):
+    """``_kernels.fit_attempt`` over the DOFs ``dofs`` (indices into ``model.dofs``) of the
+    model posed by ``kin`` (the whole model, or one part) against detections ``points``
+    (N, 3) grouped by view at ``start`` (V + 1,); returns (dofs (d,), error, objective,
+    iterations)."""
+    a = params.anneal
+    return _kernels.fit_attempt(
+        space.mean[dofs], draw_start, model.lower[dofs], model.upper[dofs], space.sigma[dofs],
+        np.ascontiguousarray(space.table[dofs]), float(a.plausibility_threshold), kin, rig.arrays,
+        off, points, start, float(params.empty_view_penalty_px), float(params.fusion_px), a.n_end,
+        a.n_l, a.n_tau, float(a.tau0), float(a.l0), float(a.c_l), float(a.c_tau), float(eps),
+        a.polish_every, a.patience, a.draws, float(a.huber_px), params.refine, params.restarts,
+        stream,
+    )
+
+
+def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
+             params: FitParams, stream: np.ndarray, draw_start: bool,
+             off: np.ndarray) -> tuple[np.ndarray, float, float, int]:
+    """One attempt on one image, part by part: (dofs (D,), plain Eq. 5 error, objective, SA
+    iterations), as :func:`core.fit.fit_image` returns them."""
+    q = space.mean.copy()
+    iterations = 0
+    views_seen = int(np.count_nonzero(det.counts))
+
+    def fit_part(part: Part, kin, points: np.ndarray, start: np.ndarray) -> None:
+        nonlocal iterations
+        eps = params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
+        q[part.dofs], _, _, its = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
+                                                 params, eps, stream, draw_start, off)
+        iterations += its
+
+    if tree.trunk is not None:
+        fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start)
+    rot, pos = _frames(q, model)
+    reach = [_within_reach(det, rig, pos[b.base], b.reach, off) for b in tree.branches]
+    for part, keep in zip(tree.branches, reach, strict=True):
+        fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep))
+    in_reach = np.logical_or.reduce(reach)
+    score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
+    for _ in range(CONFLICT_SWEEPS):
+        conflicted = _conflicts(q, det, model, rig, tree, off)
+        if not conflicted:
+            break
+        for b in conflicted:
+            part, saved = tree.branches[b], q.copy()
+            keep = reach[b] & ~_claimed(q, det, model, rig, tree, off, exclude=b)
+            fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep))
+            new = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
+            if new < score:
+                score = new
+            else:
+                q[:] = saved
+    return (*_refine_whole(q, det, model, rig, params, off), iterations)
+
+
+def two_sided_error(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
+                    off: np.ndarray, blobs: np.ndarray, cap_px: float) -> float:
+    """Eq. 5 of posture ``q`` plus, for every detection where ``blobs`` (N,) bool is set, its
+    distance to the nearest projected marker of its view, capped at ``cap_px`` (pixels).
+
+    Eq. 5 alone lets two branches explain one blob while another goes unexplained; the
+    second sum charges the unexplained one. Ghost blobs cost at most ``cap_px`` each.
+    """
+    proj = rig.project(model.marker_positions(q)) + off[:, None, :]
+    total = 0.0
+    for v in range(det.n_views):
+        pts = det.view(v)
+        if len(pts) == 0:
+            total += cap_px * proj.shape[1]
+            continue
+        d = np.linalg.norm(proj[v][:, None, :] - pts[None, :, :], axis=2)
+        total += float(d.min(axis=1).sum())
+        mask = blobs[det.start[v]:det.start[v + 1]]
+        total += float(np.minimum(d.min(axis=0)[mask], cap_px).sum())
+    return total
+
+
+def _frames(q: np.ndarray, model: KinematicModel) -> tuple[np.ndarray, np.ndarray]:
+    """World rotation (J, 3, 3) and origin (J, 3) of every joint, topological order."""
+    J = len(model.joints)
+    rot, pos = np.empty((J, 3, 3)), np.empty((J, 3))
+    _kernels.forward_kinematics(q, model.arrays, rot, pos)
+    return rot, pos
+
+
+def _within_reach(det: Detections, rig: Rig, origin: np.ndarray, reach: float,
+                  off: np.ndarray) -> np.ndarray:
+    """(N,) bool: the detections a branch hanging at ``origin`` can reach, those inside its
+    projected reach sphere (``core.tree.reach_points``) in their view."""
+    proj = rig.project(reach_points(origin, reach)) + off[:, None, :]
+    radius = np.linalg.norm(proj[:, 1:] - proj[:, :1], axis=2).max(axis=1)
+    keep = np.zeros(len(det.points), dtype=bool)
+    for v in range(det.n_views):
+        a, b = det.start[v], det.start[v + 1]
+        keep[a:b] = np.linalg.norm(det.points[a:b] - proj[v, 0], axis=1) <= radius[v]
+    return keep
+
+
+def _subset(det: Detections, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Kernel points (n, 3) and view starts (V + 1,) of the detections ``keep`` selects."""
+    start = np.zeros_like(det.start)
+    start[1:] = np.cumsum([keep[det.start[v]:det.start[v + 1]].sum() for v in range(det.n_views)])
+    return np.ascontiguousarray(det.kernel_points[keep]), start
+
+
+def _claims(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
+            off: np.ndarray) -> np.ndarray:
+    """(B, N) bool: detections claimed (nearest, within :data:`CLAIM_PX`) by each branch's
+    markers in their view."""
+    proj = rig.project(model.marker_positions(q)) + off[:, None, :]
+    out = np.zeros((len(tree.branches), len(det.points)), dtype=bool)
+    for v in range(det.n_views):
+        a, b = det.start[v], det.start[v + 1]
+        if a == b:
+            continue
+        for k, part in enumerate(tree.branches):
+            d = np.linalg.norm(proj[v][part.markers][:, None, :] - det.points[a:b][None], axis=2)
+            nearest = d.argmin(axis=1)
+            out[k, a + nearest[d.min(axis=1) <= CLAIM_PX]] = True
+    return out
+
+
+def _claimed(q, det, model, rig, tree, off, exclude: int) -> np.ndarray:
+    """(N,) bool: detections claimed by any branch but ``exclude``."""
+    claims = _claims(q, det, model, rig, tree, off)
+    claims[exclude] = False
+    return claims.any(axis=0)
+
+
+def _conflicts(q, det, model, rig, tree, off) -> list[int]:
+    """Branches that claim a detection another branch claims too."""
+    claims = _claims(q, det, model, rig, tree, off)
+    shared = claims.sum(axis=0) > 1
+    return [k for k in range(len(tree.branches)) if (claims[k] & shared).any()]
+
+
+def _refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
+                  params: FitParams, off: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Joint refinement of an assembled posture: (posture, plain Eq. 5 error, objective), the
+    objective as ``_kernels.fit_attempt`` reports it (fusion, a lost marker per view)."""
+    a, kin, views = params.anneal, model.arrays, rig.arrays
+    points, start = det.kernel_points, det.start
+    penalty, fuse = float(params.empty_view_penalty_px), float(params.fusion_px)
+
+    def objective(p: np.ndarray) -> float:
+        return _kernels.posture_error(p, kin, views, off, points, start, penalty, fuse,
+                                      _kernels.NO_UNSEEN, penalty)
+
+    value = objective(q)
+    if params.refine:
+        polished = _kernels.refine(q, model.lower, model.upper, kin, views, off, points, start,
+                                   penalty, fuse, _kernels.NO_UNSEEN, float(a.huber_px), 50, 1e-5,
+                                   _kernels.NO_TARGETS)
+        if (e := objective(polished)) <= value:
+            q, value = polished, e
+        value = _kernels._refit_unseen(q, value, model.lower, model.upper, kin, views, off, points,
+                                       start, penalty, fuse, float(a.huber_px))
+    error = _kernels.posture_error(q, kin, views, off, points, start, penalty, 0.0, _kernels.NO_UNSEEN)
+    return q, float(error), float(value)

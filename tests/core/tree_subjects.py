@@ -1,0 +1,94 @@
+"""Hand-made trees for the tests: an insect-like body with legs, pinhole cameras around it.
+
+Every leg has 5 DOFs (coxa yaw, roll, pitch; femur levation; knee) and 4 markers (coxa,
+femur, tibia, claw); the thorax has 3 markers and, optionally, DOFs of its own.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import cv2
+import numpy as np
+
+from core.error import Detections
+from core.model import KinematicModel
+from core.rig import Rig
+
+FREE_ROOT = (
+    '<dof axis="tx" name="tx" min="-30" max="30"/><dof axis="ty" name="ty" min="-20" max="20"/>'
+    '<dof axis="tz" name="tz" min="-5" max="5"/><dof axis="y" name="pitch" min="-20" max="20"/>'
+    '<dof axis="x" name="roll" min="-20" max="20"/><dof axis="z" name="heading" min="-60" max="60"/>'
+)
+
+
+def insect(legs: int = 2, root_dofs: str = "", thorax_markers: int = 3,
+           attach: list[tuple[float, float]] | None = None) -> KinematicModel:
+    """A thorax with ``legs`` legs, attached at ``attach`` (x, y) or alternately left and right
+    at x = 12, 0, -12 mm; ``root_dofs``: the thorax's own <dof> elements."""
+    if attach is None:
+        xs = [12.0, 0.0, -12.0]
+        attach = [(xs[k // 2], 3.0 if k % 2 == 0 else -3.0) for k in range(legs)]
+    out = ['<model name="insect" units="mm">', f'<joint name="thorax">{root_dofs}</joint>']
+    for k, (x, y) in enumerate(attach):
+        n, s = f"leg{k}", 1 if y >= 0 else -1
+        out += [
+            f'<joint name="{n}_coxa" parent="thorax"><offset x="{x}" y="{y}" z="0"/>'
+            f'<rest y="0" x="0" z="{90 * s}"/>'
+            f'<dof axis="z" name="{n}_yaw" min="-40" max="40"/>'
+            f'<dof axis="x" name="{n}_roll" min="-30" max="30"/>'
+            f'<dof axis="y" name="{n}_pitch" min="-40" max="20"/></joint>',
+            f'<joint name="{n}_femur" parent="{n}_coxa"><offset x="3" y="0" z="0"/>'
+            f'<dof axis="y" name="{n}_lev" min="-80" max="0"/></joint>',
+            f'<joint name="{n}_tibia" parent="{n}_femur"><offset x="10" y="0" z="0"/>'
+            f'<dof axis="y" name="{n}_knee" min="20" max="140"/></joint>',
+            f'<joint name="{n}_claw" parent="{n}_tibia"><offset x="11" y="0" z="0"/></joint>',
+        ]
+        out += [f'<marker name="{n}_{j}" joint="{n}_{j}" x="0" y="0" z="0"/>'
+                for j in ("coxa", "femur", "tibia", "claw")]
+    thorax = [(14, 0, 1), (-14, 0, 1), (0, 2, 3)][:thorax_markers]
+    out += [f'<marker name="T{i}" joint="thorax" x="{x}" y="{y}" z="{z}"/>'
+            for i, (x, y, z) in enumerate(thorax)]
+    return KinematicModel.from_xml("\n".join([*out, "</model>"]))
+
+
+def ring_rig(cameras: int = 3, distance: float = 150.0, f: float = 900.0,
+             size: tuple[int, int] = (640, 480), elevation_deg: float = 35.0) -> Rig:
+    """``cameras`` pinhole cameras on a ring around the origin, looking at it."""
+    views = []
+    for c in range(cameras):
+        az, el = 2 * math.pi * c / cameras + 0.3, math.radians(elevation_deg)
+        eye = distance * np.array([math.cos(az) * math.cos(el), math.sin(az) * math.cos(el),
+                                   math.sin(el)])
+        forward = -eye / np.linalg.norm(eye)
+        right = np.cross(forward, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        R = np.vstack([right, np.cross(forward, right), forward])
+        views.append({"name": f"cam{c}", "video": c, "projection": {
+            "type": "pinhole", "K": [[f, 0, size[0] / 2], [0, f, size[1] / 2], [0, 0, 1]],
+            "dist": [0, 0, 0, 0, 0], "rvec": cv2.Rodrigues(R)[0].ravel().tolist(),
+            "tvec": (-R @ eye).tolist()}})
+    return Rig.from_json(json.dumps({"views": views}))
+
+
+def movement(model: KinematicModel, n: int, seed: int = 0) -> np.ndarray:
+    """(n, D) smooth postures: every DOF a sine within 10-90 % of its range."""
+    rng = np.random.default_rng(seed)
+    lo, hi = model.lower, model.upper
+    phase = rng.uniform(0, 2 * np.pi, len(lo))
+    return lo + (hi - lo) * (0.5 + 0.4 * np.sin(0.15 * np.arange(n)[:, None] + phase))
+
+
+def detections(model: KinematicModel, rig: Rig, postures: np.ndarray, noise_px: float = 0.05,
+               seed: int = 0) -> list[Detections]:
+    """Every marker's projection plus Gaussian noise, one Detections per posture."""
+    rng = np.random.default_rng(seed)
+    proj = rig.project(model.marker_positions(np.atleast_2d(postures)))
+    proj = proj + rng.normal(0.0, noise_px, proj.shape)
+    return [Detections.from_views(list(p)) for p in proj]
+
+
+def angle_errors(fitted: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Absolute differences, angles the shorter way round (translations unaffected by <180)."""
+    return np.abs((fitted - truth + 180.0) % 360.0 - 180.0)
