@@ -47,7 +47,7 @@ from core.error import (
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
-from core.treefit import attempt_kernel, fit_tree
+from core.treefit import attempt_kernel, fit_tree, refine_whole
 
 __all__ = [
     "ChunkResult",
@@ -257,6 +257,7 @@ class SequenceResult:
 
 
 _UINT64 = (1 << 64) - 1
+DISTINCT_DEG = 5.0  # an alternative differs from the fit by more than this in some angle
 
 
 def image_stream(seed: int, sample: int, attempt: int) -> np.ndarray:
@@ -329,6 +330,9 @@ def fit_chunk(
     images : iterable of Detections, samples ``first_sample, first_sample + 1, …``.
     histograms : the constraints at the start of the chunk; not modified.
     seed : the job's seed; image ``s`` uses :func:`image_stream` ``(seed, s, 1)``.
+        Each image after the chunk's first also tries the previous image's posture as an
+        alternative (:func:`_attempt`), so a chunk's fits depend on its first sample:
+        fitted anywhere, the same chunks give the same fits.
     offsets : optional per-image (V, 2) view offsets (root tracking), same length as images.
     should_stop : checked between images; returning True ends the chunk early (cancel).
     progress : called with every finished image.
@@ -344,7 +348,8 @@ def fit_chunk(
             break
         sample = first_sample + k
         off = next(offset_iter) if offset_iter is not None else None
-        fit = _first_attempt(det, sample, off, model, rig, working, params, seed, geometry)
+        warm = fits[-1].dofs if fits else None
+        fit = _first_attempt(det, sample, off, model, rig, working, params, seed, geometry, warm)
         if fit.status is Status.OK:
             working.update(fit.dofs[rot])
             observed.update(fit.dofs[rot])
@@ -354,22 +359,32 @@ def fit_chunk(
     return ChunkResult(fits, observed)
 
 
-def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed, geometry) -> ImageFit:
+def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed, geometry,
+                   warm=None) -> ImageFit:
     counts = tuple(det.counts.tolist())
     if not any(counts):
         nan = np.full(len(model.dofs), np.nan)
         return ImageFit(sample, nan, math.nan, math.nan, 0, Status.NO_DETECTIONS, 0, counts)
     best, alternatives, its = _attempt(
         det, model, rig, search_space(model, histograms), params, image_stream(seed, sample, 1),
-        False, offsets, geometry,
+        False, offsets, geometry, warm,
     )
     status = _status(best.error, counts, len(model.markers), params)
     return ImageFit(sample, best.dofs, best.error, best.objective, 1, status, its, counts,
                     alternatives)
 
 
-def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry):
-    """fit_image, then its depth-flip alternatives: (best candidate, the others, SA iterations)."""
+def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None):
+    """fit_image, then its alternatives: (best candidate, the others, SA iterations).
+
+    Alternatives are the depth flips of the fit (``core.ambiguity``) and, given ``warm``
+    (the previous image's posture), that posture refined on this image, when it lands
+    in a distinct minimum scoring within the tolerance: at 50-200 Hz the previous
+    posture is usually near the truth, so a fit that jumped into another minimum that
+    explains the image as well (the paper's Fig. 9) gets the truth as its alternative,
+    and the choice by continuity can take it. SA itself never starts from it: one
+    wrong image cannot lead the next astray.
+    """
     dofs, error, objective, its = fit_image(
         det, model=model, rig=rig, space=space, params=params, stream=stream,
         draw_start=draw_start, offsets=offsets,
@@ -383,8 +398,27 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             empty_view_penalty_px=params.empty_view_penalty_px, huber_px=params.anneal.huber_px,
             offsets=offsets,
         )
+        if warm is not None and np.all(np.isfinite(warm)):
+            others += _warm_alternative(fit, others, warm, det, model, rig, params, offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
     return ranked[0], tuple(ranked[1:]), its
+
+
+def _warm_alternative(fit: Candidate, others: list[Candidate], warm: np.ndarray, det: Detections,
+                      model: KinematicModel, rig: Rig, params: FitParams,
+                      offsets: np.ndarray | None) -> list[Candidate]:
+    """``warm`` refined on this image, as a one-element list if it is an alternative: within
+    ``params.alternative_tolerance_px`` of the fit's objective (or better) and more than
+    :data:`DISTINCT_DEG` from the fit and every other alternative in some rotational DOF."""
+    off = view_offsets(offsets, rig)
+    q, error, objective = refine_whole(warm.copy(), det, model, rig, params, off)
+    if objective > fit.objective + params.alternative_tolerance_px:
+        return []
+    rot = model.rotational
+    for c in (fit, *others):
+        if np.abs((q - c.dofs + 180.0) % 360.0 - 180.0)[rot].max(initial=0.0) <= DISTINCT_DEG:
+            return []
+    return [Candidate(q, error, objective)]
 
 
 def reanalyse_image(

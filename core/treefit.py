@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
-__all__ = ["attempt_kernel", "fit_tree", "two_sided_error"]
+__all__ = ["attempt_kernel", "fit_tree", "refine_whole", "two_sided_error"]
 
 EPS_PROJECTIONS = 8  # the paper's ε is for its 4 markers × 2 views
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
@@ -95,7 +95,7 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
                 score = new
             else:
                 q[:] = saved
-    return (*_refine_whole(q, det, model, rig, params, off), iterations)
+    return (*refine_whole(q, det, model, rig, params, off), iterations)
 
 
 def two_sided_error(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
@@ -179,10 +179,11 @@ def _conflicts(q, det, model, rig, tree, off) -> list[int]:
     return [k for k in range(len(tree.branches)) if (claims[k] & shared).any()]
 
 
-def _refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
+def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
                   params: FitParams, off: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """Joint refinement of an assembled posture: (posture, plain Eq. 5 error, objective), the
-    objective as ``_kernels.fit_attempt`` reports it (fusion, a lost marker per view)."""
+    """Joint refinement of a whole posture ``q`` (changed in place): (posture, plain Eq. 5
+    error, objective), the objective as ``_kernels.fit_attempt`` reports it (fusion, a
+    lost marker per view)."""
     a, kin, views = params.anneal, model.arrays, rig.arrays
     points, start = det.kernel_points, det.start
     penalty, fuse = float(params.empty_view_penalty_px), float(params.fusion_px)
