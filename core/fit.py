@@ -409,15 +409,22 @@ def _warm_alternative(fit: Candidate, others: list[Candidate], warm: np.ndarray,
                       offsets: np.ndarray | None) -> list[Candidate]:
     """``warm`` refined on this image, as a one-element list if it is an alternative: within
     ``params.alternative_tolerance_px`` of the fit's objective (or better) and more than
-    :data:`DISTINCT_DEG` from the fit and every other alternative in some rotational DOF."""
+    :data:`DISTINCT_DEG` from the fit and every other alternative in some rotational DOF.
+    A fit that stayed within :data:`DISTINCT_DEG` of ``warm`` is taken to be in its basin
+    (most images at 50 Hz): nothing is refined."""
+    rot = model.rotational
+
+    def distinct(q: np.ndarray, c: Candidate) -> bool:
+        return np.abs((q - c.dofs + 180.0) % 360.0 - 180.0)[rot].max(initial=0.0) > DISTINCT_DEG
+
+    if not distinct(warm, fit):
+        return []
     off = view_offsets(offsets, rig)
     q, error, objective = refine_whole(warm.copy(), det, model, rig, params, off)
     if objective > fit.objective + params.alternative_tolerance_px:
         return []
-    rot = model.rotational
-    for c in (fit, *others):
-        if np.abs((q - c.dofs + 180.0) % 360.0 - 180.0)[rot].max(initial=0.0) <= DISTINCT_DEG:
-            return []
+    if not all(distinct(q, c) for c in (fit, *others)):
+        return []
     return [Candidate(q, error, objective)]
 
 
