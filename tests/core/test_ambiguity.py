@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -122,3 +123,23 @@ def test_a_side_view_sequence_entering_the_ambiguous_range_stays_on_its_branch(l
                          params=free, seed=3)
     ambiguous = [f for f in alone.fits if f.alternatives]
     assert len(ambiguous) >= 20  # without the choice, each image is a coin toss between two
+
+
+def test_the_choice_across_a_chunk_border_is_the_same_in_one_process_or_two(locust):
+    """Candidates are kept per image; the choice by continuity is a pass after the merge, over
+    the whole sequence: chunks fitted in two processes choose what one process chooses."""
+    model, _, side = locust
+    t = np.linspace(0.0, 1.0, 16)
+    truth = np.column_stack([150 + 40 * t, 20 - 10 * t, 2 + 0 * t, 10 + 20 * t, 60 + 40 * t])
+    images = [_exact(model, side, q) for q in truth]
+    kwargs = dict(model=model, rig=side, histograms=Histograms.uniform(model), params=FitParams(),
+                  seed=5, chunk_size=8)
+    here = fit_sequence(images, **kwargs)
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        there = fit_sequence(images, map_chunks=pool.map, **kwargs)
+    assert sum(bool(f.alternatives) for f in here.fits[6:10]) >= 2  # ambiguous at the border
+    for got, want in zip(there.fits, here.fits, strict=True):
+        np.testing.assert_array_equal(got.dofs, want.dofs)
+        assert [c.objective for c in got.alternatives] == [c.objective for c in want.alternatives]
+    chosen = np.array([f.dofs for f in here.fits])  # the whole run is ambiguous: either
+    assert np.abs(np.diff(chosen, axis=0)).max() < 5.0  # branch, but one branch throughout
