@@ -1,10 +1,11 @@
 """Whole-animal accuracy and speed benchmark (issue 13): subjects from published anatomy.
 
     python bench/animals.py [--subject hexapod|biped|stick|locust|all] [--images N]
-        [--cameras 6|3|2] [--soft-tissue] [--ghosts 2] [--seed S] [--jobs 1]
+        [--cameras 6|3|2] [--soft-tissue] [--ghosts N] [--seed S] [--jobs 1]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
-is rendered by ``core.synth`` (5 px markers, ``--ghosts`` ghost blobs per view and image),
+is rendered by ``core.synth`` (5 px markers, ``--ghosts`` ghost blobs per view and image:
+2, or 0 with soft tissue),
 detected by ``core.detect`` and fitted by ``core.fit.fit_sequence`` with the settings
 ``mocap fit`` uses by default (marker diameter estimated from the blobs). With
 ``--soft-tissue`` every marker slides by a slowly varying 3D offset whose image displacement
@@ -236,10 +237,14 @@ def main() -> None:
     parser.add_argument("--cameras", type=int, choices=(6, 3, 2), default=6, help="hexapod cameras")
     parser.add_argument("--soft-tissue", action="store_true",
                         help="skin markers slide 2 px RMS; one unmodelled marker in every view")
-    parser.add_argument("--ghosts", type=int, default=2, help="ghost blobs per view and image")
+    parser.add_argument("--ghosts", type=int, default=None,
+                        help="ghost blobs per view and image (default 2, or 0 with --soft-tissue: "
+                             "the issue's two conditions)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=1, help="processes fitting chunks")
     args = parser.parse_args()
+    if args.ghosts is None:
+        args.ghosts = 0 if args.soft_tissue else 2
     if args.images < 1 or args.jobs < 1 or args.ghosts < 0:
         parser.error("--images and --jobs must be >= 1, --ghosts >= 0")
     names = NAMES if args.subject == "all" else (args.subject,)
