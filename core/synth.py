@@ -68,6 +68,7 @@ def render_frames(
     marker_level: float = 230,
     ghosts_per_view: int = 0,
     drop: np.ndarray | None = None,
+    marker_offsets_px: np.ndarray | None = None,
     interlaced: bool = False,
 ) -> Iterator[np.ndarray]:
     """Render the frames of one video file of the rig, one at a time.
@@ -112,6 +113,11 @@ def render_frames(
     drop : ndarray of shape (T, V, M), bool, optional
         True where marker m is not drawn in rig view v at sample t (occlusion).
         V counts every view of the rig, including those of other videos.
+    marker_offsets_px : ndarray of shape (T, V, M, 2), float64, optional
+        Pixels (du, dv) added to marker m's projection in rig view v at sample t
+        before it is drawn: skin markers sliding over the skeleton (soft tissue),
+        so that the rendered blobs are not where the model's markers project.
+        V counts every view of the rig, as in ``drop``.
     interlaced : bool, default False
         If True the trajectory is per field, two samples per frame: frame k has
         its even rows (0, 2, …) from sample 2k and its odd rows from sample
@@ -153,6 +159,7 @@ def render_frames(
                 f"drop must be a boolean array of shape (T, V, M) = "
                 f"({len(q)}, {n_views}, {n_markers}), got {drop.dtype} {drop.shape}"
             )
+    offsets = _validate_offsets(marker_offsets_px, (len(q), n_views, n_markers))
     if interlaced and len(q) % 2:
         raise ValueError(
             f"an interlaced trajectory has two samples (fields) per frame; got T={len(q)} (odd)"
@@ -164,7 +171,7 @@ def render_frames(
         gain=level - bg, rng=rng,
     )
     return _frames(
-        model, rig, q, painter, views=views, clips=clips, drop=drop,
+        model, rig, q, painter, views=views, clips=clips, drop=drop, offsets=offsets,
         ghosts=int(ghosts_per_view), interlaced=bool(interlaced),
     )
 
@@ -178,6 +185,7 @@ def _frames(
     views: list[int],
     clips: np.ndarray,
     drop: np.ndarray | None,
+    offsets: np.ndarray | None,
     ghosts: int,
     interlaced: bool,
 ) -> Iterator[np.ndarray]:
@@ -186,6 +194,8 @@ def _frames(
     for start in range(0, len(q), step):
         chunk = q[start : start + step]
         proj = rig.project(model.marker_positions(chunk))[:, views]  # (t, Vk, M, 2)
+        if offsets is not None:
+            proj = proj + offsets[start : start + step][:, views]
         keep = None if drop is None else ~drop[start : start + step][:, views]
         for first in range(0, len(chunk), per_frame):
             centres, clip_index, parity = [], [], []
@@ -784,6 +794,18 @@ def _validate_trajectory(trajectory: np.ndarray, model: KinematicModel) -> np.nd
     if not np.all(np.isfinite(q)):
         raise ValueError("trajectory contains a value that is not a finite number")
     return np.ascontiguousarray(q)
+
+
+def _validate_offsets(offsets: np.ndarray | None, shape: tuple[int, int, int]) -> np.ndarray | None:
+    if offsets is None:
+        return None
+    out = np.asarray(offsets, dtype=np.float64)
+    if out.shape != (*shape, 2) or not np.all(np.isfinite(out)):
+        raise ValueError(
+            f"marker_offsets_px must be finite numbers of shape (T, V, M, 2) = "
+            f"({shape[0]}, {shape[1]}, {shape[2]}, 2), got {np.shape(offsets)}"
+        )
+    return out
 
 
 def _validate_frame_size(frame_size: tuple[int, int]) -> tuple[int, int]:

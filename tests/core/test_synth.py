@@ -106,6 +106,17 @@ def test_drop_removes_a_marker():
     assert len(detect([frame], rig=rig).view(0)) == 1
 
 
+def test_marker_offsets_move_each_marker_in_its_own_view():
+    model, rig = dots_model((0, 0), (60, 0)), pixel_rig([0, 0, 64, 96], [64, 0, 64, 96])
+    offsets = np.zeros((1, 2, 2, 2))
+    offsets[0, 0, 0] = (3.25, -2.5)  # marker 0 in view 0 only; marker 1 lies in view 1
+    offsets[0, 1, 1] = (-1.5, 4.0)
+    frame = render_one(model, rig, [20, 40], marker_offsets_px=offsets)
+    det = detect([frame], rig=rig)
+    np.testing.assert_allclose(det.view(0), [[23.25, 37.5]], atol=0.02)
+    np.testing.assert_allclose(det.view(1), [[78.5, 44.0]], atol=0.02)
+
+
 def test_marker_is_clipped_to_its_roi():
     model = dots_model((0, 0))
     frame = render_one(model, pixel_rig([0, 0, 64, 96]), [64.2, 40.0])
@@ -163,6 +174,10 @@ def test_render_validates_its_arguments(locust):
         render_frames(model, rig, q, rng=rng, interlaced=True)
     with pytest.raises(ValueError, match="drop"):
         render_frames(model, rig, q, rng=rng, drop=np.zeros((3, 2, 3), bool))
+    with pytest.raises(ValueError, match="marker_offsets_px"):
+        render_frames(model, rig, q, rng=rng, marker_offsets_px=np.zeros((3, 2, 3, 2)))
+    with pytest.raises(ValueError, match="marker_offsets_px"):
+        render_frames(model, rig, q, rng=rng, marker_offsets_px=np.full((3, 2, 4, 2), np.nan))
     with pytest.raises(ValueError, match="video"):
         render_frames(model, rig, q, rng=rng, video=1)
     with pytest.raises(ValueError, match="outside"):

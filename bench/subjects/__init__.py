@@ -1,0 +1,205 @@
+"""Benchmark subjects: model, rig and natural movements of whole animals (``bench/animals.py``).
+
+Each subject is a model (FORMATS §1) and a rig (FORMATS §2) in ``bench/subjects/<name>/``
+or ``examples/<name>/``, a frame size, a frame rate, and a movement generator:
+
+- ``hexapod``: a tethered fruit fly, 6 legs × 7 DOFs, walking in a tripod gait;
+- ``biped``: a human lower body walking along a 2.4 m walkway, pelvis moving forward;
+- ``stick`` and ``locust``: the examples, moved by ``core.synth.natural_movements``.
+
+Sources of the anatomy: ``docs/BENCH_SUBJECTS.md``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from core.model import KinematicModel, Marker
+from core.rig import Rig
+from core.synth import natural_movements
+
+ROOT = Path(__file__).resolve().parents[2]
+NAMES = ("hexapod", "biped", "stick", "locust")
+# Camera subsets of the hexapod's six (a ring at 30, 90, …, 330° azimuth): every other one,
+# and the two side cameras.
+HEXAPOD_CAMERAS = {6: (0, 1, 2, 3, 4, 5), 3: (0, 2, 4), 2: (1, 4)}
+
+
+@dataclass(frozen=True)
+class Subject:
+    """A benchmark subject.
+
+    unmodelled : (joint, position in its frame) of a marker the model lacks, drawn in
+        every view with soft tissue (a real marker the lab did not model).
+    """
+
+    name: str
+    model: KinematicModel
+    rig: Rig
+    frame_size: tuple[int, int]
+    fps: float
+    movement: Callable[[Subject, int, np.random.Generator], np.ndarray]
+    unmodelled: tuple[str, tuple[float, float, float]]
+
+    def trajectory(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """(n, D) true postures, model-file DOF order (degrees, model units)."""
+        return self.movement(self, n, rng)
+
+    def with_unmodelled_marker(self) -> KinematicModel:
+        """The model plus the unmodelled marker (last), for rendering only."""
+        joint, pos = self.unmodelled
+        return replace(self.model, markers=(*self.model.markers, Marker("unmodelled", joint, pos)))
+
+
+def load(name: str, cameras: int | None = None) -> Subject:
+    """The subject ``name`` (one of :data:`NAMES`); ``cameras`` picks the hexapod's 6, 3 or 2."""
+    if name not in NAMES:
+        raise ValueError(f"subject must be one of {', '.join(NAMES)}, got {name!r}")
+    folder = {"stick": ROOT / "examples" / "stick_insect_front_leg",
+              "locust": ROOT / "examples" / "locust_hind_leg"}.get(name, ROOT / "bench" / "subjects" / name)
+    model = KinematicModel.from_xml(folder / "model.xml")
+    rig = Rig.from_json(folder / "rig.json")
+    if name == "hexapod":
+        views = HEXAPOD_CAMERAS[cameras or 6]
+        # Each camera keeps its own video file: renumber the chosen ones 0..k-1.
+        rig = Rig(tuple(replace(rig.views[v], video=i) for i, v in enumerate(views)))
+        return Subject(name, model, rig, (640, 480), 100.0, tripod_walk,
+                       ("RM_femur_roll", (0.45, 0.03, 0.0)))
+    if cameras is not None:
+        raise ValueError(f"only the hexapod has camera variants, not {name!r}")
+    if name == "biped":
+        return Subject(name, model, rig, (720, 576), 100.0, walkway_gait, ("R_knee", (200.0, 60.0, 0.0)))
+    unmodelled = ("femur_tibia", (12.0, 1.0, 0.0)) if name == "stick" else ("femur_tibia", (14.0, 1.5, 0.0))
+    return Subject(name, model, rig, (720, 576), 50.0, _natural, unmodelled)
+
+
+def _natural(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
+    return natural_movements(subject.model, subject.rig, n, rng=rng, fps=subject.fps,
+                             frame_size=subject.frame_size)
+
+
+# ---- hexapod: tripod walking ---------------------------------------------------------------------
+
+# Per leg pair: centre and amplitude (degrees) of each DOF's oscillation, in the order coxa pro,
+# roll, abd, femur, femur roll, tibia, tarsus (protraction and adduction positive), and each
+# DOF's phase lead (radians) over protraction. Tethered flies walk at 5-15 steps/s.
+_FLY_CENTRE = {"F": (25, 0, -10, -105, 0, 90, -40), "M": (0, 0, -12, -105, 0, 105, -45),
+               "H": (-25, 0, -12, -105, 0, 100, -40)}
+_FLY_AMPLITUDE = {"F": (20, 8, 6, 12, 8, 25, 12), "M": (20, 8, 6, 12, 8, 20, 12),
+                  "H": (18, 8, 6, 12, 8, 20, 12)}
+_FLY_PHASE = (0.0, np.pi / 2, np.pi / 3, np.pi / 2, -np.pi / 3, np.pi / 2 + 0.3, np.pi)
+_TRIPOD = {"LF": 0.0, "RM": 0.0, "LH": 0.0, "RF": 0.5, "LM": 0.5, "RH": 0.5}
+_STEP_HZ = (6.0, 11.0)
+
+
+def tripod_walk(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
+    """A tripod gait: each DOF a sinusoid of the step phase, with slowly drifting step rate,
+    amplitude and centre (turning, speeding up), the two tripods half a cycle apart.
+
+    Returns (n, 42) postures in model order, inside the DOF ranges.
+    """
+    t = np.arange(n) / subject.fps
+    rate = _smooth_noise(rng, t, 0.5, *_STEP_HZ)
+    phase = 2 * np.pi * np.cumsum(rate) / subject.fps + rng.uniform(0, 2 * np.pi)
+    names = subject.model.dof_names
+    q = np.empty((n, len(names)))
+    for leg, offset in _TRIPOD.items():
+        pair, mirror = leg[1], -1.0 if leg[0] == "R" else 1.0
+        for k, dof in enumerate(("coxa_pro", "coxa_roll", "coxa_abd", "femur", "femur_roll",
+                                 "tibia", "tarsus")):
+            gain = _smooth_noise(rng, t, 1.0, 0.7, 1.15)
+            drift = _smooth_noise(rng, t, 1.0, -0.4, 0.4) * _FLY_AMPLITUDE[pair][k]
+            value = _FLY_CENTRE[pair][k] + drift + gain * _FLY_AMPLITUDE[pair][k] * np.cos(
+                phase + 2 * np.pi * offset + _FLY_PHASE[k])
+            # Protraction and the rolls turn the other way on the right (mirrored frames).
+            sign = mirror if dof in ("coxa_pro", "coxa_roll", "femur_roll") else 1.0
+            q[:, names.index(f"{leg}_{dof}")] = sign * value
+    return _inside(subject.model, q)
+
+
+# ---- biped: walking along the walkway ------------------------------------------------------------
+
+# Sagittal joint angles over a gait cycle (% of the cycle from heel strike: degrees), the
+# shape of the normative curves of Winter 2009 (Biomechanics and Motor Control of Human
+# Movement, ch. 4) read to a few degrees: hip flexion, knee flexion, ankle dorsiflexion.
+_HIP = ((0, 30), (10, 28), (30, 10), (50, -10), (60, -5), (70, 15), (85, 32), (100, 30))
+_KNEE = ((0, 5), (15, 18), (40, 3), (60, 38), (73, 62), (90, 20), (100, 5))
+_ANKLE = ((0, 0), (8, -6), (45, 10), (62, -18), (75, -5), (100, 0))
+_WALKWAY = 1600.0  # mm of travel per pass, centred on the origin
+_SPEED = (1100.0, 1500.0)  # mm/s
+_STRIDE_S = (1.0, 1.2)
+
+
+def walkway_gait(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Passes along the walkway (x), each from one end to the other at its own speed,
+    cadence and heading, the pelvis moving forward; the left leg half a cycle behind the right.
+
+    Returns (n, 16) postures in model order, inside the DOF ranges.
+    """
+    names = subject.model.dof_names
+    q = np.empty((n, len(names)))
+    start = 0
+    while start < n:
+        speed, stride = rng.uniform(*_SPEED), rng.uniform(*_STRIDE_S)
+        length = min(n - start, int(_WALKWAY / speed * subject.fps))
+        t = np.arange(length) / subject.fps
+        p = (t / stride + rng.uniform()) % 1.0  # right leg's phase
+        heading = np.radians(rng.uniform(-8, 8))
+        gain = rng.uniform(0.85, 1.1)
+        s = speed * t - _WALKWAY / 2
+        lateral = rng.uniform(-150, 150)
+        cols = {
+            "pelvis_tx": s * np.cos(heading),
+            "pelvis_tz": lateral + s * np.sin(heading),
+            "pelvis_ty": -25 + 15 * np.cos(4 * np.pi * p),
+            "pelvis_rotation": -np.degrees(heading) + 4 * np.cos(2 * np.pi * p),
+            "pelvis_obliquity": 4 * np.cos(2 * np.pi * (p - 0.15)),
+            "pelvis_tilt": -2 + 2 * np.cos(4 * np.pi * p),
+        }
+        for side, ps, mirror in (("R", p, 1.0), ("L", (p + 0.5) % 1.0, -1.0)):
+            cols[f"{side}_hip_flexion"] = gain * _cycle(_HIP, ps)
+            cols[f"{side}_knee_flexion"] = -gain * _cycle(_KNEE, ps)
+            cols[f"{side}_ankle_dorsiflexion"] = gain * _cycle(_ANKLE, ps)
+            cols[f"{side}_hip_adduction"] = mirror * (2 + 4 * np.cos(2 * np.pi * (ps - 0.15)))
+            cols[f"{side}_hip_rotation"] = mirror * 5 * np.cos(2 * np.pi * (ps - 0.3))
+        for name, values in cols.items():
+            q[start : start + length, names.index(name)] = values
+        start += length
+    return _inside(subject.model, q)
+
+
+def _cycle(keys: tuple[tuple[float, float], ...], phase: np.ndarray, harmonics: int = 4) -> np.ndarray:
+    """A smooth periodic curve through ``keys`` (% of cycle, value): the first
+    ``harmonics`` Fourier terms of their periodic linear interpolation, at ``phase`` (0..1)."""
+    grid = np.arange(200) / 200
+    x, y = np.array(keys, dtype=float).T
+    coeffs = np.fft.rfft(np.interp(grid * 100, x, y))[: harmonics + 1] / len(grid)
+    k = np.arange(harmonics + 1)
+    terms = coeffs[None, :] * np.exp(2j * np.pi * k[None, :] * phase[:, None])
+    return (terms[:, 0] + 2 * terms[:, 1:].sum(axis=1)).real
+
+
+# ---- helpers -------------------------------------------------------------------------------------
+
+
+def _smooth_noise(rng: np.random.Generator, t: np.ndarray, period_s: float, lo: float,
+                  hi: float) -> np.ndarray:
+    """A smooth random signal in [lo, hi] varying over about ``period_s``: a random phase
+    sum of three sinusoids of periods around ``period_s``."""
+    waves = sum(np.sin(2 * np.pi * t / (period_s * f) + rng.uniform(0, 2 * np.pi))
+                for f in rng.uniform(0.7, 2.0, 3))
+    return lo + (hi - lo) * (waves / 6 + 0.5)
+
+
+def _inside(model: KinematicModel, q: np.ndarray) -> np.ndarray:
+    """``q`` after checking it keeps every DOF 1 % of its range inside its limits."""
+    span = model.upper - model.lower
+    lo, hi = model.lower + 0.01 * span, model.upper - 0.01 * span
+    bad = np.flatnonzero(np.any((q < lo) | (q > hi), axis=0))
+    if len(bad):
+        raise ValueError(f"the movement leaves the range of {[model.dof_names[i] for i in bad]}")
+    return q

@@ -1,0 +1,233 @@
+"""Write the benchmark subjects' model.xml and rig.json (FORMATS §1, §2) from published anatomy.
+
+    python bench/subjects/build.py
+
+Rewrites ``bench/subjects/hexapod/`` and ``bench/subjects/biped/``; the files are
+committed, this script says how they were made. Sources and every number's origin:
+``docs/BENCH_SUBJECTS.md``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+
+# ---- hexapod: Drosophila melanogaster, NeuroMechFly ---------------------------------------------
+
+# Leg insertion points (thorax–coxa joints) and segment lengths in mm, read from NeuroMechFly's
+# model (Lobato-Rios et al. 2022, Nature Methods 19:620-627; github.com/NeLy-EPFL/NeuroMechFly,
+# data/design/sdf/neuromechfly_noLimits.sdf, link poses of the left legs; right legs mirror them).
+# NeuroMechFly's frame is x forward, y left, z up; ours is x forward, y up, z right.
+FLY_INSERTION_NMF = {"F": (0.418, 0.2700, 1.0800), "M": (0.0677, 0.1249, 0.6798),
+                     "H": (-0.1477, 0.0870, 0.6072)}
+# coxa, femur (incl. trochanter), tibia, tarsus (tarsomeres 1-4, to the origin of tarsomere 5).
+FLY_SEGMENTS = {"F": (0.4255, 0.7052, 0.5184, 0.5647), "M": (0.1814, 0.7837, 0.6673, 0.6065),
+                "H": (0.1994, 0.8363, 0.6845, 0.6978)}
+# Plausible ranges (degrees) per leg pair, protraction and adduction positive on both sides (the
+# left legs' files negate what mirrors). Set around NeuroMechFly's tripod pose
+# (data/config/pose/pose_tripod.yaml) and its walking-data limits
+# (data/design/sdf/neuromechfly_limitsFromData.sdf), widened to leave the search room.
+FLY_RANGES = {
+    "coxa_pro": {"F": (-10, 60), "M": (-35, 35), "H": (-60, 10)},
+    "coxa_roll": (-30, 30),
+    "coxa_abd": (-40, 20),
+    "femur": (-140, -70),
+    "femur_roll": (-30, 30),
+    "tibia": (30, 150),
+    "tarsus": (-80, -5),
+}
+FLY_THORAX_MARKERS = {"T0": (0.40, 1.30, 0.0), "T1": (-0.05, 1.25, -0.20), "T2": (-0.05, 1.25, 0.20)}
+FLY_SIZE = (640, 480)
+
+
+def _num(v: float) -> str:
+    return np.format_float_positional(round(float(v), 4) + 0.0, trim="-")
+
+
+def _xyz(tag: str, v) -> str:
+    return f'<{tag} x="{_num(v[0])}" y="{_num(v[1])}" z="{_num(v[2])}"/>'
+
+
+def _dof(axis: str, name: str, lo: float, hi: float) -> str:
+    return f'<dof axis="{axis}" name="{name}" min="{_num(lo)}" max="{_num(hi)}"/>'
+
+
+def _joint(name: str, parent: str | None, offset, dofs: list[str], rest=None) -> str:
+    head = f'  <joint name="{name}"' + (f' parent="{parent}">' if parent else ">")
+    body = ["    " + _xyz("offset", offset)]
+    if rest is not None:
+        body.append(f'    <rest y="{_num(rest[0])}" x="{_num(rest[1])}" z="{_num(rest[2])}"/>')
+    body += ["    " + d for d in dofs]
+    return "\n".join([head, *body, "  </joint>"])
+
+
+def _marker(name: str, joint: str, pos=(0.0, 0.0, 0.0)) -> str:
+    xyz = f'x="{_num(pos[0])}" y="{_num(pos[1])}" z="{_num(pos[2])}"'
+    return f'  <marker name="{name}" joint="{joint}" {xyz}/>'
+
+
+def hexapod_xml() -> str:
+    """42 DOFs: per leg coxa pro/roll/abd, femur, femur roll, tibia, tarsus; 4 markers per leg."""
+    joints = [_joint("thorax", None, (0, 0, 0), [])]
+    markers = [_marker(n, "thorax", p) for n, p in FLY_THORAX_MARKERS.items()]
+    for side in "LR":
+        s = 1.0 if side == "R" else -1.0
+        for pair in "FMH":
+            leg = side + pair
+            x, y, z = FLY_INSERTION_NMF[pair]
+            coxa, femur, tibia, tarsus = FLY_SEGMENTS[pair]
+            pro = FLY_RANGES["coxa_pro"][pair]
+            # Right legs: local x down, y inward, z forward (rest Ry(90)·Rz(-90)); a positive
+            # rotation about local y moves the leg backward, so protraction is its negative.
+            pro_lo, pro_hi = (-pro[1], -pro[0]) if side == "R" else pro
+            joints += [
+                _joint(f"{leg}_coxa", "thorax", (x, z, s * y),
+                       [_dof("y", f"{leg}_coxa_pro", pro_lo, pro_hi),
+                        _dof("x", f"{leg}_coxa_roll", *FLY_RANGES["coxa_roll"]),
+                        _dof("z", f"{leg}_coxa_abd", *FLY_RANGES["coxa_abd"])],
+                       rest=(90.0 * s, 0.0, -90.0)),
+                _joint(f"{leg}_femur", f"{leg}_coxa", (coxa, 0, 0),
+                       [_dof("z", f"{leg}_femur", *FLY_RANGES["femur"])]),
+                _joint(f"{leg}_femur_roll", f"{leg}_femur", (0, 0, 0),
+                       [_dof("x", f"{leg}_femur_roll", *FLY_RANGES["femur_roll"])]),
+                _joint(f"{leg}_tibia", f"{leg}_femur_roll", (femur, 0, 0),
+                       [_dof("z", f"{leg}_tibia", *FLY_RANGES["tibia"])]),
+                _joint(f"{leg}_tarsus", f"{leg}_tibia", (tibia, 0, 0),
+                       [_dof("z", f"{leg}_tarsus", *FLY_RANGES["tarsus"])]),
+                _joint(f"{leg}_claw", f"{leg}_tarsus", (tarsus, 0, 0), []),
+            ]
+            markers += [_marker(f"{leg}_{m}", f"{leg}_{j}")
+                        for m, j in (("CTr", "femur"), ("FTi", "tibia"), ("TiTa", "tarsus"),
+                                     ("claw", "claw"))]
+    comment = """  <!-- A tethered fruit fly (Drosophila melanogaster): the thorax is fixed, six legs of
+       7 DOFs (coxa protraction/roll/adduction, trochanter-femur flexion, femur roll, tibia,
+       tarsus). Insertion points and segment lengths from NeuroMechFly (Lobato-Rios et al.
+       2022, Nature Methods 19:620-627, neuromechfly_noLimits.sdf); ranges around its tripod
+       pose and walking-data limits, widened. x forward, y up, z right; mm.
+       Made by bench/subjects/build.py; docs/BENCH_SUBJECTS.md. -->"""
+    return "\n".join(['<model name="drosophila_hexapod" units="mm">', comment, *joints, *markers,
+                      "</model>", ""])
+
+
+def look_at(position, target, *, f: float, size: tuple[int, int], dist=(0, 0, 0, 0, 0)) -> dict:
+    """A pinhole projection (OpenCV conventions) at ``position`` looking at ``target``, world y up."""
+    p, t = np.asarray(position, float), np.asarray(target, float)
+    z = (t - p) / np.linalg.norm(t - p)
+    x = np.cross(z, (0.0, 1.0, 0.0))
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.array([x, y, z])
+    rvec = cv2.Rodrigues(R)[0].ravel()
+    tvec = -R @ p
+    w, h = size
+    K = [[f, 0, w / 2], [0, f, h / 2], [0, 0, 1]]
+    return {"type": "pinhole", "K": [[round(v, 4) for v in row] for row in K],
+            "dist": list(dist), "rvec": [round(float(v), 6) for v in rvec],
+            "tvec": [round(float(v), 6) for v in tvec]}
+
+
+def ring(names, azimuths, *, radius, height, target, f, size, dist) -> dict:
+    """Cameras on a circle around ``target`` (azimuth from +x towards +z, degrees)."""
+    views = []
+    for i, (name, az) in enumerate(zip(names, azimuths, strict=True)):
+        a = np.radians(az)
+        pos = (target[0] + radius * np.cos(a), height, target[2] + radius * np.sin(a))
+        views.append({"name": name, "video": i,
+                      "projection": look_at(pos, target, f=f, size=size, dist=dist)})
+    return {"views": views}
+
+
+def hexapod_rig() -> dict:
+    """Six cameras around the fly, 30° above it, 20 mm away (~110 px per mm), 640×480."""
+    target = (0.1, 0.35, 0.0)
+    return ring([f"cam{i}" for i in range(6)], [30, 90, 150, 210, 270, 330], radius=17.3,
+                height=target[1] + 10.0, target=target, f=2200.0, size=FLY_SIZE,
+                dist=(-0.05, 0.0, 0.0, 0.0, 0.0))
+
+
+# ---- biped: human lower body, Plug-in Gait markers -----------------------------------------------
+
+BODY_HEIGHT = 1750.0  # mm
+# Segment lengths as fractions of body height (Drillis & Contini 1966, in Winter 2009,
+# Biomechanics and Motor Control of Human Movement, 4th ed., Fig. 4.1).
+THIGH, SHANK, ANKLE_HEIGHT = 0.245 * BODY_HEIGHT, 0.246 * BODY_HEIGHT, 0.039 * BODY_HEIGHT
+FOOT = 0.152 * BODY_HEIGHT
+# Hip joint centres from the ASIS (Bell, Pedersen & Brand 1990, J Biomech 23:617-621):
+# 30 % of the inter-ASIS distance distal, 19 % posterior, 14 % medial. Inter-ASIS 250 mm.
+ASIS_WIDTH = 250.0
+HJC_FROM_ASIS = (-0.19 * ASIS_WIDTH, -0.30 * ASIS_WIDTH, 0.14 * ASIS_WIDTH)  # back, down, in
+HIP_HALF_WIDTH = ASIS_WIDTH / 2 - HJC_FROM_ASIS[2]
+# Joint ranges (American Academy of Orthopaedic Surgeons 1965, as tabulated by Roaas &
+# Andersson 1982, Acta Orthop Scand 53:205-208): hip flexion 120, extension 30, abduction 45,
+# adduction 30, internal and external rotation 45; knee flexion 135 (140 here); ankle
+# dorsiflexion 20, plantar flexion 50.
+BIPED_SIZE = (720, 576)
+
+
+def biped_xml() -> str:
+    """A pelvis with 3 translations and 3 rotations; per leg hip 3, knee 1, ankle 1; 15 markers."""
+    root = _joint("pelvis", None, (0, THIGH + SHANK + ANKLE_HEIGHT, 0), [
+        _dof("tx", "pelvis_tx", -1200, 1200), _dof("ty", "pelvis_ty", -150, 100),
+        _dof("tz", "pelvis_tz", -400, 400), _dof("y", "pelvis_rotation", -40, 40),
+        _dof("x", "pelvis_obliquity", -20, 20), _dof("z", "pelvis_tilt", -25, 25)])
+    asis = (-HJC_FROM_ASIS[0], -HJC_FROM_ASIS[1], ASIS_WIDTH / 2)
+    markers = [_marker("RASI", "pelvis", asis), _marker("LASI", "pelvis", (asis[0], asis[1], -asis[2])),
+               _marker("SACR", "pelvis", (asis[0] - 160.0, asis[1], 0.0))]
+    joints = [root]
+    for side in "RL":
+        s = 1.0 if side == "R" else -1.0
+        # Local x down the thigh, y forward, z to the right (rest Rz(-90)); a positive
+        # rotation about y moves the leg to the left: adduction on the right, abduction on the left.
+        add = (-45, 30) if side == "R" else (-30, 45)
+        joints += [
+            _joint(f"{side}_hip", "pelvis", (0, 0, s * HIP_HALF_WIDTH),
+                   [_dof("z", f"{side}_hip_flexion", -30, 120),
+                    _dof("y", f"{side}_hip_adduction", *add),
+                    _dof("x", f"{side}_hip_rotation", -45, 45)], rest=(0, 0, -90)),
+            _joint(f"{side}_knee", f"{side}_hip", (THIGH, 0, 0),
+                   [_dof("z", f"{side}_knee_flexion", -140, 5)]),
+            # The foot frame: x forward along the foot, y up (rest Rz(90) from the shank).
+            _joint(f"{side}_ankle", f"{side}_knee", (SHANK, 0, 0),
+                   [_dof("z", f"{side}_ankle_dorsiflexion", -50, 20)], rest=(0, 0, 90)),
+        ]
+        markers += [
+            _marker(f"{side}THI", f"{side}_hip", (0.65 * THIGH, 0, s * 75)),
+            _marker(f"{side}KNE", f"{side}_knee", (0, 0, s * 50)),
+            _marker(f"{side}TIB", f"{side}_knee", (0.65 * SHANK, 0, s * 50)),
+            _marker(f"{side}ANK", f"{side}_ankle", (0, 0, s * 35)),
+            _marker(f"{side}HEE", f"{side}_ankle", (-0.21 * FOOT, -0.5 * ANKLE_HEIGHT, 0)),
+            _marker(f"{side}TOE", f"{side}_ankle", (0.55 * FOOT, -0.55 * ANKLE_HEIGHT, 0)),
+        ]
+    comment = """  <!-- A human lower body (height 1.75 m): pelvis root with 3 translations and 3 rotations,
+       hip 3 DOFs, knee 1, ankle 1; Plug-in Gait markers (Davis et al. 1991) without the
+       PSIS. Segments from Drillis & Contini 1966 (in Winter 2009, Fig. 4.1), hip joint
+       centres from Bell et al. 1990, ranges from AAOS 1965 (Roaas & Andersson 1982).
+       x forward (walking), y up, z right; mm. Made by bench/subjects/build.py;
+       docs/BENCH_SUBJECTS.md. -->"""
+    return "\n".join(['<model name="human_lower_body" units="mm">', comment, *joints, *markers,
+                      "</model>", ""])
+
+
+def biped_rig() -> dict:
+    """Three cameras around a 2.4 m walkway, 5 m away and 1.8 m up, 720×576."""
+    target = (0.0, 600.0, 0.0)
+    return ring(["right", "left", "front"], [90, 270, 20], radius=5000.0, height=1800.0,
+                target=target, f=1150.0, size=BIPED_SIZE, dist=(-0.08, 0.02, 0.0, 0.0, 0.0))
+
+
+def main() -> None:
+    for name, xml, rig in (("hexapod", hexapod_xml(), hexapod_rig()),
+                           ("biped", biped_xml(), biped_rig())):
+        folder = HERE / name
+        folder.mkdir(exist_ok=True)
+        (folder / "model.xml").write_text(xml)
+        (folder / "rig.json").write_text(json.dumps(rig, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
