@@ -10,7 +10,8 @@ charges a blob no marker explains, so a leg that settles on its neighbour's
 blobs costs nothing: both legs explain the same blobs, and the blobs of the
 stolen leg stay unexplained. After the first pass, any blob claimed by markers of
 two branches is a conflict; each branch in a conflict is fitted again without the
-blobs the other branches claim, and the new posture is kept where it lowers the
+blobs the other branches claim (a conflict needs a blob too small to be two markers the
+detector merged), and the new posture is kept where it lowers the
 *two-sided* error (:func:`two_sided_error`: Eq. 5 plus, for every blob within the
 branches' reach, its distance to the nearest marker, capped), which does charge
 the stolen leg's blobs. A real fusion (two markers imaged as one blob) survives:
@@ -35,9 +36,10 @@ if TYPE_CHECKING:
 
 __all__ = ["attempt_kernel", "fit_tree", "refine_whole", "two_sided_error"]
 
-EPS_PROJECTIONS = 8  # the paper's ε is for its 4 markers × 2 views
+EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
 CONFLICT_SWEEPS = 2
+JOINT_STEPS = 10  # LM steps of the joint refinement: the parts arrive refined
 
 
 def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
@@ -82,10 +84,12 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
         fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep))
     in_reach = np.logical_or.reduce(reach)
     score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
+    previous: list[int] = []
     for _ in range(CONFLICT_SWEEPS):
         conflicted = _conflicts(q, det, model, rig, tree, off)
-        if not conflicted:
+        if not conflicted or conflicted == previous:
             break
+        previous = conflicted
         for b in conflicted:
             part, saved = tree.branches[b], q.copy()
             keep = reach[b] & ~_claimed(q, det, model, rig, tree, off, exclude=b)
@@ -173,9 +177,10 @@ def _claimed(q, det, model, rig, tree, off, exclude: int) -> np.ndarray:
 
 
 def _conflicts(q, det, model, rig, tree, off) -> list[int]:
-    """Branches that claim a detection another branch claims too."""
+    """Branches that claim a detection another branch claims too, where that detection is
+    too small to be markers the detector merged (``Detections.kernel_points``' flag)."""
     claims = _claims(q, det, model, rig, tree, off)
-    shared = claims.sum(axis=0) > 1
+    shared = (claims.sum(axis=0) > 1) & (det.kernel_points[:, 2] == 0.0)
     return [k for k in range(len(tree.branches)) if (claims[k] & shared).any()]
 
 
@@ -195,7 +200,7 @@ def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig
     value = objective(q)
     if params.refine:
         polished = _kernels.refine(q, model.lower, model.upper, kin, views, off, points, start,
-                                   penalty, fuse, _kernels.NO_UNSEEN, float(a.huber_px), 50, 1e-5,
+                                   penalty, fuse, _kernels.NO_UNSEEN, float(a.huber_px), JOINT_STEPS, 1e-5,
                                    _kernels.NO_TARGETS)
         if (e := objective(polished)) <= value:
             q, value = polished, e
