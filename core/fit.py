@@ -92,9 +92,11 @@ class FitParams:
     restarts : within one attempt, SA runs again (from a posture drawn from the
         histograms) at most this many times while the objective stays >= ε: SA's
         own convergence test says it is in a local minimum, whatever the threshold.
-    alternative_tolerance_px : depth-flipped postures scoring within this of an
-        image's fit are kept as its alternatives, and the best-scoring one becomes
-        the fit (``core.ambiguity``); 0 turns the search off.
+    alternative_tolerance_px : postures in other minima (depth flips, the previous
+        image's posture refined) scoring within this of an image's fit are kept as its
+        alternatives, and the best-scoring one becomes the fit (``core.ambiguity``); per
+        8 compared marker projections (the paper's 4 markers × 2 views), scaled up to an
+        image's own (:func:`alternative_tolerance`); 0 turns the search off.
     choose_by_continuity : at the end of a sequence, choose each image's posture
         among its alternatives by continuity with its neighbours (``core.ambiguity``).
     outlier_factor : an image whose objective is more than this times the sequence's
@@ -391,41 +393,73 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     )
     fit = Candidate(dofs, error, objective)
     others = []
-    if params.alternative_tolerance_px > 0:
+    tolerance = alternative_tolerance(params, det, len(model.markers))
+    if tolerance > 0:
         others = flip_alternatives(
-            fit, det, model=model, rig=rig, geometry=geometry,
-            tolerance_px=params.alternative_tolerance_px, fusion_px=params.fusion_px,
-            empty_view_penalty_px=params.empty_view_penalty_px, huber_px=params.anneal.huber_px,
-            offsets=offsets,
+            fit, det, model=model, rig=rig, geometry=geometry, tolerance_px=tolerance,
+            fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
+            huber_px=params.anneal.huber_px, offsets=offsets,
         )
         if warm is not None and np.all(np.isfinite(warm)):
-            others += _warm_alternative(fit, others, warm, det, model, rig, params, offsets)
+            others += _warm_alternatives(fit, others, warm, det, model, rig, params, tolerance,
+                                         offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
     return ranked[0], tuple(ranked[1:]), its
 
 
-def _warm_alternative(fit: Candidate, others: list[Candidate], warm: np.ndarray, det: Detections,
-                      model: KinematicModel, rig: Rig, params: FitParams,
-                      offsets: np.ndarray | None) -> list[Candidate]:
-    """``warm`` refined on this image, as a one-element list if it is an alternative: within
-    ``params.alternative_tolerance_px`` of the fit's objective (or better) and more than
+def alternative_tolerance(params: FitParams, det: Detections, n_markers: int) -> float:
+    """Pixels of objective within which another minimum is an alternative of an image's fit:
+    ``params.alternative_tolerance_px`` per 8 compared marker projections, never less.
+
+    >>> det = Detections.from_views([np.zeros((3, 2))] * 6)
+    >>> alternative_tolerance(FitParams(), det, 4), alternative_tolerance(FitParams(), det, 20)
+    (1.5, 7.5)
+    """
+    compared = _compared(tuple(det.counts.tolist()), n_markers)
+    return params.alternative_tolerance_px * max(1.0, compared / 8.0)
+
+
+def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray, det: Detections,
+                       model: KinematicModel, rig: Rig, params: FitParams, tolerance: float,
+                       offsets: np.ndarray | None) -> list[Candidate]:
+    """The previous image's posture ``warm`` refined on this image, where it lands in another
+    minimum: within ``tolerance`` of the fit's objective (or better) and more than
     :data:`DISTINCT_DEG` from the fit and every other alternative in some rotational DOF.
-    A fit that stayed within :data:`DISTINCT_DEG` of ``warm`` is taken to be in its basin
-    (most images at 50 Hz): nothing is refined."""
+
+    Only where the fit left ``warm``'s basin (moved more than :data:`DISTINCT_DEG`; most
+    images at 50 Hz do not, and nothing is refined). For a tree (``core.tree``), each part
+    that moved is taken from ``warm`` on its own, the rest of the fit kept: one leg that
+    jumped must not need every other leg to be as it was. At most the best two are kept.
+    """
     rot = model.rotational
 
     def distinct(q: np.ndarray, c: Candidate) -> bool:
-        return np.abs((q - c.dofs + 180.0) % 360.0 - 180.0)[rot].max(initial=0.0) > DISTINCT_DEG
+        return _apart(q, c.dofs, rot)
 
     if not distinct(warm, fit):
         return []
+    starts = [warm]
+    if model.tree is not None:
+        starts = []
+        for part in model.tree.parts:
+            if _apart(warm[part.dofs], fit.dofs[part.dofs], rot[part.dofs]):
+                start = fit.dofs.copy()
+                start[part.dofs] = warm[part.dofs]
+                starts.append(start)
     off = view_offsets(offsets, rig)
-    q, error, objective = refine_whole(warm.copy(), det, model, rig, params, off)
-    if objective > fit.objective + params.alternative_tolerance_px:
-        return []
-    if not all(distinct(q, c) for c in (fit, *others)):
-        return []
-    return [Candidate(q, error, objective)]
+    found: list[Candidate] = []
+    for start in starts:
+        q, error, objective = refine_whole(start.copy(), det, model, rig, params, off)
+        if objective <= fit.objective + tolerance and all(
+                distinct(q, c) for c in (fit, *others, *found)):
+            found.append(Candidate(q, error, objective))
+    return sorted(found, key=lambda c: c.objective)[:2]
+
+
+def _apart(a: np.ndarray, b: np.ndarray, rotational: np.ndarray) -> bool:
+    """Whether postures ``a`` and ``b`` differ by more than :data:`DISTINCT_DEG` in some angle."""
+    diff = np.abs((a - b + 180.0) % 360.0 - 180.0)[rotational]
+    return bool(diff.max(initial=0.0) > DISTINCT_DEG)
 
 
 def reanalyse_image(
