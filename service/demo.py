@@ -113,8 +113,9 @@ def _fit_over_http(client: httpx.Client, video: Path, seed: int) -> bytes:
         raise RuntimeError(f"job refused: {submitted.status_code} {submitted.text}")
     t0 = time.monotonic()
     job = submitted.json()
-    print(f"job {job['id']} submitted; a first run compiles the fitting kernels in every worker "
-          "(1-3 min), later runs start at once", flush=True)
+    print(f"job {job['id']} submitted; on a first run the workers first compile the fitting "
+          "kernels, once for all of them (minutes on a fresh machine), later runs start at once",
+          flush=True)
     shown = None
     while job["status"] not in ("succeeded", "failed", "canceled"):
         time.sleep(0.5)

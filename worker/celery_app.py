@@ -18,6 +18,9 @@ Settings and why:
 - ``task_ignore_result=True``: results go to the database (image rows, chunk
   counts), the source of truth the API reads; a result backend would be a second,
   unbounded copy nobody reads.
+- ``worker_init``: the main process compiles the fitting kernels (``core.warmup``) before the
+  prefork pool forks, so the pool's processes inherit them: a fresh machine compiles once,
+  not once per worker process, and says so in the log.
 - Embedded mode (``filesystem://``): kombu's filesystem transport in
   ``MOCAP_DATA_DIR/broker``, polled every ``MOCAP_FILESYSTEM_POLL_S``; it has no
   broadcast, so remote control (used by ``celery inspect`` and flower) is off there.
@@ -25,9 +28,10 @@ Settings and why:
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
-from celery import Celery
+from celery import Celery, signals
 
 from service.settings import Settings, get_settings
 
@@ -68,6 +72,17 @@ def make_celery(settings: Settings) -> Celery:
         task_send_sent_event=not embedded,
     )
     return app
+
+
+@signals.worker_init.connect
+def compile_before_forking(**_: Any) -> None:
+    """Compile (or load) the kernels in the worker's main process, before its pool forks."""
+    from core.warmup import compile_kernels  # the API imports this module too: not there
+
+    log = logging.getLogger("mocap.worker")
+    log.warning("compiling the fitting kernels once for all worker processes "
+                "(minutes on a first run on a fresh machine, seconds afterwards)")
+    log.warning("fitting kernels ready in %.1f s", compile_kernels())
 
 
 app = make_celery(get_settings())
