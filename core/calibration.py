@@ -85,7 +85,8 @@ def import_rig(
         return from_anipose(sources[0], label=names[0], videos=videos)
     if heights is None:
         raise RigError("DLT coefficients have their origin at the image's bottom left: "
-                       "give each camera's image height in pixels (--height)")
+                       "give each camera's image height in pixels (mocap rig import --height; "
+                       "the API's height parameter)")
     return from_dlt(sources[0], heights=heights, label=names[0], videos=videos)
 
 

@@ -240,3 +240,42 @@ def synth(
             write_video(out / f"video{k}.avi", frames, fps=fps)
         write_truth_csv(out / "truth.csv", kinematic, truth, fps=fps, interlaced=interlaced)
     print(f"wrote {camera_rig.n_videos} video(s) and truth.csv ({len(truth)} images) to {out}")
+
+
+# ---- mocap rig import: other tools' calibrations as rig.json (core/calibration.py) ------------
+
+rig_app = typer.Typer(no_args_is_help=True, help="Camera rigs (FORMATS §2).")
+app.add_typer(rig_app, name="rig")
+
+
+@rig_app.command("import")
+def rig_import(
+    fmt: Annotated[str, typer.Argument(metavar="FORMAT", help="anipose, opencv or dlt")],
+    files: Annotated[list[Path], typer.Argument(help="calibration file(s); opencv takes one per camera")],
+    out: Annotated[Path, Opt("--out", help="rig.json to write")],
+    video_index: Annotated[
+        str | None, Opt(help="video index of each view, e.g. '0,1,1' (default: 0, 1, 2 …)")] = None,
+    height: Annotated[
+        str | None, Opt(help="dlt: image height in pixels, one for all cameras or 'h1,h2,…'")] = None,
+) -> None:
+    """Convert a calibration of Anipose, OpenCV or DLTdv/Argus into rig.json (docs/INTERCHANGE.md)."""
+    from core.calibration import import_rig
+
+    with user_errors():
+        videos = None if video_index is None else [int(x) for x in _numbers(video_index, "--video-index")]
+        heights = None if height is None else _numbers(height, "--height")
+        rig_out = import_rig(fmt, files, heights=heights, videos=videos)
+        out.write_text(rig_out.to_json())
+    print(f"wrote {out}: {len(rig_out.views)} view(s) "
+          f"({', '.join(v.name for v in rig_out.views)}) for {rig_out.n_videos} video(s)")
+
+
+def _numbers(text: str, option: str) -> list[float]:
+    """'1,2,3' → [1.0, 2.0, 3.0]; whole numbers for --video-index."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise ValueError(f"{option} must be comma-separated numbers, got {text!r}") from None
+    if option == "--video-index" and not all(v.is_integer() and v >= 0 for v in values):
+        raise ValueError(f"{option} must be whole numbers >= 0, got {text!r}")
+    return values

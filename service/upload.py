@@ -129,6 +129,28 @@ async def read_document(request: Request, limit: int) -> bytes:
     return data
 
 
+async def read_documents(request: Request, limit: int, max_files: int) -> list[tuple[str, bytes]]:
+    """Small documents sent as multipart fields ``file`` (several may share the name), as
+    (display name, content); ``limit`` bounds the whole body."""
+    check_length(request, limit + MULTIPART_SLACK)
+    content_type, _ = parse_options_header(request.headers.get("content-type", ""))
+    if content_type != b"multipart/form-data":
+        raise InvalidError("send the calibration file(s) as multipart/form-data fields named 'file'")
+    form = await request.form(max_files=max_files, max_fields=max_files + 10, max_part_size=limit)
+    documents, total = [], 0
+    for upload in form.getlist("file"):
+        if isinstance(upload, str):
+            raise InvalidError("the multipart field 'file' must be a file, not a text field")
+        data = await upload.read(limit + 1)
+        total += len(data)
+        if total > limit:
+            raise TooLargeError
+        documents.append((display_name(upload.filename or "upload"), data))
+    if not documents:
+        raise InvalidError("the multipart body has no file field named 'file'")
+    return documents
+
+
 def display_name(filename: str) -> str:
     """The client's filename as shown back: its last path component, without control characters
     (PostgreSQL text cannot hold NUL), at most 255 characters. Never used as a path."""
