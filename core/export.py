@@ -28,7 +28,7 @@ from core.results import AnglesTable, SampleClock
 from core.rig import Rig
 
 __all__ = [
-    "EXPORTS", "METRES_PER_UNIT", "export", "marker_trajectories", "unit_scale", "write_c3d",
+    "EXPORTS", "EXPORT_FILES", "METRES_PER_UNIT", "export", "marker_trajectories", "unit_scale", "write_c3d",
     "write_detections_csv", "write_mot", "write_trc",
 ]
 
@@ -186,18 +186,20 @@ def _fmt(value: float, decimals: int) -> str:
     return f"{value:.{decimals}f}" if math.isfinite(value) else ""
 
 
+# The file each export of the fitted angles is written to by :func:`export`.
+EXPORT_FILES = {"mot": "angles.mot", "trc": "markers.trc", "c3d": "markers.c3d"}
+
+
 def export(
     out: Path, kinds: Sequence[str], table: AnglesTable, model: KinematicModel, *, units: str = "model",
 ) -> list[Path]:
-    """Write the exports ``kinds`` (of mot, trc, c3d) of ``table`` into ``out`` as
-    ``angles.mot``, ``markers.trc`` and ``markers.c3d``; return their paths."""
-    writers = {"mot": (write_mot, "angles.mot"), "trc": (write_trc, "markers.trc"),
-               "c3d": (write_c3d, "markers.c3d")}
+    """Write the exports ``kinds`` (of mot, trc, c3d) of ``table`` into ``out`` under the names
+    of :data:`EXPORT_FILES`; return their paths."""
+    writers = {"mot": write_mot, "trc": write_trc, "c3d": write_c3d}
     paths = []
     for kind in kinds:
         if kind not in writers:
             raise ValueError(f"unknown export {kind!r}; use {', '.join(writers)}")
-        write, name = writers[kind]
-        write(out / name, table, model, units=units)
-        paths.append(out / name)
+        writers[kind](out / EXPORT_FILES[kind], table, model, units=units)
+        paths.append(out / EXPORT_FILES[kind])
     return paths

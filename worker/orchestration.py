@@ -16,8 +16,8 @@ Every step calls the same ``core.pipeline`` functions as ``mocap fit``:
    the next attempt is queued while the image still needs one; the task that brings
    ``reanalyses_pending`` to 0 finishes the job.
 5. :func:`_finish` (``core.pipeline.finish``, ``build_report``): angles.csv,
-   histograms.xml, report.json, and the job's observations folded into the model's
-   histogram archive as a new version.
+   histograms.xml, report.json, the exports for other tools (``core.export``: .mot, .trc,
+   .c3d), and the job's observations folded into the model's histogram archive as a new version.
 
 :func:`resume` runs step 3 or 5 again for a job whose worker died just before it (the
 reaper sends it once the job has stopped moving).
@@ -34,6 +34,7 @@ import io
 import json
 import logging
 import os
+import tempfile
 import threading
 import time
 from collections import OrderedDict
@@ -41,17 +42,20 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC
+from pathlib import Path
 from typing import Any
 
 from sqlalchemy import CursorResult, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
+from core.export import EXPORT_FILES, export
 from core.fit import ImageFit, Status, merge_chunks, needs_reanalysis, typical_objective
 from core.histogram import Histograms
+from core.model import KinematicModel
 from core.pipeline import FitJob, FitOutcome, build_report, finish, fit_range, plan
 from core.pipeline import reanalyse as reanalyse_step
-from core.results import write_angles_csv
+from core.results import read_angles_csv, write_angles_csv
 from service import histstore
 from service.crud import add_histogram_version, histogram_version
 from service.db import session_scope
@@ -69,7 +73,7 @@ from service.models import (
     utcnow,
 )
 from service.settings import get_settings
-from service.storage import get_storage
+from service.storage import Storage, get_storage
 from worker.celery_app import FIT_CHUNK, REANALYSE_IMAGE, app
 
 logger = logging.getLogger(__name__)
@@ -365,6 +369,7 @@ def _finish(job_id: int) -> None:
         text = io.StringIO()
         write_angles_csv(text, loaded.fit.model, result.fits, loaded.fit.clock)
         storage.put(f"jobs/{job_id}/angles.csv", [text.getvalue().encode()])
+        _put_exports(storage, job_id, text.getvalue(), loaded.fit.model)
         storage.put(f"jobs/{job_id}/histograms.xml", [result.histograms.to_xml().encode()])
         report = _report(session, loaded, result, fits)
         storage.put(f"jobs/{job_id}/report.json", [(json.dumps(report, indent=2) + "\n").encode()])
@@ -383,6 +388,16 @@ def _finish(job_id: int) -> None:
         version = add_histogram_version(session, storage, model, archive.merge(result.observed),
                                         job_id=job_id)
     logger.info("job %s succeeded; model %s archive version %s", job_id, model.id, version.version)
+
+
+def _put_exports(storage: Storage, job_id: int, angles_csv: str, model: KinematicModel) -> None:
+    """angles.mot, markers.trc and markers.c3d of the job's angles.csv (``core.export``, model
+    units), stored under ``jobs/<id>/exports/`` for the archive."""
+    with tempfile.TemporaryDirectory() as tmp:
+        angles = Path(tmp) / "angles.csv"
+        angles.write_text(angles_csv)
+        for path in export(Path(tmp), list(EXPORT_FILES), read_angles_csv(angles), model):
+            storage.put(f"jobs/{job_id}/exports/{path.name}", [path.read_bytes()])
 
 
 def _report(session: Session, loaded: _Loaded, result: Any, fits: list[ImageFit]) -> dict[str, Any]:
