@@ -5,13 +5,17 @@ Three formats, each read into :class:`core.rig.Rig` (conventions and conversions
 
 - ``anipose``: aniposelib's / Anipose's / Pose2Sim's ``calibration.toml``, one table per
   camera (``name``, ``size``, ``matrix``, ``distortions``, ``rotation`` (Rodrigues),
-  ``translation``): a ``pinhole`` view each; aniposelib projects with OpenCV's
-  ``projectPoints`` and its pixel convention is ours, so the numbers are copied;
+  ``translation``): a ``pinhole`` view each (aniposelib projects with OpenCV's
+  ``projectPoints``);
 - ``opencv``: OpenCV ``FileStorage`` YAML or XML, one camera per file or several cameras
   as named maps (:data:`OPENCV_NODES` lists the node names read): a ``pinhole`` view each;
 - ``dlt``: DLTdv's or Argus's 11 DLT coefficients per camera in a CSV (one column per
   camera, or one row): a ``matrix`` view each, its image origin moved from DLTdv's bottom
   left (v up, pixel centres at whole numbers from 1) to ours, which needs each image's height.
+
+OpenCV's calibrations (and so aniposelib's, whose corners OpenCV detects) put pixel
+centres at whole numbers; ours are at +0.5 (FORMATS §2). The principal point moves by
+:data:`OPENCV_TO_OURS_PX` in u and v, which shifts every projection by exactly that.
 
 Every file is bounded by :data:`core.rig.MAX_RIG_BYTES` and every mistake is one
 :class:`~core.rig.RigError` naming the file, the camera and the problem.
@@ -34,7 +38,9 @@ import numpy as np
 from core._files import read_bounded
 from core.rig import MAX_RIG_BYTES, MAX_VIEWS, Rig, RigError, _matrix
 
-__all__ = ["FORMATS", "OPENCV_NODES", "from_anipose", "from_dlt", "from_opencv", "import_rig"]
+__all__ = [
+    "FORMATS", "OPENCV_NODES", "OPENCV_TO_OURS_PX", "from_anipose", "from_dlt", "from_opencv", "import_rig",
+]
 
 FORMATS = ("anipose", "opencv", "dlt")
 
@@ -51,7 +57,9 @@ OPENCV_NODES = {
 # OpenCV's distortion vectors that a pinhole view holds (k1 k2 p1 p2 [k3 [k4 k5 k6]]); 12 and
 # 14 coefficients (thin prism, tilted sensor) have no place in rig.json.
 DIST_LENGTHS = (0, 4, 5, 8)
-_MAX_NODE_VALUES = 16  # a 3×3 matrix or a distortion vector: a larger node is not a camera's
+_MAX_NODE_VALUES = 16
+# OpenCV's pixel (0, 0) is the centre of the top-left pixel, ours (0.5, 0.5).
+OPENCV_TO_OURS_PX = 0.5  # a 3×3 matrix or a distortion vector: a larger node is not a camera's
 
 Source = str | bytes | Path
 
@@ -131,8 +139,9 @@ def _anipose_view(key: str, table: Any, label: str) -> dict[str, Any]:
     if missing:
         raise RigError(f"{where} has no '{missing[0]}'")
     dist = _vector(table["distortions"], where, "distortions")
+    K = _matrix(table["matrix"], (3, 3), f"{where} matrix")
     return {"name": name, "projection": {
-        "type": "pinhole", "K": _matrix(table["matrix"], (3, 3), f"{where} matrix").tolist(),
+        "type": "pinhole", "K": _from_opencv_pixels(K).tolist(),
         "dist": dist.tolist(), "rvec": _matrix(table["rotation"], (3,), f"{where} rotation").tolist(),
         "tvec": _matrix(table["translation"], (3,), f"{where} translation").tolist()}}
 
@@ -211,8 +220,16 @@ def _opencv_view(node: Any, name: str, label: str) -> dict[str, Any]:
     rvec = (_matrix(_node_values(rvec_node, where), (3,), f"{where} rvec") if rvec_node is not None
             else _rodrigues(_node_values(R_node, where), where))
     tvec = _matrix(_node_values(tvec_node, where), (3,), f"{where} translation")
-    return {"name": name, "projection": {"type": "pinhole", "K": K.tolist(), "dist": dist.tolist(),
+    return {"name": name, "projection": {"type": "pinhole", "K": _from_opencv_pixels(K).tolist(),
+                                         "dist": dist.tolist(),
                                          "rvec": rvec.tolist(), "tvec": tvec.tolist()}}
+
+
+def _from_opencv_pixels(K: np.ndarray) -> np.ndarray:
+    """K with its principal point moved from OpenCV's pixel centres to ours (+0.5 px)."""
+    out = K.copy()
+    out[:2, 2] += OPENCV_TO_OURS_PX
+    return out
 
 
 def _node_values(node: Any, where: str) -> np.ndarray:

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from core.calibration import from_anipose, from_dlt, from_opencv, import_rig
+from core.calibration import OPENCV_TO_OURS_PX, from_anipose, from_dlt, from_opencv, import_rig
 from core.rig import RigError
 
 DATA = Path(__file__).parents[1] / "data"
@@ -19,14 +19,25 @@ DATA = Path(__file__).parents[1] / "data"
 
 
 def test_anipose_projects_as_aniposelib_does():
-    """Fixture and projections written by aniposelib 0.8.0 (tests/data/make_anipose_fixture.py)."""
+    """Fixture and projections written by aniposelib 0.8.0 (tests/data/make_anipose_fixture.py).
+
+    aniposelib's pixel centres are OpenCV's, at whole numbers; ours at +0.5.
+    """
     rig = from_anipose(DATA / "anipose_calibration.toml")
     reference = json.loads((DATA / "anipose_projections.json").read_text())
     ours = rig.project(np.array(reference["points"]))
     assert [v.name for v in rig.views] == ["left", "front", "right"]
     assert [v.video for v in rig.views] == [0, 1, 2]
     assert [len(v.projection["dist"]) for v in rig.views] == [5, 4, 5]
-    assert np.max(np.abs(ours - np.array(reference["projected"]))) < 1e-6
+    assert np.max(np.abs(ours - OPENCV_TO_OURS_PX - np.array(reference["projected"]))) < 1e-6
+
+
+def test_opencv_principal_point_moves_half_a_pixel():
+    """OpenCV's centre of the top-left pixel (0, 0) is our (0.5, 0.5): a point on the optical
+    axis images at OpenCV's (cx, cy), at our (cx + 0.5, cy + 0.5)."""
+    rig = import_rig("anipose", [ANIPOSE_CAMERA])
+    assert rig.views[0].projection["K"] == [[800.0, 0.0, 320.5], [0.0, 800.0, 240.5], [0.0, 0.0, 1.0]]
+    np.testing.assert_allclose(rig.project(np.array([[0.0, 0.0, 0.0]])), [[[320.5, 240.5]]])
 
 
 def test_anipose_video_indices_are_given_per_view():
@@ -91,6 +102,7 @@ def _write(fs: cv2.FileStorage, prefix: str, K, dist, rvec, tvec, *, matrix_rota
 
 
 def _reference(cameras, points: np.ndarray) -> np.ndarray:
+    """cv2.projectPoints: OpenCV's pixel coordinates (centres at whole numbers)."""
     return np.stack([cv2.projectPoints(points, rvec, tvec, K, dist)[0].reshape(-1, 2)
                      for K, dist, rvec, tvec in cameras])
 
@@ -108,7 +120,7 @@ def test_opencv_files_one_camera_each_project_as_opencv(tmp_path, suffix):
     rig = from_opencv(paths)
     points = np.random.default_rng(3).uniform(-30, 30, (40, 3))
     assert [v.name for v in rig.views] == ["cam0", "cam1"]
-    assert np.max(np.abs(rig.project(points) - _reference(cameras, points))) < 1e-6
+    assert np.max(np.abs(rig.project(points) - 0.5 - _reference(cameras, points))) < 1e-6
 
 
 def test_opencv_file_with_named_cameras(tmp_path):
@@ -123,7 +135,7 @@ def test_opencv_file_with_named_cameras(tmp_path):
     rig = import_rig("opencv", [path], videos=[0, 0, 1])
     points = np.random.default_rng(4).uniform(-30, 30, (40, 3))
     assert [(v.name, v.video) for v in rig.views] == [("top", 0), ("side", 0), ("front", 1)]
-    assert np.max(np.abs(rig.project(points) - _reference(cameras, points))) < 1e-6
+    assert np.max(np.abs(rig.project(points) - 0.5 - _reference(cameras, points))) < 1e-6
 
 
 OPENCV_CAMERA = """%YAML:1.0
