@@ -327,7 +327,7 @@ def _export_kinds(text: str | None, allowed: tuple[str, ...]) -> list[str]:
 def _export_fit(out: Path, kinds: list[str], units: str, job: FitJob) -> str:
     """The exports asked of ``mocap fit``, from the angles.csv just written; detections.csv
     decodes and detects the videos once more. Returns ', name, …' for the summary line."""
-    from core.export import export, write_detections_csv
+    from core.export import DETECTIONS_FILE, export, write_detections_csv
     from core.results import read_angles_csv
 
     if not kinds:
@@ -336,6 +336,6 @@ def _export_fit(out: Path, kinds: list[str], units: str, job: FitJob) -> str:
     paths = export(out, [k for k in kinds if k != "detections"], table, job.model, units=units)
     if "detections" in kinds:
         source = job.source
-        write_detections_csv(out / "detections.csv", source[0:len(source)], source.rig, job.clock)
-        paths.append(out / "detections.csv")
+        write_detections_csv(out / DETECTIONS_FILE, source[0:len(source)], source.rig, job.clock)
+        paths.append(out / DETECTIONS_FILE)
     return "".join(f", {p.name}" for p in paths)

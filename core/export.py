@@ -19,6 +19,7 @@ import csv
 import math
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
@@ -28,8 +29,8 @@ from core.results import AnglesTable, SampleClock
 from core.rig import Rig
 
 __all__ = [
-    "EXPORTS", "EXPORT_FILES", "METRES_PER_UNIT", "export", "marker_trajectories", "unit_scale", "write_c3d",
-    "write_detections_csv", "write_mot", "write_trc",
+    "DETECTIONS_FILE", "DETECTIONS_HEADER", "EXPORTS", "EXPORT_FILES", "METRES_PER_UNIT", "export",
+    "marker_trajectories", "unit_scale", "write_c3d", "write_detections_csv", "write_mot", "write_trc",
 ]
 
 EXPORTS = ("mot", "trc", "c3d", "detections")
@@ -121,33 +122,39 @@ def write_c3d(path: Path, table: AnglesTable, model: KinematicModel, *, units: s
     c3d.write(str(path))
 
 
+DETECTIONS_FILE = "detections.csv"
 DETECTIONS_HEADER = ["sample", "frame", "field", "time_s", "view", "u", "v", "area_px"]
 
 
 def write_detections_csv(
-    path: Path, detections: Iterable[Detections], rig: Rig, clock: SampleClock, *, first_sample: int = 0
+    out: Path | TextIO, detections: Iterable[Detections], rig: Rig, clock: SampleClock, *,
+    first_sample: int = 0, header: bool = True,
 ) -> int:
     """Write every detected centroid, one row per detection, in sample then view order.
 
     detections : one :class:`~core.error.Detections` per analysed image, from ``first_sample``.
-    Columns: :data:`DETECTIONS_HEADER`; ``u``, ``v`` full-frame pixels (FORMATS §2), 4
-    decimals; ``area_px`` the detected region's pixels (empty when unknown). A view that saw
-    nothing in an image has no row for it. Returns the number of images written.
+    Columns: :data:`DETECTIONS_HEADER` (``header=False`` leaves the header line out, for a
+    chunk of a longer file); ``u``, ``v`` full-frame pixels (FORMATS §2), 4 decimals;
+    ``area_px`` the detected region's pixels (empty when unknown). A view that saw nothing in
+    an image has no row for it. Returns the number of images written.
     """
+    if isinstance(out, Path):
+        with out.open("w", newline="") as fh:
+            return write_detections_csv(fh, detections, rig, clock, first_sample=first_sample,
+                                        header=header)
     names = [v.name for v in rig.views]
     count = 0
-    with path.open("w", newline="") as fh:
-        writer = csv.writer(fh, lineterminator="\n")
+    writer = csv.writer(out, lineterminator="\n")
+    if header:
         writer.writerow(DETECTIONS_HEADER)
-        for sample, det in enumerate(detections, start=first_sample):
-            head = [sample, clock.frame(sample), clock.field(sample), f"{clock.time(sample):.6f}"]
-            for v, name in enumerate(names):
-                lo, hi = int(det.start[v]), int(det.start[v + 1])
-                for i in range(lo, hi):
-                    area = "" if det.areas is None else _fmt(float(det.areas[i]), 1)
-                    u, w = det.points[i]
-                    writer.writerow([*head, name, f"{u:.4f}", f"{w:.4f}", area])
-            count += 1
+    for sample, det in enumerate(detections, start=first_sample):
+        head = [sample, clock.frame(sample), clock.field(sample), f"{clock.time(sample):.6f}"]
+        for v, name in enumerate(names):
+            for i in range(int(det.start[v]), int(det.start[v + 1])):
+                area = "" if det.areas is None else _fmt(float(det.areas[i]), 1)
+                u, w = det.points[i]
+                writer.writerow([*head, name, f"{u:.4f}", f"{w:.4f}", area])
+        count += 1
     return count
 
 

@@ -12,7 +12,7 @@ from fastapi.responses import FileResponse, StreamingResponse
 from kombu.exceptions import OperationalError
 from sqlalchemy.orm import Session
 
-from core.export import EXPORT_FILES
+from core.export import DETECTIONS_FILE, EXPORT_FILES
 from service import crud
 from service.api.deps import CurrentLab, PathId, SessionDep, SettingsDep, StorageDep
 from service.archive import stream_zip
@@ -114,7 +114,7 @@ for _name in RESULTS:
 
 @router.get("/{job_id}/archive.zip", response_class=StreamingResponse,
             summary="angles.csv, histograms.xml, report.json, angles.mot, markers.trc, markers.c3d, "
-                    "model.xml and rig.json in one zip")
+                    "detections.csv, model.xml and rig.json in one zip")
 def archive(job_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> StreamingResponse:
     entries = list(job_entries(session, storage, lab, job_id, folder=""))
     return StreamingResponse(stream_zip(entries), media_type="application/zip",
@@ -126,7 +126,7 @@ def job_entries(session: Session, storage: Storage, lab: Lab, job_id: int,
     """A succeeded job's results and the model and rig it used, as zip entries under ``folder``."""
     for name in RESULTS:
         yield f"{folder}{name}", storage, crud.result_key(session, lab, job_id, name)
-    for name in EXPORT_FILES.values():  # jobs that finished before exports existed have none
+    for name in [*EXPORT_FILES.values(), DETECTIONS_FILE]:  # jobs older than exports have none
         key = f"jobs/{job_id}/exports/{name}"
         if storage.exists(key):
             yield f"{folder}{name}", storage, key
