@@ -58,6 +58,9 @@ OPENCV_NODES = {
 # 14 coefficients (thin prism, tilted sensor) have no place in rig.json.
 DIST_LENGTHS = (0, 4, 5, 8)
 _MAX_NODE_VALUES = 16
+# Nesting levels (and indentation characters) of a FileStorage document: a camera needs 3
+# (root, camera, matrix); OpenCV's parser crashes the process near 50,000 (see _filestorage).
+MAX_FILESTORAGE_DEPTH = 64
 # OpenCV's pixel (0, 0) is the centre of the top-left pixel, ours (0.5, 0.5).
 OPENCV_TO_OURS_PX = 0.5  # a 3×3 matrix or a distortion vector: a larger node is not a camera's
 
@@ -110,12 +113,16 @@ def from_anipose(source: Source, *, label: str | None = None, videos: Sequence[i
     """
     label = label or _label(source)
     text = _text(source, label)
+    # tomllib takes seconds for a megabyte of table headers (7 s for 100,000): count them first.
+    headers = sum(line.lstrip().startswith("[") for line in text.splitlines())
+    if headers > MAX_VIEWS + 1:
+        raise RigError(f"{label}: {headers} tables; at most {MAX_VIEWS} cameras (MAX_VIEWS)")
     try:
         doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise RigError(f"{label}: not valid TOML: {exc}") from None
     except RecursionError:
         raise RigError(f"{label}: TOML nested too deeply") from None
+    except ValueError as exc:  # TOMLDecodeError, and integers of more than 4300 digits
+        raise RigError(f"{label}: not valid TOML: {str(exc)[:200]}") from None
     tables = [(key, value) for key, value in doc.items() if key != "metadata"]
     if not tables:
         raise RigError(f"{label}: no camera table (aniposelib writes [cam_0], [cam_1], …)")
@@ -182,11 +189,35 @@ def from_opencv(
 
 
 def _filestorage(text: str, label: str) -> Any:
-    """A FileStorage document read from memory; OpenCV's parse error as one line."""
+    """A FileStorage document read from memory; OpenCV's parse error as one line.
+
+    OpenCV's parsers recurse once per nesting level and overflow the C stack (the process
+    dies: SIGSEGV) near 50,000 levels, so the nesting is measured first (:func:`_nesting`).
+    """
+    depth = _nesting(text)
+    if depth > MAX_FILESTORAGE_DEPTH:
+        raise RigError(f"{label}: nested {depth} levels deep; a calibration needs at most "
+                       f"{MAX_FILESTORAGE_DEPTH}")
     try:
         return cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except (cv2.error, SystemError) as exc:
         raise RigError(f"{label}: not an OpenCV FileStorage YAML/XML file ({_cv_reason(exc)})") from None
+
+
+def _nesting(text: str) -> int:
+    """An upper bound on a YAML, JSON or XML document's nesting: the deepest of its bracket
+    nesting (``[`` ``{``), its XML element nesting and its indentation in characters. Counts
+    brackets and tags inside strings too: errs on the side of refusing."""
+    raw = np.frombuffer(text.encode("utf-8", "replace"), dtype=np.uint8)
+    if raw.size == 0:
+        return 0
+    b = {c: raw == ord(c) for c in "[]{}</>"}
+    brackets = np.cumsum(b["["].astype(np.int64) + b["{"] - b["]"] - b["}"]).max()
+    opens = b["<"][:-1] & ~np.isin(raw[1:], np.frombuffer(b"/?!", dtype=np.uint8))
+    closes = (b["<"][:-1] & (raw[1:] == ord("/"))) | (b["/"][:-1] & b[">"][1:])
+    tags = np.cumsum(opens.astype(np.int64) - closes).max() if opens.size else 0
+    indent = max((len(line) - len(line.lstrip(" \t")) for line in text.splitlines()), default=0)
+    return int(max(brackets, tags, indent))
 
 
 def _cv_reason(exc: BaseException) -> str:
@@ -309,7 +340,10 @@ def from_dlt(
 
 def _dlt_table(text: str, label: str) -> np.ndarray:
     """The CSV's numbers as a 2-D array; blank lines skipped."""
-    rows = [r for r in csv.reader(io.StringIO(text)) if any(c.strip() for c in r)]
+    try:
+        rows = [r for r in csv.reader(io.StringIO(text)) if any(c.strip() for c in r)]
+    except csv.Error as exc:
+        raise RigError(f"{label}: not a CSV of DLT coefficients ({exc})") from None
     if not rows:
         raise RigError(f"{label}: no DLT coefficients (an empty file)")
     lengths = sorted({len(r) for r in rows})

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import cv2
@@ -238,3 +239,27 @@ def test_unknown_format_and_sizes():
         import_rig("anipose", ["#" * (2**20 + 1)])
     with pytest.raises(RigError, match="only needed for DLT"):
         import_rig("anipose", [ANIPOSE_CAMERA], heights=[480])
+
+
+# ---- hostile files: one RigError, fast, never a crash ---------------------------------------------
+
+DEEP = 100_000  # OpenCV's parsers crash the process (SIGSEGV) near 50,000 levels
+
+
+@pytest.mark.parametrize(("fmt", "text", "message"), [
+    ("anipose", "[cam_0]\nmatrix = " + "9" * 100_000 + "\n", "not valid TOML: Exceeds the limit"),
+    ("anipose", "".join(f"[c{i}]\n" for i in range(100_000)), "100000 tables; at most 256"),
+    ("anipose", "a = " + "[" * 300_000 + "]" * 300_000, "TOML nested too deeply"),
+    ("dlt", "1" * 200_000, "not a CSV of DLT coefficients"),
+    ("opencv", "<?xml version='1.0'?><opencv_storage>" + "<a>" * DEEP + "</a>" * DEEP + "</opencv_storage>",
+     "nested 100001 levels deep"),
+    ("opencv", "%YAML:1.0\na: " + "[" * DEEP + "]" * DEEP, "nested 100000 levels deep"),
+    ("opencv", '{"a": ' + "{" * DEEP + "}" * DEEP + "}", "nested 100001 levels deep"),
+    ("opencv", "%YAML:1.0\n" + "".join(" " * i + "b:\n" for i in range(1400)), "nested 1399 levels deep"),
+    ("opencv", b"\xff\xfe\x00", "not UTF-8 text"),
+])
+def test_hostile_calibration_is_refused_fast(fmt, text, message):
+    t0 = time.perf_counter()
+    with pytest.raises(RigError, match=message):
+        import_rig(fmt, [text], labels=["f"], heights=[480] if fmt == "dlt" else None)
+    assert time.perf_counter() - t0 < 1.0
