@@ -11,6 +11,7 @@ import pytest
 pytestmark = [pytest.mark.service]
 
 DATA = Path(__file__).parents[1] / "data"
+DEEP_XML = b"<?xml version='1.0'?><opencv_storage>%s%s</opencv_storage>" % (b"<a>" * 10**5, b"</a>" * 10**5)
 
 
 @pytest.fixture(scope="module")
@@ -66,12 +67,15 @@ def test_dlt_needs_the_image_height(client):
     ({"format": "vicon"}, [("x", b"x")], 422, "format"),
     ({"format": "anipose"}, [], 422, "no file field named 'file'"),
     ({"format": "anipose"}, [("big.toml", b"#" * (2**20 + 10))], 413, "larger than"),
+    # OpenCV's parser would crash the server process (SIGSEGV) on this one.
+    ({"format": "opencv"}, [("deep.xml", DEEP_XML)], 422, "deep.xml: nested 100001 levels"),
 ])
 def test_a_malformed_calibration_is_a_clear_4xx(client, params, files, status, detail):
     response = client.post("/rigs/import", params=params, files=_files(*files) or {"other": "x"})
     assert response.status_code == status, response.text
     assert detail in response.json()["detail"]
     assert "/tmp" not in response.text
+    assert client.get("/rigs/1").status_code in (200, 404)  # the server is still up
 
 
 def test_a_calibration_not_sent_as_multipart_is_422(client):
