@@ -23,6 +23,7 @@ from core.anneal import AnnealParams
 from core.demo import FUSION_PX, locust_benchmark
 from core.detect import DetectorParams
 from core.error import fusion_distance
+from core.export import EXPORTS, unit_scale
 from core.fit import FitParams, Status, fit_sequence
 from core.histogram import HistogramError, Histograms
 from core.model import KinematicModel, ModelError
@@ -131,10 +132,16 @@ def fit(
     root_start: Annotated[
         str | None, Opt(help="its position in every view of the first image: 'u,v;u,v'")] = None,
     root_max_jump_px: Annotated[float, Opt(help="largest move of the root marker per image")] = 20.0,
+    export: Annotated[str | None, Opt(help="also write some of mot,trc,c3d,detections "
+                                      "(docs/INTERCHANGE.md)")] = None,
+    export_units: Annotated[str, Opt(help="trc/c3d positions, mot translations: model or m")] = "model",
 ) -> None:
     """Detect markers in VIDEO(s) and fit the model to every image: angles, histograms, report."""
     with user_errors():
+        exports = _export_kinds(export, EXPORTS)
         kinematic = KinematicModel.from_xml(model)
+        if exports:
+            unit_scale(kinematic, export_units)
         camera_rig = Rig.from_json(rig)
         if len(videos) != camera_rig.n_videos:
             raise ValueError(f"the rig expects {camera_rig.n_videos} video(s), got {len(videos)}")
@@ -156,9 +163,10 @@ def fit(
         with progress_bar(len(source)) as advance:
             outcome = run_fit(job, start, jobs=jobs, progress=advance)
         report = write_outputs(out, job, outcome)
+        exported = _export_fit(out, exports, export_units, job)
     print(f"{report['images']} images in {report['seconds']} s ({report['images_per_s']} images/s); "
           f"status {report['status']}; mean error {report['error_px']['mean']} px; "
-          f"wrote {out}/angles.csv, histograms.xml, report.json")
+          f"wrote {out}/angles.csv, histograms.xml, report.json{exported}")
 
 
 def _positions(text: str | None) -> tuple[tuple[float, float], ...] | None:
@@ -242,3 +250,94 @@ def synth(
             write_video(out / f"video{k}.avi", frames, fps=fps)
         write_truth_csv(out / "truth.csv", kinematic, truth, fps=fps, interlaced=interlaced)
     print(f"wrote {camera_rig.n_videos} video(s) and truth.csv ({len(truth)} images) to {out}")
+
+
+# ---- mocap rig import: other tools' calibrations as rig.json (core/calibration.py) ------------
+
+rig_app = typer.Typer(no_args_is_help=True, help="Camera rigs (FORMATS §2).")
+app.add_typer(rig_app, name="rig")
+
+
+@rig_app.command("import")
+def rig_import(
+    fmt: Annotated[str, typer.Argument(metavar="FORMAT", help="anipose, opencv or dlt")],
+    files: Annotated[list[Path], typer.Argument(help="calibration file(s); opencv takes one per camera")],
+    out: Annotated[Path, Opt("--out", help="rig.json to write")],
+    video_index: Annotated[
+        str | None, Opt(help="video index of each view, e.g. '0,1,1' (default: 0, 1, 2 …)")] = None,
+    height: Annotated[
+        str | None, Opt(help="dlt: image height in pixels, one for all cameras or 'h1,h2,…'")] = None,
+) -> None:
+    """Convert a calibration of Anipose, OpenCV or DLTdv/Argus into rig.json (docs/INTERCHANGE.md)."""
+    from core.calibration import import_rig
+
+    with user_errors():
+        videos = None if video_index is None else [int(x) for x in _numbers(video_index, "--video-index")]
+        heights = None if height is None else _numbers(height, "--height")
+        rig_out = import_rig(fmt, files, heights=heights, videos=videos)
+        out.write_text(rig_out.to_json())
+    print(f"wrote {out}: {len(rig_out.views)} view(s) "
+          f"({', '.join(v.name for v in rig_out.views)}) for {rig_out.n_videos} video(s)")
+
+
+def _numbers(text: str, option: str) -> list[float]:
+    """'1,2,3' → [1.0, 2.0, 3.0]; whole numbers for --video-index."""
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise ValueError(f"{option} must be comma-separated numbers, got {text!r}") from None
+    if option == "--video-index" and not all(v.is_integer() and v >= 0 for v in values):
+        raise ValueError(f"{option} must be whole numbers >= 0, got {text!r}")
+    return values
+
+
+# ---- exports for other tools: mocap export, mocap fit --export (core/export.py) ---------------
+
+
+@app.command("export")
+def export_results(
+    angles: Annotated[Path, typer.Argument(help="angles.csv of mocap fit (FORMATS §3)")],
+    model: Annotated[Path, Opt("--model", help="the model.xml it was fitted with")],
+    out: Annotated[Path, Opt("--out", help="output directory")],
+    to: Annotated[str, Opt("--to", help="some of mot,trc,c3d")] = "mot,trc,c3d",
+    units: Annotated[str, Opt(help="trc/c3d positions, mot translations: model or m")] = "model",
+) -> None:
+    """Write fitted angles as OpenSim .mot and marker trajectories as .trc and .c3d."""
+    from core.export import export
+    from core.results import read_angles_csv
+
+    with user_errors():
+        kinds = _export_kinds(to, ("mot", "trc", "c3d"))
+        kinematic = KinematicModel.from_xml(model)
+        table = read_angles_csv(angles)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = export(out, kinds, table, kinematic, units=units)
+    print(f"wrote {', '.join(str(p) for p in paths)}")
+
+
+def _export_kinds(text: str | None, allowed: tuple[str, ...]) -> list[str]:
+    """--export 'mot,trc' → ['mot', 'trc'], checked before any work is done."""
+    if text is None:
+        return []
+    kinds = [k.strip() for k in text.split(",") if k.strip()]
+    unknown = [k for k in kinds if k not in allowed]
+    if unknown or not kinds:
+        raise ValueError(f"exports must be some of {','.join(allowed)}, got {text!r}")
+    return kinds
+
+
+def _export_fit(out: Path, kinds: list[str], units: str, job: FitJob) -> str:
+    """The exports asked of ``mocap fit``, from the angles.csv just written; detections.csv
+    decodes and detects the videos once more. Returns ', name, …' for the summary line."""
+    from core.export import DETECTIONS_FILE, export, write_detections_csv
+    from core.results import read_angles_csv
+
+    if not kinds:
+        return ""
+    table = read_angles_csv(out / "angles.csv")
+    paths = export(out, [k for k in kinds if k != "detections"], table, job.model, units=units)
+    if "detections" in kinds:
+        source = job.source
+        write_detections_csv(out / DETECTIONS_FILE, source[0:len(source)], source.rig, job.clock)
+        paths.append(out / DETECTIONS_FILE)
+    return "".join(f", {p.name}" for p in paths)

@@ -197,17 +197,28 @@ def fit_range(
     offsets: np.ndarray | None = None,
     should_stop: Callable[[], bool] | None = None,
     progress: Callable[[ImageFit], None] | None = None,
+    seen: Callable[[Detections], None] | None = None,
 ) -> ChunkResult:
     """Fit images ``[first, last)`` once each from ``histograms`` (a chunk; ``core.fit`` step 2).
 
     offsets : the plan's offsets of these images, (last - first, V, 2), or None.
     should_stop : checked between images (cancel); the result then holds the images done.
+    seen : called with each image's detections before it is fitted (``detections.csv``).
     """
+    images = job.source[first:last]
+    if seen is not None:
+        images = _tap(images, seen)
     return fit_chunk(
-        job.source[first:last], model=job.model, rig=job.source.rig, histograms=histograms,
+        images, model=job.model, rig=job.source.rig, histograms=histograms,
         params=job.params, seed=job.seed, first_sample=first, offsets=offsets,
         should_stop=should_stop, progress=progress,
     )
+
+
+def _tap(images: Iterator[Detections], seen: Callable[[Detections], None]) -> Iterator[Detections]:
+    for det in images:
+        seen(det)
+        yield det
 
 
 def reanalyse(

@@ -263,11 +263,13 @@ def _check_video_indices(views: tuple[View, ...]) -> None:
     asks for ``max + 1`` files; a skipped index would be a file no view looks at,
     decoded for nothing — most likely a typo or a view missing from the rig.
     """
-    used = {v.video for v in views}
-    skipped = sorted(set(range(max(used) + 1)) - used)
-    if skipped:
+    used = sorted({v.video for v in views})
+    # Sorted distinct indices: the first i with used[i] != i is missing. No range(max + 1):
+    # an index of 19 digits would take forever.
+    skipped = next((i for i, index in enumerate(used) if index != i), None)
+    if skipped is not None:
         raise RigError(
-            f"views use video indices {sorted(used)}: no view uses video {skipped[0]}; "
+            f"views use video indices {used}: no view uses video {skipped}; "
             "indices must be 0..n-1 with none skipped"
         )
 

@@ -111,22 +111,64 @@ async def read_document(request: Request, limit: int) -> bytes:
     check_length(request, limit + MULTIPART_SLACK)
     content_type, _ = parse_options_header(request.headers.get("content-type", ""))
     if content_type == b"multipart/form-data":
-        form = await request.form(max_files=1, max_fields=10, max_part_size=limit)
+        buffered = await _buffered(request, limit + MULTIPART_SLACK)
+        form = await buffered.form(max_files=1, max_fields=10, max_part_size=limit)
         upload = form.get("file")
         if upload is None or isinstance(upload, str):
             raise InvalidError("the multipart body has no file field named 'file'")
         data = await upload.read(limit + 1)
     else:
-        data = b""
-        async for chunk in request.stream():
-            data += chunk
-            if len(data) > limit:
-                raise TooLargeError
+        data = await _body(request, limit)
     if len(data) > limit:
         raise TooLargeError
     if not data.strip():
         raise InvalidError("the request body is empty")
     return data
+
+
+async def read_documents(request: Request, limit: int, max_files: int) -> list[tuple[str, bytes]]:
+    """Small documents sent as multipart fields ``file`` (several may share the name), as
+    (display name, content); ``limit`` bounds the whole body."""
+    check_length(request, limit + MULTIPART_SLACK)
+    content_type, _ = parse_options_header(request.headers.get("content-type", ""))
+    if content_type != b"multipart/form-data":
+        raise InvalidError("send the calibration file(s) as multipart/form-data fields named 'file'")
+    buffered = await _buffered(request, limit + MULTIPART_SLACK)
+    form = await buffered.form(max_files=max_files, max_fields=max_files + 10, max_part_size=limit)
+    documents, total = [], 0
+    for upload in form.getlist("file"):
+        if isinstance(upload, str):
+            raise InvalidError("the multipart field 'file' must be a file, not a text field")
+        data = await upload.read(limit + 1)
+        total += len(data)
+        if total > limit:
+            raise TooLargeError
+        documents.append((display_name(upload.filename or "upload"), data))
+    if not documents:
+        raise InvalidError("the multipart body has no file field named 'file'")
+    return documents
+
+
+async def _body(request: Request, limit: int) -> bytes:
+    """The whole body, refused (413) as soon as it passes ``limit``, declared length or not."""
+    data = bytearray()
+    async for chunk in request.stream():
+        data += chunk
+        if len(data) > limit:
+            raise TooLargeError
+    return bytes(data)
+
+
+async def _buffered(request: Request, limit: int) -> Request:
+    """The request with its body read first, within ``limit``. Starlette's form parser bounds
+    text fields (``max_part_size``) but spools file fields to disk without limit, so a chunked
+    body (no Content-Length for :func:`check_length`) could otherwise fill the disk."""
+    body = await _body(request, limit)
+
+    async def receive() -> dict[str, object]:
+        return {"type": "http.request", "body": body, "more_body": False}
+
+    return Request(request.scope, receive)
 
 
 def display_name(filename: str) -> str:

@@ -16,8 +16,9 @@ Every step calls the same ``core.pipeline`` functions as ``mocap fit``:
    the next attempt is queued while the image still needs one; the task that brings
    ``reanalyses_pending`` to 0 finishes the job.
 5. :func:`_finish` (``core.pipeline.finish``, ``build_report``): angles.csv,
-   histograms.xml, report.json, and the job's observations folded into the model's
-   histogram archive as a new version.
+   histograms.xml, report.json, the exports for other tools (``core.export``: .mot, .trc,
+   .c3d, and detections.csv joined from the chunks'), and the job's observations folded into
+   the model's histogram archive as a new version.
 
 :func:`resume` runs step 3 or 5 again for a job whose worker died just before it (the
 reaper sends it once the job has stopped moving).
@@ -34,6 +35,8 @@ import io
 import json
 import logging
 import os
+import shutil
+import tempfile
 import threading
 import time
 from collections import OrderedDict
@@ -41,17 +44,21 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC
+from pathlib import Path
 from typing import Any
 
 from sqlalchemy import CursorResult, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
+from core.error import Detections
+from core.export import DETECTIONS_FILE, DETECTIONS_HEADER, EXPORT_FILES, export, write_detections_csv
 from core.fit import ImageFit, Status, merge_chunks, needs_reanalysis, typical_objective
 from core.histogram import Histograms
+from core.model import KinematicModel
 from core.pipeline import FitJob, FitOutcome, build_report, finish, fit_range, plan
 from core.pipeline import reanalyse as reanalyse_step
-from core.results import write_angles_csv
+from core.results import read_angles_csv, write_angles_csv
 from service import histstore
 from service.crud import add_histogram_version, histogram_version
 from service.db import session_scope
@@ -69,7 +76,7 @@ from service.models import (
     utcnow,
 )
 from service.settings import get_settings
-from service.storage import get_storage
+from service.storage import Storage, get_storage
 from worker.celery_app import FIT_CHUNK, REANALYSE_IMAGE, app
 
 logger = logging.getLogger(__name__)
@@ -154,11 +161,14 @@ def run_chunk(chunk_id: int, *, worker: str) -> None:
         with session_scope() as session:
             loaded = _load(session, job_id)
         _crash_if_told(job_id, index)
-        result = fit_range(loaded.fit, loaded.prior, first, last, should_stop=_canceled_check(job_id))
+        seen: list[Detections] = []
+        result = fit_range(loaded.fit, loaded.prior, first, last, should_stop=_canceled_check(job_id),
+                           seen=seen.append)
     if len(result.fits) < last - first:
         _set_chunk(chunk_id, ChunkStatus.CANCELED)
         logger.info("chunk %s of job %s stopped: job canceled", index, job_id)
         return
+    _put_chunk_detections(job_id, index, first, loaded.fit, seen)
     key = f"jobs/{job_id}/chunks/{index}.npz"
     histstore.save(get_storage(), key, result.observed)
     if _complete_chunk(chunk_id, job_id, key, result.fits, worker):
@@ -241,6 +251,13 @@ def _heartbeat(chunk_id: int) -> Iterator[None]:
     finally:
         stop.set()
         thread.join()
+
+
+def _put_chunk_detections(job_id: int, index: int, first: int, fit: FitJob, seen: list[Detections]) -> None:
+    """The chunk's rows of detections.csv (no header); :func:`_finish` joins the chunks'."""
+    text = io.StringIO()
+    write_detections_csv(text, seen, fit.source.rig, fit.clock, first_sample=first, header=False)
+    get_storage().put(f"jobs/{job_id}/chunks/{index}.detections.csv", [text.getvalue().encode()])
 
 
 def _complete_chunk(chunk_id: int, job_id: int, key: str, fits: list[ImageFit], worker: str) -> bool:
@@ -365,6 +382,8 @@ def _finish(job_id: int) -> None:
         text = io.StringIO()
         write_angles_csv(text, loaded.fit.model, result.fits, loaded.fit.clock)
         storage.put(f"jobs/{job_id}/angles.csv", [text.getvalue().encode()])
+        _put_exports(storage, job_id, text.getvalue(), loaded.fit.model)
+        _join_detections(session, storage, job_id)
         storage.put(f"jobs/{job_id}/histograms.xml", [result.histograms.to_xml().encode()])
         report = _report(session, loaded, result, fits)
         storage.put(f"jobs/{job_id}/report.json", [(json.dumps(report, indent=2) + "\n").encode()])
@@ -383,6 +402,32 @@ def _finish(job_id: int) -> None:
         version = add_histogram_version(session, storage, model, archive.merge(result.observed),
                                         job_id=job_id)
     logger.info("job %s succeeded; model %s archive version %s", job_id, model.id, version.version)
+
+
+def _put_exports(storage: Storage, job_id: int, angles_csv: str, model: KinematicModel) -> None:
+    """angles.mot, markers.trc and markers.c3d of the job's angles.csv (``core.export``, model
+    units), stored under ``jobs/<id>/exports/`` for the archive."""
+    with tempfile.TemporaryDirectory() as tmp:
+        angles = Path(tmp) / "angles.csv"
+        angles.write_text(angles_csv)
+        for path in export(Path(tmp), list(EXPORT_FILES), read_angles_csv(angles), model):
+            storage.put(f"jobs/{job_id}/exports/{path.name}", [path.read_bytes()])
+
+
+def _join_detections(session: Session, storage: Storage, job_id: int) -> None:
+    """detections.csv of the whole job: the header, then the chunks' rows in chunk order,
+    copied block by block. A chunk fitted by a worker older than this file has none: then
+    the job has no detections.csv."""
+    indices = session.scalars(select(Chunk.index).where(Chunk.job_id == job_id).order_by(Chunk.index)).all()
+    keys = [f"jobs/{job_id}/chunks/{i}.detections.csv" for i in indices]
+    if not all(storage.exists(k) for k in keys):
+        logger.warning("job %s: a chunk has no detections; no detections.csv", job_id)
+        return
+    with storage.writer(f"jobs/{job_id}/exports/{DETECTIONS_FILE}") as out:
+        out.write((",".join(DETECTIONS_HEADER) + "\n").encode())
+        for key in keys:
+            with storage.open(key) as src:
+                shutil.copyfileobj(src, out)
 
 
 def _report(session: Session, loaded: _Loaded, result: Any, fits: list[ImageFit]) -> dict[str, Any]:

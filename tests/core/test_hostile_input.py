@@ -289,6 +289,8 @@ HOSTILE_RIG_DOCS = {
     "video_index_skipped": ({"views": [_view("a", 0), _view("b", 2)]},
                             r"views use video indices \[0, 2\]: no view uses video 1"),
     "negative_video_index": ({"views": [_view(video=-1)]}, "'video' must be a non-negative integer index"),
+    "video_index_of_19_digits": ({"views": [_view(video=10**18)]},
+                                 r"views use video indices \[1000000000000000000\]: no view uses video 0"),
     "negative_roi": ({"views": [_view(roi=[-1, 0, 10, 10])]}, r"roi must be \[x, y, width, height\]"),
     "duplicate_view_names": ({"views": [_view("cam", 0), _view("cam", 0)]}, "duplicate view name 'cam'"),
     "name_of_a_megabyte": ({"views": [_view("x" * 2**20)]}, "view 0: 'name' is 1048576 characters long"),

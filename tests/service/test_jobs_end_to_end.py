@@ -18,6 +18,7 @@ from svc_helpers import submit, upload_inputs, wait_for
 from core.anneal import AnnealParams
 from core.detect import DetectorParams
 from core.error import fusion_distance
+from core.export import export, write_detections_csv
 from core.fit import FitParams
 from core.histogram import Histograms
 from core.pipeline import FitJob, VideoSource, run_fit, write_outputs
@@ -37,6 +38,7 @@ def local_fit(clip, tmp_path_factory) -> Path:
                  seed=OPTIONS["seed"], chunk_size=OPTIONS["chunk_size"])
     out = tmp_path_factory.mktemp("local_fit")
     write_outputs(out, job, run_fit(job, Histograms.uniform(clip.model)))
+    write_detections_csv(out / "detections.csv", job.source[0:len(job.source)], clip.rig, job.clock)
     return out
 
 
@@ -80,9 +82,16 @@ def test_clip_fitted_by_workers_matches_truth_and_mocap_fit(deployment, clip, lo
     assert latest.text == histograms
 
     archive = zipfile.ZipFile(io.BytesIO(client.get(f"/jobs/{job['id']}/archive.zip").content))
-    assert sorted(archive.namelist()) == ["angles.csv", "histograms.xml", "model.xml", "report.json",
+    assert sorted(archive.namelist()) == ["angles.csv", "angles.mot", "detections.csv", "histograms.xml",
+                                          "markers.c3d", "markers.trc", "model.xml", "report.json",
                                           "rig.json"]
     assert archive.read("angles.csv").decode() == csv.text
+    # The exports for other tools, as `mocap export` writes them from this angles.csv.
+    export(tmp_path, ["mot", "trc", "c3d"], table, clip.model)
+    for name in ("angles.mot", "markers.trc", "markers.c3d"):
+        assert archive.read(name) == (tmp_path / name).read_bytes(), name
+    # detections.csv joined from the 4 chunks' = one pass over the whole clip.
+    assert archive.read("detections.csv") == (local_fit / "detections.csv").read_bytes()
 
 
 def test_merged_histograms_equal_the_sequential_eq4_update(redis_pg, clip, tmp_path):

@@ -99,7 +99,7 @@ def test_batch_one_job_per_trial_and_archive_with_a_folder_each(redis_pg, clip):
     names = zipfile.ZipFile(io.BytesIO(client.get(f"/batches/{batch['id']}/archive.zip").content)).namelist()
     folders = sorted({n.split("/")[0] for n in names})
     assert folders == [f"trial-000-job-{batch['jobs'][0]['id']}", f"trial-001-job-{batch['jobs'][1]['id']}"]
-    assert len(names) == 10
+    assert len(names) == 18  # 9 files a trial: results, exports (core.export), model and rig
 
     # Listing: newest first, by status, one page at a time.
     page = client.get("/jobs", params={"status": "succeeded", "limit": 1}).json()

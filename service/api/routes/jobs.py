@@ -12,6 +12,7 @@ from fastapi.responses import FileResponse, StreamingResponse
 from kombu.exceptions import OperationalError
 from sqlalchemy.orm import Session
 
+from core.export import DETECTIONS_FILE, EXPORT_FILES
 from service import crud
 from service.api.deps import CurrentLab, PathId, SessionDep, SettingsDep, StorageDep
 from service.archive import stream_zip
@@ -112,7 +113,8 @@ for _name in RESULTS:
 
 
 @router.get("/{job_id}/archive.zip", response_class=StreamingResponse,
-            summary="angles.csv, histograms.xml, report.json, model.xml and rig.json in one zip")
+            summary="angles.csv, histograms.xml, report.json, angles.mot, markers.trc, markers.c3d, "
+                    "detections.csv, model.xml and rig.json in one zip")
 def archive(job_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> StreamingResponse:
     entries = list(job_entries(session, storage, lab, job_id, folder=""))
     return StreamingResponse(stream_zip(entries), media_type="application/zip",
@@ -124,6 +126,10 @@ def job_entries(session: Session, storage: Storage, lab: Lab, job_id: int,
     """A succeeded job's results and the model and rig it used, as zip entries under ``folder``."""
     for name in RESULTS:
         yield f"{folder}{name}", storage, crud.result_key(session, lab, job_id, name)
+    for name in [*EXPORT_FILES.values(), DETECTIONS_FILE]:  # jobs older than exports have none
+        key = f"jobs/{job_id}/exports/{name}"
+        if storage.exists(key):
+            yield f"{folder}{name}", storage, key
     job = crud.owned(session, Job, job_id, lab)
     yield f"{folder}model.xml", session.get_one(Model, job.model_id).xml.encode()
     rig = session.get_one(RigRow, job.rig_id).spec

@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import json
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Query, Request
 from fastapi.concurrency import run_in_threadpool
 
-from core.rig import Rig
+from core.calibration import import_rig
+from core.rig import MAX_VIEWS, Rig
 from service import crud
 from service.api.deps import CurrentLab, PathId, SessionDep
 from service.errors import InvalidError
 from service.models import RigRow
 from service.schemas import RigPublic
-from service.upload import read_document
+from service.upload import read_document, read_documents
 
 router = APIRouter(prefix="/rigs", tags=["rigs"])
 
@@ -34,6 +36,34 @@ async def create_rig(request: Request, session: SessionDep, lab: CurrentLab) -> 
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InvalidError(f"rig is not valid JSON: {exc}") from None
     row = await run_in_threadpool(crud.create_rig, session, lab, spec)
+    return _public(row)
+
+
+@router.post(
+    "/import", status_code=201, response_model=RigPublic,
+    summary="Import another tool's calibration as a rig (multipart field(s) 'file')",
+    description=(
+        "Converts an Anipose/aniposelib `calibration.toml` (`format=anipose`), OpenCV FileStorage "
+        "YAML/XML files (`format=opencv`, one field `file` per camera file) or DLTdv/Argus DLT "
+        "coefficients CSV (`format=dlt`, with each camera's image `height`) into a rig (FORMATS §2) "
+        "and stores it. Conventions: docs/INTERCHANGE.md. Example: "
+        "`curl -F file=@calibration.toml '$API/rigs/import?format=anipose&video_index=0&video_index=1'`"
+    ),
+)
+async def import_calibration(
+    request: Request, session: SessionDep, lab: CurrentLab,
+    fmt: Annotated[Literal["anipose", "opencv", "dlt"], Query(alias="format", description="the file format")],
+    height: Annotated[list[float] | None, Query(
+        description="dlt: image height in pixels per camera, or one for all")] = None,
+    video_index: Annotated[list[int] | None, Query(
+        description="video index of each view in order (default 0, 1, 2, …)")] = None,
+) -> RigPublic:
+    documents = await read_documents(request, DOCUMENT_LIMIT, MAX_VIEWS)
+    rig = await run_in_threadpool(
+        import_rig, fmt, [data for _, data in documents], labels=[name for name, _ in documents],
+        heights=height, videos=video_index,
+    )
+    row = await run_in_threadpool(crud.create_rig, session, lab, rig.to_dict())
     return _public(row)
 
 
