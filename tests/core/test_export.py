@@ -33,7 +33,8 @@ def angles_table(model: KinematicModel, n: int = 12, *, fps: float = 50.0, seed:
     dofs[3] = np.nan
     status = [Status.NO_DETECTIONS if i == 3 else Status.OK for i in range(n)]
     return AnglesTable(model.dof_names, np.arange(n), np.arange(n), [""] * n, np.arange(n) / fps, dofs,
-                       np.zeros(n), np.ones(n, dtype=np.int64), status)
+                       np.zeros(n), np.ones(n, dtype=np.int64), status, np.zeros(n),
+                       np.full(n, np.nan))
 
 
 def read_mot(path: Path) -> tuple[dict[str, str], list[str], np.ndarray]:
