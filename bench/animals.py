@@ -186,14 +186,18 @@ def report(subject: Subject, label: str, data: Rendered, result: SequenceResult,
         verdict = "" if met is None else ("met" if met else "NOT MET")
         print(f"  {what:<44}{value:>16}   {target:<18}{verdict}")
 
+    def target(text: str, met: bool) -> tuple[str, bool | None]:
+        """The noise-free targets apply without soft tissue only."""
+        return (text, met) if not soft else ("", None)
+
     print(f"  {'':<44}{'measured':>16}   {'target':<18}")
-    line("median DOF RMSE (deg)", f"{median_rmse:.3f}", f"<= {TARGET_MEDIAN_RMSE}",
-         median_rmse <= TARGET_MEDIAN_RMSE)
+    line("median DOF RMSE (deg)", f"{median_rmse:.3f}",
+         *target(f"<= {TARGET_MEDIAN_RMSE}", median_rmse <= TARGET_MEDIAN_RMSE))
     line(f"worst DOF RMSE (deg): {model.dof_names[worst_dof]}", f"{rmse[worst_dof]:.3f}",
-         f"<= {TARGET_WORST_RMSE}", rmse[worst_dof] <= TARGET_WORST_RMSE)
+         *target(f"<= {TARGET_WORST_RMSE}", rmse[worst_dof] <= TARGET_WORST_RMSE))
     line(f"worst image: sample {worst_image}, max abs DOF error", f"{per_image[worst_image]:.2f}")
-    line("images with every DOF within 5 deg", f"{100 * within:.1f} %", f">= {100 * TARGET_WITHIN_5:.0f} %",
-         within >= TARGET_WITHIN_5)
+    line("images with every DOF within 5 deg", f"{100 * within:.1f} %",
+         *target(f">= {100 * TARGET_WITHIN_5:.0f} %", within >= TARGET_WITHIN_5))
     line("images > 10 deg off with status ok", f"{off_ok}", "0", off_ok == 0)
     if soft:
         med = float(np.median(abs_rot))  # failed images count as infinitely wrong
@@ -202,15 +206,16 @@ def report(subject: Subject, label: str, data: Rendered, result: SequenceResult,
              med <= TARGET_SOFT_MEDIAN)
         line("soft tissue: 90th percentile (deg)", f"{p90:.3f}", f"<= {TARGET_SOFT_P90}",
              p90 <= TARGET_SOFT_P90)
-    target_rate = subject.name == "hexapod" and len(subject.rig.views) == 6
-    line("fit images/s, one process (wall clock)", f"{rate_wall:.3f}",
-         f">= {TARGET_HEXAPOD_RATE:.0f}" if target_rate else "",
-         rate_wall >= TARGET_HEXAPOD_RATE if target_rate else None)
-    line("fit images/s of this process's CPU time", f"{rate_cpu:.3f}")
-    line("detection images/s (all views of an image)", f"{n / data.detect_seconds:.1f}")
+    # The rate target is judged on CPU time: one core's work, whatever else the machine runs.
+    rate_target = ("", None)
+    if subject.name == "hexapod" and len(subject.rig.views) == 6:
+        rate_target = target(f">= {TARGET_HEXAPOD_RATE:.0f}", rate_cpu >= TARGET_HEXAPOD_RATE)
+    line("fit images/s per second of CPU (one core)", f"{rate_cpu:.3f}", *rate_target)
+    line("fit images/s, wall clock (one process)", f"{rate_wall:.3f}")
+    line("detection images/s, wall (all views)", f"{n / data.detect_seconds:.1f}")
     counts = {s.value: sum(x is s for x in statuses) for s in Status}
-    line("status", " ".join(f"{k} {v}" for k, v in counts.items()))
-    line(f"ambiguous images (from {source})", f"{ambiguous}")
+    print(f"  status: {', '.join(f'{k} {v}' for k, v in counts.items())}; "
+          f"ambiguous (from {source}): {ambiguous}")
     print(f"  fit took {timing['wall']:.1f} s wall, {timing['cpu']:.1f} s CPU; per image: {csv_path}")
 
 
