@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -122,17 +123,23 @@ def fit(subject: Subject, data: Rendered, *, seed: int, jobs: int) -> tuple[Sequ
         done[0] += 1
         print(f"\r  fitted {done[0]}/{len(data.detections)}", end="", file=sys.stderr, flush=True)
 
-    wall, cpu = time.perf_counter(), time.process_time()
+    wall, cpu = time.perf_counter(), _cpu_seconds()
     if jobs == 1:
         result = fit_sequence(data.detections, progress=progress, **kwargs)
     else:
         chunk = max(1, math.ceil(len(data.detections) / (4 * jobs)))
         with ProcessPoolExecutor(max_workers=jobs) as pool:
             result = fit_sequence(data.detections, chunk_size=chunk, map_chunks=pool.map, **kwargs)
-    timing = {"wall": time.perf_counter() - wall, "cpu": time.process_time() - cpu,
+    timing = {"wall": time.perf_counter() - wall, "cpu": _cpu_seconds() - cpu,
               "diameter": diameter}
     print("\r", end="", file=sys.stderr)
     return result, timing
+
+
+def _cpu_seconds() -> float:
+    """CPU seconds of this process and of its finished children (the ``--jobs`` processes)."""
+    t = os.times()  # children: 10 ms ticks; this process: process_time's finer clock
+    return time.process_time() + t.children_user + t.children_system
 
 
 def angle_errors(model, fitted: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -211,7 +218,7 @@ def report(subject: Subject, label: str, data: Rendered, result: SequenceResult,
     if subject.name == "hexapod" and len(subject.rig.views) == 6:
         rate_target = target(f">= {TARGET_HEXAPOD_RATE:.0f}", rate_cpu >= TARGET_HEXAPOD_RATE)
     line("fit images/s per second of CPU (one core)", f"{rate_cpu:.3f}", *rate_target)
-    line("fit images/s, wall clock (one process)", f"{rate_wall:.3f}")
+    line("fit images/s, wall clock", f"{rate_wall:.3f}")
     line("detection images/s, wall (all views)", f"{n / data.detect_seconds:.1f}")
     counts = {s.value: sum(x is s for x in statuses) for s in Status}
     print(f"  status: {', '.join(f'{k} {v}' for k, v in counts.items())}; "
