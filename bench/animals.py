@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -122,17 +123,23 @@ def fit(subject: Subject, data: Rendered, *, seed: int, jobs: int) -> tuple[Sequ
         done[0] += 1
         print(f"\r  fitted {done[0]}/{len(data.detections)}", end="", file=sys.stderr, flush=True)
 
-    wall, cpu = time.perf_counter(), time.process_time()
+    wall, cpu = time.perf_counter(), _cpu_seconds()
     if jobs == 1:
         result = fit_sequence(data.detections, progress=progress, **kwargs)
     else:
         chunk = max(1, math.ceil(len(data.detections) / (4 * jobs)))
         with ProcessPoolExecutor(max_workers=jobs) as pool:
             result = fit_sequence(data.detections, chunk_size=chunk, map_chunks=pool.map, **kwargs)
-    timing = {"wall": time.perf_counter() - wall, "cpu": time.process_time() - cpu,
+    timing = {"wall": time.perf_counter() - wall, "cpu": _cpu_seconds() - cpu,
               "diameter": diameter}
     print("\r", end="", file=sys.stderr)
     return result, timing
+
+
+def _cpu_seconds() -> float:
+    """CPU seconds of this process and of its finished children (the ``--jobs`` processes)."""
+    t = os.times()  # children: 10 ms ticks; this process: process_time's finer clock
+    return time.process_time() + t.children_user + t.children_system
 
 
 def angle_errors(model, fitted: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -182,35 +189,46 @@ def report(subject: Subject, label: str, data: Rendered, result: SequenceResult,
     within = float(np.mean(per_image <= 5.0))
     rate_wall, rate_cpu = n / timing["wall"], n / timing["cpu"]
 
-    def line(what: str, value: str, target: str = "", met: bool | None = None) -> None:
+    def line(what: str, value: str, target: str = "", met: bool | None = None,
+             ratio: float | None = None) -> None:
         verdict = "" if met is None else ("met" if met else "NOT MET")
+        if met is not None and ratio is not None:
+            verdict += f" (measured/target {ratio:.3g})"
         print(f"  {what:<44}{value:>16}   {target:<18}{verdict}")
 
+    def target(text: str, met: bool, ratio: float | None = None) -> tuple:
+        """The noise-free targets apply without soft tissue only."""
+        return (text, met, ratio) if not soft else ("", None, None)
+
     print(f"  {'':<44}{'measured':>16}   {'target':<18}")
-    line("median DOF RMSE (deg)", f"{median_rmse:.3f}", f"<= {TARGET_MEDIAN_RMSE}",
-         median_rmse <= TARGET_MEDIAN_RMSE)
+    line("median DOF RMSE (deg)", f"{median_rmse:.3f}",
+         *target(f"<= {TARGET_MEDIAN_RMSE}", median_rmse <= TARGET_MEDIAN_RMSE,
+                 median_rmse / TARGET_MEDIAN_RMSE))
     line(f"worst DOF RMSE (deg): {model.dof_names[worst_dof]}", f"{rmse[worst_dof]:.3f}",
-         f"<= {TARGET_WORST_RMSE}", rmse[worst_dof] <= TARGET_WORST_RMSE)
+         *target(f"<= {TARGET_WORST_RMSE}", rmse[worst_dof] <= TARGET_WORST_RMSE,
+                 rmse[worst_dof] / TARGET_WORST_RMSE))
     line(f"worst image: sample {worst_image}, max abs DOF error", f"{per_image[worst_image]:.2f}")
-    line("images with every DOF within 5 deg", f"{100 * within:.1f} %", f">= {100 * TARGET_WITHIN_5:.0f} %",
-         within >= TARGET_WITHIN_5)
+    line("images with every DOF within 5 deg", f"{100 * within:.1f} %",
+         *target(f">= {100 * TARGET_WITHIN_5:.0f} %", within >= TARGET_WITHIN_5))
     line("images > 10 deg off with status ok", f"{off_ok}", "0", off_ok == 0)
     if soft:
         med = float(np.median(abs_rot))  # failed images count as infinitely wrong
         p90 = float(np.percentile(abs_rot, 90, method="higher"))
         line("soft tissue: median abs DOF error (deg)", f"{med:.3f}", f"<= {TARGET_SOFT_MEDIAN}",
-             med <= TARGET_SOFT_MEDIAN)
+             med <= TARGET_SOFT_MEDIAN, med / TARGET_SOFT_MEDIAN)
         line("soft tissue: 90th percentile (deg)", f"{p90:.3f}", f"<= {TARGET_SOFT_P90}",
-             p90 <= TARGET_SOFT_P90)
-    target_rate = subject.name == "hexapod" and len(subject.rig.views) == 6
-    line("fit images/s, one process (wall clock)", f"{rate_wall:.3f}",
-         f">= {TARGET_HEXAPOD_RATE:.0f}" if target_rate else "",
-         rate_wall >= TARGET_HEXAPOD_RATE if target_rate else None)
-    line("fit images/s of this process's CPU time", f"{rate_cpu:.3f}")
-    line("detection images/s (all views of an image)", f"{n / data.detect_seconds:.1f}")
+             p90 <= TARGET_SOFT_P90, p90 / TARGET_SOFT_P90)
+    # The rate target is judged on CPU time: one core's work, whatever else the machine runs.
+    rate_target: tuple = ("", None, None)
+    if subject.name == "hexapod" and len(subject.rig.views) == 6:
+        rate_target = target(f">= {TARGET_HEXAPOD_RATE:.0f}", rate_cpu >= TARGET_HEXAPOD_RATE,
+                             rate_cpu / TARGET_HEXAPOD_RATE)
+    line("fit images/s per second of CPU (one core)", f"{rate_cpu:.3f}", *rate_target)
+    line("fit images/s, wall clock", f"{rate_wall:.3f}")
+    line("detection images/s, wall (all views)", f"{n / data.detect_seconds:.1f}")
     counts = {s.value: sum(x is s for x in statuses) for s in Status}
-    line("status", " ".join(f"{k} {v}" for k, v in counts.items()))
-    line(f"ambiguous images (from {source})", f"{ambiguous}")
+    print(f"  status: {', '.join(f'{k} {v}' for k, v in counts.items())}; "
+          f"ambiguous (from {source}): {ambiguous}")
     print(f"  fit took {timing['wall']:.1f} s wall, {timing['cpu']:.1f} s CPU; per image: {csv_path}")
 
 

@@ -31,7 +31,7 @@ FLY_SEGMENTS = {"F": (0.4255, 0.7052, 0.5184, 0.5647), "M": (0.1814, 0.7837, 0.6
 # Plausible ranges (degrees) per leg pair, protraction and adduction positive on both sides (the
 # left legs' files negate what mirrors). Set around NeuroMechFly's tripod pose
 # (data/config/pose/pose_tripod.yaml) and its walking-data limits
-# (data/design/sdf/neuromechfly_limitsFromData.sdf), widened to leave the search room.
+# (data/design/sdf/neuromechfly_limitsFromData.sdf at commit eacdab4), widened to leave the search room.
 FLY_RANGES = {
     "coxa_pro": {"F": (-10, 60), "M": (-35, 35), "H": (-60, 10)},
     "coxa_roll": (-30, 30),
