@@ -69,7 +69,14 @@
 
   function when(iso) {
     if (!iso) return el("td", { text: "–" });
-    return el("td", {}, el("time", { datetime: iso, text: new Date(iso).toLocaleString() }));
+    return el("td", {}, el("time", { datetime: iso, text: local(iso) }));
+  }
+
+  function local(iso) {
+    // "2026-11-23 14:05:09" in the browser's time zone: sortable, and the same in every locale.
+    const d = new Date(iso), two = (n) => String(n).padStart(2, "0");
+    return `${d.getFullYear()}-${two(d.getMonth() + 1)}-${two(d.getDate())} `
+      + `${two(d.getHours())}:${two(d.getMinutes())}:${two(d.getSeconds())}`;
   }
 
   function statusCell(status) {
@@ -308,8 +315,7 @@
       ["Error threshold", `${o.error_threshold_px} px per marker`],
       ["Marker diameter", o.marker_diameter_px === "auto" ? "estimated from the video" : `${o.marker_diameter_px} px`],
       ["Seed, iterations", `${o.seed}, ${o.iterations}`],
-      ["Submitted", new Date(job.created_at).toLocaleString()],
-      ["Finished", job.finished_at ? new Date(job.finished_at).toLocaleString() : "–"],
+      ["Submitted", local(job.created_at)], ["Finished", job.finished_at ? local(job.finished_at) : "–"],
     ];
     if (job.error) items.push(["Error", job.error]);
     $("job-facts").replaceChildren(...items.flatMap(([k, v]) => [el("dt", { text: k }), el("dd", { text: v })]));
@@ -415,7 +421,8 @@
     const fitted = rows.filter((r) => Number.isFinite(r.error));
     const t0 = rows.length ? rows[0].time : 0, t1 = rows.length ? rows[rows.length - 1].time : 1;
     const span = t1 > t0 ? t1 - t0 : 1;
-    const yMax = niceMax(Math.max(1e-3, ...fitted.map((r) => r.error), perMarker ? threshold * 1.1 : 0));
+    // The range of the errors (not of the threshold, which would flatten well-fitted images).
+    const yMax = niceMax(fitted.reduce((m, r) => Math.max(m, r.error), 1e-3));
     const x = (time) => left + ((time - t0) / span) * plotW;
     const y = (error) => top + plotH - (Math.min(error, yMax) / yMax) * plotH;
     const columns = new Map();
@@ -430,14 +437,15 @@
     const median = sorted.length ? sorted[Math.floor(sorted.length / 2)] : NaN;
     const unit = perMarker ? "px per marker" : "px (Eq. 5 total)";
     const summary = `${rows.length} images over ${span.toFixed(2)} s; error median ${median.toFixed(2)}, `
-      + `max ${(sorted.at(-1) ?? NaN).toFixed(2)} ${unit}; ${over.length} over the threshold`
-      + `${perMarker ? ` of ${threshold} px` : ""}; ${ambiguous.length} ambiguous; ${none.length} without detections.`;
+      + `max ${(sorted.at(-1) ?? NaN).toFixed(2)} ${unit}; ${over.length} over the threshold of ${threshold} px; `
+      + `${ambiguous.length} ambiguous; ${none.length} without detections.`;
 
     const root = svg("svg", { viewBox: `0 0 ${W} ${H}`, role: "img", "aria-labelledby": "plot-title plot-desc",
                               id: "error-plot" });
     root.append(svg("title", { id: "plot-title" }, "Error over time"), svg("desc", { id: "plot-desc" }, summary));
-    for (let i = 0; i <= 4; i++) {
-      const value = (yMax * i) / 4;
+    const divisions = yMax / 10 ** Math.floor(Math.log10(yMax)) === 2 ? 4 : 5;
+    for (let i = 0; i <= divisions; i++) {
+      const value = (yMax * i) / divisions;
       root.append(svg("line", { class: "plot-grid", x1: left, x2: W - right, y1: y(value), y2: y(value) }),
         svg("text", { class: "plot-text", x: left - 6, y: y(value) + 4, "text-anchor": "end" }, `${+value.toFixed(2)}`));
     }
@@ -449,8 +457,11 @@
     }
     root.append(svg("text", { class: "plot-text", x: 16, y: top + plotH / 2, "text-anchor": "middle",
       transform: `rotate(-90 16 ${top + plotH / 2})` }, `error (${perMarker ? "px per marker" : "px"})`));
-    if (perMarker) {
+    if (threshold <= yMax) {
       root.append(svg("line", { class: "plot-threshold", x1: left, x2: W - right, y1: y(threshold), y2: y(threshold) }));
+    } else {
+      root.append(svg("text", { class: "plot-text", x: W - right, y: top + 12, "text-anchor": "end" },
+                      `threshold ${threshold} px: above this range`));
     }
     const points = [...columns.entries()].sort((p, q) => p[0] - q[0]).map(([c, e]) => `${c},${y(e).toFixed(1)}`);
     root.append(svg("polyline", { class: "plot-line", points: points.join(" ") }));
