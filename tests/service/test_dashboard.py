@@ -58,10 +58,13 @@ def browser() -> Iterator:
 
 @pytest.fixture(scope="module")
 def lab(embedded, clip):
-    """Lab "dashboard": its key, model, rig, video and a succeeded job."""
+    """Lab "dashboard": its key, model, rig, video and a succeeded job, with overlay and plot
+    artifacts where the service offers them (options.overlay, options.plots)."""
     client = embedded.create_lab("dashboard")
     ids = upload_inputs(client, clip.video)
-    job = wait_for(client, submit(client, ids, marker_diameter_px=4.0, chunk_size=20)["id"])
+    offered = httpx.get(_base(embedded) + "/openapi.json").json()["components"]["schemas"]["JobOptions"]
+    artifacts = {name: True for name in ("overlay", "plots") if name in offered["properties"]}
+    job = wait_for(client, submit(client, ids, marker_diameter_px=4.0, chunk_size=20, **artifacts)["id"])
     assert job["status"] == "succeeded", job
     return client, {**ids, "job_id": job["id"]}
 
@@ -146,14 +149,16 @@ def test_a_finished_job_shows_its_plot_counts_artifacts_and_downloads(page, lab)
         "rows => rows.map(r => [r.cells[0].textContent, Number(r.cells[1].textContent)])"))
     assert shown == {**report["status"], "re-analysed": report["reanalysed"]}
 
-    # Artifact images (angle plots, overlay contact sheet) load when the job has them.
-    for name, image, box in (("plots/angles.png", "#job-plot-image", "#job-plot"),
-                             ("overlay/contact_sheet.png", "#job-overlay-image", "#job-overlay")):
-        if client.get(f"/jobs/{job_id}/{name}").status_code == 200:
+    # Artifact images (angle plots, the overlay's contact sheet) load when the job has them.
+    listed = client.get(f"/jobs/{job_id}/artifacts")
+    names = listed.json() if listed.status_code == 200 else []
+    for name, image in (("plots/angles.png", "#job-plot img[data-artifact='plots/angles.png']"),
+                        ("overlay/contact_sheet.png", "#job-overlay-image")):
+        if name in names:
             page.locator(image).wait_for(state="visible")
             assert page.locator(image).evaluate("img => img.decode().then(() => img.naturalWidth)") > 0
         else:
-            assert page.locator(f"{box} {image}:visible").count() == 0
+            assert page.locator(f"{image}:visible").count() == 0
 
     with page.expect_download() as download:
         page.get_by_role("link", name="angles.csv").click()

@@ -12,9 +12,11 @@
   const LIST_MS = 5000;   // the listings: new jobs, batches, uploads
   const PAGE = 50;
   const RESULTS = ["angles.csv", "histograms.xml", "report.json", "archive.zip"];
-  // Images a job may carry as artifacts (angle plots, overlay contact sheet): shown when present.
-  // The error-over-time plot is drawn here from angles.csv in any case.
-  const ARTIFACTS = { plot: "plots/angles.png", overlay: "overlay/contact_sheet.png" };
+  // Artifacts a job has when its options asked (GET /v1/jobs/{id}/artifacts lists them): these
+  // are shown as images; every artifact is offered for download. The error-over-time plot is
+  // drawn here from angles.csv in any case.
+  const PLOTS = ["plots/angles.png", "plots/histograms.png"];
+  const CONTACT_SHEET = "overlay/contact_sheet.png";
   const SVG = "http://www.w3.org/2000/svg";
 
   const $ = (id) => document.getElementById(id);
@@ -335,34 +337,41 @@
       $("job-plot-caption").textContent = "";
       return;
     }
-    downloads.replaceChildren(...RESULTS.map((name) =>
-      el("li", {}, downloadLink(`/jobs/${job.id}/${name}`, `job-${job.id}-${name}`, name))));
-    const [report, angles] = await Promise.all([api(`/jobs/${job.id}/report.json`),
-                                                api(`/jobs/${job.id}/angles.csv`, "text")]);
+    const [report, angles, extra] = await Promise.all([api(`/jobs/${job.id}/report.json`),
+      api(`/jobs/${job.id}/angles.csv`, "text"), artifacts(job)]);
     if (job.id !== state.selected) return;
+    downloads.replaceChildren(
+      ...RESULTS.map((name) => el("li", {}, downloadLink(`/jobs/${job.id}/${name}`, `job-${job.id}-${name}`, name))),
+      ...extra.map((name) => el("li", {}, downloadLink(`/jobs/${job.id}/artifacts/${name}`,
+                                                       `job-${job.id}-${name.replaceAll("/", "-")}`, name))));
     counts([...Object.entries(report.status), ["re-analysed", report.reanalysed]]);
     const plot = errorPlot(parseAngles(angles), job.options.error_threshold_px);
     $("job-plot-body").replaceChildren(plot.svg);
     $("job-plot-caption").textContent = plot.summary;
-    const image = await artifact(job, ARTIFACTS.plot);
-    if (image) $("job-plot-body").append(el("img", { src: image, alt: `Angle plots of job ${job.id}`,
-                                                     id: "job-plot-image" }));
-    const sheet = await artifact(job, ARTIFACTS.overlay);
-    if (sheet) {
-      $("job-overlay-image").src = sheet;
+    for (const name of PLOTS.filter((p) => extra.includes(p))) {
+      const what = name.includes("histograms") ? "Joint-angle histograms before and after" : "Angles over time";
+      $("job-plot-body").append(el("img", { src: await image(job, name), alt: `${what}, job ${job.id}`,
+                                            "data-artifact": name }));
+    }
+    if (extra.includes(CONTACT_SHEET)) {
+      $("job-overlay-image").src = await image(job, CONTACT_SHEET);
       $("job-overlay-image").alt = `Worst and ambiguous images of job ${job.id} with the fitted model drawn over them`;
       overlay.hidden = false;
     }
   }
 
-  async function artifact(job, name) {
-    // An object URL of the job's image artifact `name`, or null when the job has none.
+  async function artifacts(job) {
+    // Names of the job's artifacts; none where the service has no artifacts (404) or the job none.
     try {
-      return URL.createObjectURL(await api(`/jobs/${job.id}/${name}`, "blob"));
+      return await api(`/jobs/${job.id}/artifacts`);
     } catch (error) {
-      if (error.status === 404 || error.status === 409) return null;
+      if (error.status === 404) return [];
       throw error;
     }
+  }
+
+  async function image(job, name) {
+    return URL.createObjectURL(await api(`/jobs/${job.id}/artifacts/${name}`, "blob"));
   }
 
   function downloadLink(path, filename, label) {
