@@ -152,7 +152,7 @@ def test_a_finished_job_shows_its_plot_counts_artifacts_and_downloads(page, lab)
     # Artifact images (angle plots, the overlay's contact sheet) load when the job has them.
     listed = client.get(f"/jobs/{job_id}/artifacts")
     names = listed.json() if listed.status_code == 200 else []
-    for name, image in (("plots/angles.png", "#job-plot img[data-artifact='plots/angles.png']"),
+    for name, image in (("plots/angles.png", "#job-plots img[data-artifact='plots/angles.png']"),
                         ("overlay/contact_sheet.png", "#job-overlay-image")):
         if name in names:
             page.locator(image).wait_for(state="visible")

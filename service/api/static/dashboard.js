@@ -21,7 +21,7 @@
 
   const $ = (id) => document.getElementById(id);
   const state = { jobs: new Map(), batches: new Map(), pages: {}, selected: null, shown: null,
-                  timers: [], generation: 0 };
+                  timers: [], generation: 0, images: [] };
 
   class Unauthorized extends Error {}
 
@@ -330,7 +330,8 @@
   async function results(job) {
     const downloads = $("job-downloads");
     const overlay = $("job-overlay");
-    overlay.hidden = true;
+    overlay.hidden = $("job-plots").hidden = true;
+    state.images.splice(0).forEach(URL.revokeObjectURL);  // the images of the job shown before
     if (job.status !== "succeeded") {
       downloads.replaceChildren(el("li", { text: "Results can be downloaded once the job has succeeded." }));
       $("job-plot-body").replaceChildren(el("p", { class: "empty", text: "Drawn once the job has succeeded." }));
@@ -348,10 +349,14 @@
     const plot = errorPlot(parseAngles(angles), job.options.error_threshold_px);
     $("job-plot-body").replaceChildren(plot.svg);
     $("job-plot-caption").textContent = plot.summary;
-    for (const name of PLOTS.filter((p) => extra.includes(p))) {
-      const what = name.includes("histograms") ? "Joint-angle histograms before and after" : "Angles over time";
-      $("job-plot-body").append(el("img", { src: await image(job, name), alt: `${what}, job ${job.id}`,
-                                            "data-artifact": name }));
+    const plots = PLOTS.filter((p) => extra.includes(p));
+    $("job-plots").hidden = plots.length === 0;
+    $("job-plots-body").replaceChildren();
+    for (const name of plots) {
+      const what = name.includes("histograms") ? "Joint-angle histograms (Eq. 4), at the start and after the job"
+        : "Each degree of freedom over time: histogram range shaded, over-threshold, ambiguous and re-analysed images marked";
+      $("job-plots-body").append(el("figure", {}, el("img", { src: await image(job, name), alt: what,
+        "data-artifact": name }), el("figcaption", { text: `${what} (${name}).` })));
     }
     if (extra.includes(CONTACT_SHEET)) {
       $("job-overlay-image").src = await image(job, CONTACT_SHEET);
@@ -371,7 +376,9 @@
   }
 
   async function image(job, name) {
-    return URL.createObjectURL(await api(`/jobs/${job.id}/artifacts/${name}`, "blob"));
+    const url = URL.createObjectURL(await api(`/jobs/${job.id}/artifacts/${name}`, "blob"));
+    state.images.push(url);
+    return url;
   }
 
   function downloadLink(path, filename, label) {
@@ -453,10 +460,11 @@
                               id: "error-plot" });
     root.append(svg("title", { id: "plot-title" }, "Error over time"), svg("desc", { id: "plot-desc" }, summary));
     const divisions = yMax / 10 ** Math.floor(Math.log10(yMax)) === 2 ? 4 : 5;
+    const decimals = Math.max(0, 1 - Math.floor(Math.log10(yMax / divisions)));
     for (let i = 0; i <= divisions; i++) {
       const value = (yMax * i) / divisions;
       root.append(svg("line", { class: "plot-grid", x1: left, x2: W - right, y1: y(value), y2: y(value) }),
-        svg("text", { class: "plot-text", x: left - 6, y: y(value) + 4, "text-anchor": "end" }, `${+value.toFixed(2)}`));
+        svg("text", { class: "plot-text", x: left - 6, y: y(value) + 4, "text-anchor": "end" }, `${+value.toFixed(decimals)}`));
     }
     root.append(svg("line", { class: "plot-axis", x1: left, x2: left, y1: top, y2: top + plotH }),
       svg("line", { class: "plot-axis", x1: left, x2: W - right, y1: top + plotH, y2: top + plotH }));
