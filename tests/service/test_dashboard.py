@@ -58,15 +58,21 @@ def browser() -> Iterator:
 
 @pytest.fixture(scope="module")
 def lab(embedded, clip):
-    """Lab "dashboard": its key, model, rig, video and a succeeded job, with overlay and plot
-    artifacts where the service offers them (options.overlay, options.plots)."""
+    """Lab "dashboard": its key, model, rig, video, a succeeded job, with overlay and plot
+    artifacts where the service offers them (options.overlay, options.plots), and a succeeded
+    batch of two trials."""
     client = embedded.create_lab("dashboard")
     ids = upload_inputs(client, clip.video)
     offered = httpx.get(_base(embedded) + "/openapi.json").json()["components"]["schemas"]["JobOptions"]
     artifacts = {name: True for name in ("overlay", "plots") if name in offered["properties"]}
     job = wait_for(client, submit(client, ids, marker_diameter_px=4.0, chunk_size=20, **artifacts)["id"])
     assert job["status"] == "succeeded", job
-    return client, {**ids, "job_id": job["id"]}
+    trials = [{"video_ids": [ids["video_id"]]}] * 2
+    batch = client.post("/batches", json={"model_id": ids["model_id"], "rig_id": ids["rig_id"],
+                                          "trials": trials, "options": {"chunk_size": 20}}).json()
+    for batch_job in batch["jobs"]:
+        assert wait_for(client, batch_job["id"])["status"] == "succeeded"
+    return client, {**ids, "job_id": job["id"], "batch_id": batch["id"]}
 
 
 @pytest.fixture
@@ -103,7 +109,7 @@ def test_sign_in_and_see_a_running_jobs_progress_advance(page, embedded, lab, cl
     client, ids = lab
     # Every image runs all its iterations (slow rig): a job that runs for some seconds.
     rig = client.post("/rigs", content=slow_rig(), headers={"Content-Type": "application/json"}).json()
-    with repeated(clip.video, 3, tmp_path / "long.avi").open("rb") as f:
+    with repeated(clip.video, 2, tmp_path / "long.avi").open("rb") as f:
         video = client.post("/videos", files={"file": ("long.avi", f, "video/x-msvideo")}).json()
     job = submit(client, {**ids, "rig_id": rig["id"], "video_id": video["id"]},
                  marker_diameter_px=4.0, chunk_size=10, max_attempts=1)
@@ -121,9 +127,9 @@ def test_sign_in_and_see_a_running_jobs_progress_advance(page, embedded, lab, cl
         if state[0] in ("succeeded", "failed", "canceled"):
             break
         time.sleep(0.1)
-    assert seen[-1] == ("succeeded", 120, 120), seen
-    running = [done for status, done, total in seen if status in ("running", "reanalysing") and total == 120]
-    assert running and min(running) < 120, seen  # the page showed the job unfinished …
+    assert seen[-1] == ("succeeded", 80, 80), seen
+    running = [done for status, done, total in seen if status in ("running", "reanalysing") and total == 80]
+    assert running and min(running) < 80, seen  # the page showed the job unfinished …
     done = [d for _, d, _ in seen]
     assert done == sorted(done) and len(set(done)) >= 3, seen  # … and its progress advance
     # The key went in headers only: in no URL the page requested, and not in the server's log.
@@ -164,6 +170,17 @@ def test_a_finished_job_shows_its_plot_counts_artifacts_and_downloads(page, lab)
         page.get_by_role("link", name="angles.csv").click()
     assert download.value.suggested_filename == f"job-{job_id}-angles.csv"
     assert Path(download.value.path()).read_bytes() == client.get(f"/jobs/{job_id}/angles.csv").content
+
+
+def test_batches_are_listed_with_their_jobs(page, lab):
+    client, ids = lab
+    _sign_in(page, _key(client))
+    row = page.locator(f"#batch-row-{ids['batch_id']}")
+    cells = [text.strip() for text in row.locator("td").all_text_contents()]
+    assert cells[:3] == ["succeeded", "2 succeeded", "80 / 80 images"]
+    assert row.get_by_role("link", name="archive.zip").is_visible()
+    trials = page.locator("#jobs tbody tr", has_text=f"batch {ids['batch_id']}, trial")
+    assert trials.count() == 2
 
 
 def test_uploads_are_listed_with_their_metadata(page, lab, clip):
