@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 from typing import Any, TypeVar
 
-from sqlalchemy import func, select, update
+from sqlalchemy import Select, func, select, update
 from sqlalchemy.orm import Session
 
 from core.histogram import Histograms
@@ -202,9 +202,22 @@ def list_jobs(
         query = query.where(Job.status == status)
     if batch_id is not None:
         query = query.where(Job.batch_id == batch_id)
+    return page(session, query, Job, cursor=cursor, limit=limit)
+
+
+def list_owned(session: Session, kind: type[Owned], lab: Lab, *, cursor: int | None,
+               limit: int) -> tuple[list[Owned], int | None]:
+    """The lab's ``kind`` rows (models, rigs, videos), newest first, ``limit`` per page after ``cursor``."""
+    return page(session, select(kind).where(kind.lab_id == lab.id), kind, cursor=cursor, limit=limit)
+
+
+def page(session: Session, query: Select[tuple[Owned]], kind: type[Owned], *, cursor: int | None,
+         limit: int) -> tuple[list[Owned], int | None]:
+    """One page of ``query``'s rows by descending id: the rows with id < ``cursor`` (all for None),
+    at most ``limit``, and the cursor of the next page (None: this is the last)."""
     if cursor is not None:
-        query = query.where(Job.id < cursor)
-    rows = list(session.scalars(query.order_by(Job.id.desc()).limit(limit + 1)))
+        query = query.where(kind.id < cursor)
+    rows = list(session.scalars(query.order_by(kind.id.desc()).limit(limit + 1)))
     more = len(rows) > limit
     rows = rows[:limit]
     return rows, (rows[-1].id if more and rows else None)

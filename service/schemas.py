@@ -66,12 +66,14 @@ class ModelPublic(BaseModel):
     name: str
     dofs: list[str]
     histogram_versions: int
+    created_at: UtcDatetime
 
 
 class RigPublic(BaseModel):
     id: int
     views: list[str]
     videos: int
+    created_at: UtcDatetime
 
 
 class VideoPublic(BaseModel):
@@ -83,6 +85,25 @@ class VideoPublic(BaseModel):
     height: int
     size_bytes: int
     sha256: str
+    created_at: UtcDatetime
+
+
+NEXT_CURSOR = "pass as ?cursor= for the next page; null: last page"
+
+
+class ModelPage(BaseModel):
+    items: list[ModelPublic]
+    next_cursor: int | None = Field(description=NEXT_CURSOR)
+
+
+class RigPage(BaseModel):
+    items: list[RigPublic]
+    next_cursor: int | None = Field(description=NEXT_CURSOR)
+
+
+class VideoPage(BaseModel):
+    items: list[VideoPublic]
+    next_cursor: int | None = Field(description=NEXT_CURSOR)
 
 
 class JobCreate(BaseModel):
@@ -134,7 +155,7 @@ class JobPublic(BaseModel):
 
 class JobPage(BaseModel):
     items: list[JobPublic]
-    next_cursor: int | None = Field(description="pass as ?cursor= for the next page; null: last page")
+    next_cursor: int | None = Field(description=NEXT_CURSOR)
 
 
 class BatchPublic(BaseModel):

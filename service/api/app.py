@@ -14,8 +14,9 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
 
-from service.api.routes import batches, jobs, models, rigs, videos
+from service.api.routes import apidocs, batches, dashboard, jobs, models, rigs, videos
 from service.errors import ConflictError, NotFoundError, QueueUnavailableError, RateLimitedError
 from service.storage import get_storage
 from service.upload import TooLargeError
@@ -31,11 +32,16 @@ async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
 
 
 def create_app() -> FastAPI:
-    app = FastAPI(title="mocap", version="1", lifespan=_lifespan,
+    app = FastAPI(title="mocap", version="1", lifespan=_lifespan, docs_url=None, redoc_url=None,
                   description="Model-based motion capture as a service: upload models, rigs and "
                               "videos, submit fitting jobs, download angles and histograms.")
     for router in (models.router, rigs.router, videos.router, jobs.router, batches.router):
         app.include_router(router, prefix="/v1")
+    # The lab dashboard at / and the API docs at /docs, /redoc, with every asset served from here.
+    app.include_router(dashboard.router)
+    app.include_router(apidocs.router)
+    app.mount(dashboard.STATIC_URL, StaticFiles(directory=dashboard.STATIC_DIR), name="dashboard-static")
+    app.mount(apidocs.ASSETS_URL, StaticFiles(directory=apidocs.ASSETS_DIR), name="apidocs-static")
     _errors(app)
     return app
 

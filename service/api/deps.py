@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Path, Request, status
+from fastapi import Depends, HTTPException, Path, Query, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
@@ -27,6 +27,9 @@ def get_session(request: Request) -> Iterator[Session]:
 SessionDep = Annotated[Session, Depends(get_session)]
 # A resource id in a URL: within the 32-bit id columns (larger ones are 422, never a failed query).
 PathId = Annotated[int, Path(ge=1, le=MAX_DB_INT)]
+# A listing's page: after ``cursor`` (the ``next_cursor`` of the page before), ``limit`` rows at most.
+Cursor = Annotated[int | None, Query(ge=1, le=MAX_DB_INT, description="next_cursor of the last page")]
+Limit = Annotated[int, Query(ge=1, le=200)]
 StorageDep = Annotated[LocalStorage, Depends(get_storage)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 

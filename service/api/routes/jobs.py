@@ -5,20 +5,19 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Iterator
-from typing import Annotated
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Response
 from fastapi.responses import FileResponse, StreamingResponse
 from kombu.exceptions import OperationalError
 from sqlalchemy.orm import Session
 
 from core.export import DETECTIONS_FILE, EXPORT_FILES
 from service import crud
-from service.api.deps import CurrentLab, PathId, SessionDep, SettingsDep, StorageDep
+from service.api.deps import CurrentLab, Cursor, Limit, PathId, SessionDep, SettingsDep, StorageDep
 from service.archive import stream_zip
 from service.errors import QueueUnavailableError
 from service.models import Job, JobStatus, Lab, Model, RigRow
-from service.schemas import MAX_DB_INT, JobCreate, JobPage, JobPublic, Progress
+from service.schemas import JobCreate, JobPage, JobPublic, Progress
 from service.storage import Storage
 from worker.celery_app import PLAN_JOB
 from worker.celery_app import app as celery
@@ -80,9 +79,7 @@ def submit(body: JobCreate, response: Response, session: SessionDep, settings: S
 
 @router.get("", response_model=JobPage, summary="The lab's jobs, newest first")
 def list_jobs(session: SessionDep, lab: CurrentLab, status: JobStatus | None = None,
-              cursor: Annotated[int | None, Query(ge=1, le=MAX_DB_INT,
-                                                  description="next_cursor of the last page")] = None,
-              limit: Annotated[int, Query(ge=1, le=200)] = 50) -> JobPage:
+              cursor: Cursor = None, limit: Limit = 50) -> JobPage:
     rows, next_cursor = crud.list_jobs(session, lab, status=status, cursor=cursor, limit=limit)
     return JobPage(items=[job_public(j) for j in rows], next_cursor=next_cursor)
 

@@ -7,9 +7,9 @@ from fastapi.concurrency import run_in_threadpool
 
 from core.model import KinematicModel
 from service import crud, histstore
-from service.api.deps import CurrentLab, PathId, SessionDep, StorageDep
+from service.api.deps import CurrentLab, Cursor, Limit, PathId, SessionDep, StorageDep
 from service.models import Model
-from service.schemas import MAX_DB_INT, ModelPublic
+from service.schemas import MAX_DB_INT, ModelPage, ModelPublic
 from service.upload import read_document
 
 router = APIRouter(prefix="/models", tags=["models"])
@@ -20,7 +20,7 @@ XML = "application/xml"
 
 def _public(session: SessionDep, row: Model) -> ModelPublic:
     return ModelPublic(id=row.id, name=row.name, dofs=KinematicModel.from_xml(row.xml).dof_names,
-                       histogram_versions=crud.histogram_versions(session, row))
+                       histogram_versions=crud.histogram_versions(session, row), created_at=row.created_at)
 
 
 @router.post("", status_code=201, response_model=ModelPublic,
@@ -30,6 +30,12 @@ async def create_model(request: Request, session: SessionDep, storage: StorageDe
     xml = await read_document(request, DOCUMENT_LIMIT)
     row = await run_in_threadpool(crud.create_model, session, storage, lab, xml)
     return await run_in_threadpool(_public, session, row)
+
+
+@router.get("", response_model=ModelPage, summary="The lab's models, newest first")
+def list_models(session: SessionDep, lab: CurrentLab, cursor: Cursor = None, limit: Limit = 50) -> ModelPage:
+    rows, next_cursor = crud.list_owned(session, Model, lab, cursor=cursor, limit=limit)
+    return ModelPage(items=[_public(session, row) for row in rows], next_cursor=next_cursor)
 
 
 @router.get("/{model_id}", response_model=ModelPublic)

@@ -11,10 +11,10 @@ from fastapi.concurrency import run_in_threadpool
 from core.calibration import import_rig
 from core.rig import MAX_VIEWS, Rig
 from service import crud
-from service.api.deps import CurrentLab, PathId, SessionDep
+from service.api.deps import CurrentLab, Cursor, Limit, PathId, SessionDep
 from service.errors import InvalidError
 from service.models import RigRow
-from service.schemas import RigPublic
+from service.schemas import RigPage, RigPublic
 from service.upload import read_document, read_documents
 
 router = APIRouter(prefix="/rigs", tags=["rigs"])
@@ -24,7 +24,8 @@ DOCUMENT_LIMIT = 1024**2
 
 def _public(row: RigRow) -> RigPublic:
     rig = Rig.from_dict(row.spec)
-    return RigPublic(id=row.id, views=[v.name for v in rig.views], videos=rig.n_videos)
+    return RigPublic(id=row.id, views=[v.name for v in rig.views], videos=rig.n_videos,
+                     created_at=row.created_at)
 
 
 @router.post("", status_code=201, response_model=RigPublic,
@@ -65,6 +66,10 @@ async def import_calibration(
     )
     row = await run_in_threadpool(crud.create_rig, session, lab, rig.to_dict())
     return _public(row)
+@router.get("", response_model=RigPage, summary="The lab's rigs, newest first")
+def list_rigs(session: SessionDep, lab: CurrentLab, cursor: Cursor = None, limit: Limit = 50) -> RigPage:
+    rows, next_cursor = crud.list_owned(session, RigRow, lab, cursor=cursor, limit=limit)
+    return RigPage(items=[_public(row) for row in rows], next_cursor=next_cursor)
 
 
 @router.get("/{rig_id}", response_model=RigPublic)

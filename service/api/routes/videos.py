@@ -6,9 +6,9 @@ from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
 
 from service import crud, limits
-from service.api.deps import CurrentLab, PathId, SessionDep, SettingsDep, StorageDep
+from service.api.deps import CurrentLab, Cursor, Limit, PathId, SessionDep, SettingsDep, StorageDep
 from service.models import Video
-from service.schemas import VideoPublic
+from service.schemas import VideoPage, VideoPublic
 from service.upload import MULTIPART_SLACK, check_length, declared_length, receive_video
 
 router = APIRouter(prefix="/videos", tags=["videos"])
@@ -16,7 +16,8 @@ router = APIRouter(prefix="/videos", tags=["videos"])
 
 def _public(row: Video) -> VideoPublic:
     return VideoPublic(id=row.id, filename=row.filename, frames=row.frames, fps=row.fps, width=row.width,
-                       height=row.height, size_bytes=row.size_bytes, sha256=row.sha256)
+                       height=row.height, size_bytes=row.size_bytes, sha256=row.sha256,
+                       created_at=row.created_at)
 
 
 @router.post("", status_code=201, response_model=VideoPublic,
@@ -35,6 +36,12 @@ async def upload_video(request: Request, session: SessionDep, storage: StorageDe
     row = await run_in_threadpool(crud.register_video, session, storage, lab, settings, key=got.key,
                                   filename=got.filename, size=got.size, sha256=got.sha256)
     return _public(row)
+
+
+@router.get("", response_model=VideoPage, summary="The lab's videos, newest first")
+def list_videos(session: SessionDep, lab: CurrentLab, cursor: Cursor = None, limit: Limit = 50) -> VideoPage:
+    rows, next_cursor = crud.list_owned(session, Video, lab, cursor=cursor, limit=limit)
+    return VideoPage(items=[_public(row) for row in rows], next_cursor=next_cursor)
 
 
 @router.get("/{video_id}", response_model=VideoPublic)
