@@ -2,7 +2,8 @@
 
 - uploads in the last hour, in files and bytes, from ``videos.created_at`` and ``size_bytes``;
 - active (queued, running or re-analysing) jobs, from ``jobs.status``;
-- frames per job, from the videos' probed frame counts.
+- frames per job, from the videos' probed frame counts;
+- the work of one image, estimated from the model's and the rig's sizes (``core.cost``).
 
 Checks that admit new rows run with the lab's row locked (``SELECT … FOR UPDATE`` on
 PostgreSQL; SQLite's ``BEGIN IMMEDIATE`` already serialises writers), so concurrent
@@ -19,6 +20,10 @@ from datetime import UTC, datetime, timedelta
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
+from core.cost import FitCostError, check_fit_cost, estimate_fit_cost
+from core.fit import FitParams
+from core.model import KinematicModel
+from core.rig import Rig
 from service.errors import InvalidError, RateLimitedError
 from service.models import TERMINAL, Job, Lab, Video, utcnow
 from service.settings import Settings
@@ -74,6 +79,20 @@ def check_frames(videos: Sequence[Video], settings: Settings) -> None:
         raise InvalidError(f"the job's videos hold {frames} frames; this server fits at most "
                            f"{settings.max_frames_per_job} per job (MOCAP_MAX_FRAMES_PER_JOB): "
                            "split the trial")
+
+
+def check_cost(model_id: int, model: KinematicModel, rig: Rig, params: FitParams, videos: Sequence[Video],
+               fields_per_frame: int, settings: Settings) -> None:
+    """422 if one attempt on one image is estimated to outlast a chunk task's time limit (one
+    image must fit in a task), or to need more memory than a worker should give it."""
+    images = min(v.frames for v in videos) * fields_per_frame
+    try:
+        check_fit_cost(estimate_fit_cost(model, rig, params, images=images),
+                       max_attempt_s=settings.task_soft_time_limit_s,
+                       time_limit_name="a chunk task's time limit, MOCAP_TASK_SOFT_TIME_LIMIT_S")
+    except FitCostError as exc:
+        raise InvalidError(f"model {model_id} ({len(model.joints)} joints, {len(model.markers)} markers, "
+                           f"{len(model.dofs)} DOFs) with {len(rig.views)} view(s): {exc}") from None
 
 
 def _refuse(lab: Lab, message: str, retry_after: int) -> None:
