@@ -125,11 +125,11 @@ def check_fit_cost(cost: FitCost, *, max_attempt_s: float = MAX_ATTEMPT_SECONDS,
 def _duration(seconds: float) -> str:
     """A duration a person reads at a glance.
 
-    >>> _duration(0.0042), _duration(95.0), _duration(1800.0), _duration(28400.0), _duration(3e6)
-    ('4.2 ms', '95 s', '30 min', '7.9 h', '35 days')
+    >>> _duration(0.0042), _duration(0.521), _duration(95.0), _duration(1800.0), _duration(3e6)
+    ('4.2 ms', '521 ms', '95 s', '30 min', '35 days')
     """
     if seconds < 1:
-        return f"{seconds * 1e3:.2g} ms" if seconds >= 1e-3 else f"{seconds * 1e6:.2g} µs"
+        return f"{seconds * 1e3:.3g} ms" if seconds >= 1e-3 else f"{seconds * 1e6:.3g} µs"
     if seconds < 120:
         return f"{seconds:.0f} s"
     if seconds < 7200:
