@@ -161,8 +161,7 @@ def _new_job(
     limits.check_frames(videos, settings)
     params = fit_params(options, marker_diameter(options, None))  # ValueError naming the option → 422
     detector_params(options)
-    limits.check_cost(model.id, KinematicModel.from_xml(model.xml), rig, params, videos,
-                      2 if options.deinterlace else 1, settings)
+    limits.check_cost(model, rig, params, videos, 2 if options.deinterlace else 1, settings)
     start = histogram_version(session, model, options.histogram_version)
     job = Job(lab_id=lab.id, model_id=model.id, rig_id=rig_id, options=options.model_dump(),
               histogram_version_id=start.id, batch_id=None if batch is None else batch.id, trial=trial,
