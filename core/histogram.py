@@ -25,13 +25,17 @@ import numpy as np
 from core import _kernels
 from core.model import KinematicModel, ModelError, _esc, _float, _num, _parse_xml
 
-__all__ = ["MAX_BINS", "HistogramError", "Histograms"]
+__all__ = ["MAX_BINS", "MAX_COUNT", "HistogramError", "Histograms"]
 
 DEFAULT_BINS = 360
 # Most bins per distribution: 0.1° each. The search reads every bin of every DOF for
 # s(H) and the means of each image, and a file's ``bins`` must not decide how much
 # memory is allocated; a lab's 360 (1°) is far below.
 MAX_BINS = 3600
+# Largest count N of Eq. 4 a file may give: 10¹² images, far beyond any archive. Without a
+# bound, 1e308 read back; merged with another it became inf, written as "inf", and the
+# model's archive no longer read.
+MAX_COUNT = 1e12
 _VALUE = re.compile(r"\S+")
 
 
@@ -222,6 +226,8 @@ def _parse_dof(el, name: str, bins: int) -> tuple[float, np.ndarray]:
         raise HistogramError(f"{where}: {exc}") from None
     if not (math.isfinite(count) and count >= 0):
         raise HistogramError(f"{where}: count must be a non-negative number")
+    if count > MAX_COUNT:
+        raise HistogramError(f"{where}: count {count:g} is more than {MAX_COUNT:g} (MAX_COUNT)")
     if not np.all(np.isfinite(values)) or np.any(values < 0):
         raise HistogramError(f"{where}: values must be non-negative numbers")
     total = values.sum()
