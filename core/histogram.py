@@ -32,10 +32,10 @@ DEFAULT_BINS = 360
 # s(H) and the means of each image, and a file's ``bins`` must not decide how much
 # memory is allocated; a lab's 360 (1°) is far below.
 MAX_BINS = 3600
-# Largest count N of Eq. 4 a file may give: 10¹² images, far beyond any archive. Without a
-# bound, 1e308 read back; merged with another it became inf, written as "inf", and the
-# model's archive no longer read.
-MAX_COUNT = 1e12
+# Largest count N of Eq. 4 a file or a prior may give. Huge counts are a use (a prior of 1e20
+# never moves), but near float's end two merged counts overflowed: 1e308 + 1e308 became inf,
+# was written as "inf", and the file no longer read. Sums of 1e300 stay finite.
+MAX_COUNT = 1e300
 _VALUE = re.compile(r"\S+")
 
 
@@ -76,8 +76,9 @@ class Histograms:
         """Uniform over each DOF's plausible range, zero elsewhere, worth ``prior_weight`` counts."""
         if bins < 1:
             raise ValueError(f"bins must be at least 1, got {bins}")
-        if not (prior_weight > 0 and math.isfinite(prior_weight)):
-            raise ValueError(f"prior_weight must be a positive finite number, got {prior_weight}")
+        if not (0 < prior_weight <= MAX_COUNT):
+            raise ValueError(f"prior_weight must be a positive finite number, at most {MAX_COUNT:g} "
+                             f"(MAX_COUNT), got {prior_weight}")
         empty = cls.empty(model, bins=bins)
         for r in range(len(empty.names)):
             mask = _range_mask(empty.lower[r], empty.upper[r], bins)

@@ -420,7 +420,7 @@ HOSTILE_HISTOGRAMS = {
     "nan_count": (lambda: _hist(P + Q.replace('count="10"', 'count="nan"')),
                   "dof 'q': count must be a non-negative number"),
     "count_of_1e308": (lambda: _hist(P + Q.replace('count="10"', 'count="1e308"')),
-                       r"dof 'q': count 1e\+308 is more than 1e\+12 \(MAX_COUNT\)"),
+                       r"dof 'q': count 1e\+308 is more than 1e\+300 \(MAX_COUNT\)"),
     "dof_not_in_the_model": (lambda: _hist(P + Q + '<dof name="phi" count="1">1 0 0 0</dof>'),
                              "dof 'phi' is not a rotational DOF of model 't'"),
     "dof_missing": (lambda: _hist(P), r"no histogram for DOF\(s\) q"),
