@@ -36,9 +36,9 @@ def _long_fit(model: KinematicModel, rig: Rig, iterations: int) -> None:
 
 
 def test_another_thread_runs_while_a_fit_kernel_runs():
-    """While one fit (about a second of compiled SA) runs in a thread, the main thread keeps
-    ticking every 5 ms: at least half the ticks a free thread would make. With the GIL held,
-    it made one tick (the one before the kernel took the GIL)."""
+    """While one fit (about two seconds of compiled SA) runs in a thread, the main thread keeps
+    ticking every 5 ms: at least a quarter of the ticks a free thread would make. Measured on
+    a loaded machine: 377 of 440; with a GIL-holding copy of the kernel, 2 in 1.83 s."""
     model = KinematicModel.from_xml(EXAMPLE / "model.xml")
     rig = Rig.from_json(EXAMPLE / "rig.json")
     _long_fit(model, rig, 1000)  # compile (or load the cache) outside the measurement
@@ -51,4 +51,4 @@ def test_another_thread_runs_while_a_fit_kernel_runs():
         ticks += 1
     elapsed = time.perf_counter() - start
     assert elapsed > 0.3, f"the fit took {elapsed:.2f} s: too short to show anything"
-    assert ticks >= 0.5 * elapsed / TICK_S, f"{ticks} ticks in {elapsed:.2f} s"
+    assert ticks >= 0.25 * elapsed / TICK_S, f"{ticks} ticks in {elapsed:.2f} s"
