@@ -38,7 +38,7 @@ NO_UNSEEN = np.zeros((0, 0), dtype=np.bool_)  # every marker may be seen
 # ---- rotations -----------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def euler_matrix(y: float, x: float, z: float, out: np.ndarray) -> None:
     """out = Ry(y)·Rx(x)·Rz(z), angles in radians."""
     cy, sy = math.cos(y), math.sin(y)
@@ -160,7 +160,7 @@ def joint_frames(q, kin, fr, sc) -> None:
         fr[o + 6], fr[o + 7], fr[o + 8], fr[o + 9], fr[o + 10], fr[o + 11] = a20, a21, a22, x, y, z
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def forward_kinematics(q, kin, rot, pos) -> None:
     """World rotation ``rot`` (J,3,3) and origin ``pos`` (J,3) of every joint (topological order)."""
     J = kin[0].shape[0]
@@ -185,7 +185,7 @@ def world_markers(fr, kin, out) -> None:
         out[m, 2] = fr[b + 11] + fr[b + 6] * x + fr[b + 7] * y + fr[b + 8] * z
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def marker_positions_many(Q, kin):
     """World marker positions (T,M,3) for postures Q (T,D)."""
     J, M = kin[0].shape[0], kin[6].shape[0]
@@ -259,7 +259,7 @@ def project_markers(world, kind, P, K, dist, offset, out) -> None:
             out[v, m, 1] = w + offset[v, 1]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def project_many(world, kind, P, K, dist):
     """Pixel coordinates (T,V,M,2) of world markers (T,M,3), no offsets."""
     V = kind.shape[0]
@@ -292,7 +292,7 @@ def fuse_projections(raw, fuse_px, out) -> None:
             out[v, m, 0], out[v, m, 1] = su / n, sv / n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def workspace(kin, views, D, N):
     """Scratch arrays: frames, sines/cosines, world, raw and fused projections (V,M,2), and
     for :func:`blob_error` each marker's detection and distance (M) and the claims on each
@@ -485,7 +485,7 @@ def blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, 
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px=0.0):
     """The objective (:func:`blob_error`) of one posture; plain Eq. 5 with ``fuse_px`` 0."""
     work = workspace(kin, views, q.shape[0], det.shape[0])
@@ -519,7 +519,7 @@ def next_uniform(s) -> float:
 # ---- local refinement ---------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _residuals(q, kin, views, offset, det, start, penalty, fuse_px, unseen, targets, work, res,
                valid):
     """Residual groups ``res`` of posture ``q`` and which count, ``valid`` (G,).
@@ -578,7 +578,7 @@ def _huber_cost(res, valid, c):
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def solve_spd(A, b):
     """x with A·x = b for a small symmetric positive-definite A, by Cholesky.
 
@@ -616,7 +616,7 @@ def _cholesky_solve(A, b, L, x) -> None:
         x[i] = acc / L[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def refine(q0, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen, huber_c,
            max_iter, h_fd, targets):
     """Levenberg–Marquardt on the Huber loss of residual groups (:func:`_residuals`), within bounds.
@@ -733,7 +733,7 @@ def _propose(cur, cand, step, sigma, lower, upper, hist, turns, bins_per_degree,
 _POLISH_STEPS = 10
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, lost_px,
             huber_c, out) -> float:
     """Refine ``q`` (:data:`_POLISH_STEPS` LM steps) into ``out`` if that lowers its error; return
@@ -759,7 +759,7 @@ def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_
     return e_q
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start, penalty, fuse_px,
            lost_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience, draws,
            huber_c, state):
@@ -862,7 +862,7 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
 # ---- one attempt on one image ---------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _splitmix64(x):
     """SplitMix64 step: (next state, output), the seeding generator xoshiro's authors recommend."""
     x = x + np.uint64(0x9E3779B97F4A7C15)
@@ -872,7 +872,7 @@ def _splitmix64(x):
     return x, z ^ (z >> np.uint64(31))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def stream_state(seed, sample, attempt):
     """xoshiro256** state (4 uint64) of one attempt on one image, from three uint64 keys.
 
@@ -888,7 +888,7 @@ def stream_state(seed, sample, attempt):
     return state
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def draw_posture(lower, upper, hist, state, out) -> None:
     """A random posture into ``out``: angles drawn from the histograms, translations uniform.
 
@@ -914,7 +914,7 @@ def draw_posture(lower, upper, hist, state, out) -> None:
         out[i] = min(max(value, lower[i]), upper[i])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lost_markers(q, kin, views, offset, det, start, penalty, fuse_px):
     """In every view, the worst-matched marker if it is farther than ``penalty`` from its
     detection (what an unseen marker costs): (V, M) mask, and whether any was found."""
@@ -938,7 +938,7 @@ def _lost_markers(q, kin, views, offset, det, start, penalty, fuse_px):
     return unseen, lost
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _refit_unseen(q, objective, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
                   huber_c):
     """Refit ``q`` (in place) without the markers that look lost; return the objective kept.
@@ -962,7 +962,7 @@ def _refit_unseen(q, objective, lower, upper, kin, views, offset, det, start, pe
     return objective
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
                 penalty, fuse_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience,
                 draws, huber_c, refine_result, restarts, state):
@@ -1025,7 +1025,7 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
 # ---- joint-angle histograms (Eq. 4) ---------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def eq4_update(probs, counts, bins) -> None:
     """Eq. 4 in place, one measurement per row: ``H_N = ((N-1)·H_{N-1} + Δ) / N``."""
     for r in range(probs.shape[0]):
@@ -1036,7 +1036,7 @@ def eq4_update(probs, counts, bins) -> None:
         probs[r, bins[r]] += 1.0 / counts[r]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def circular_stats(probs, lower, upper, sin_c, cos_c):
     """Circular mean (range coordinates) and spread s(H) of each row, degrees.
 
@@ -1080,7 +1080,7 @@ def circular_stats(probs, lower, upper, sin_c, cos_c):
 # ---- depth-flip alternatives (kinematic jumps) ------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _reflect(points, rows, origin, normal) -> None:
     """Reflect ``points[k]`` for every ``rows[k]`` through the plane (origin, unit normal)."""
     for k in range(points.shape[0]):
@@ -1091,10 +1091,10 @@ def _reflect(points, rows, origin, normal) -> None:
                 points[k, a] -= 2.0 * d * normal[a]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset, det, start, penalty,
                       fuse_px, huber_c, flip_joints, subtree_joints, subtree_markers, depth,
-                      perspective, masks, out_q, out_objective):
+                      perspective, masks, max_refined, out_q, out_objective):
     """Other postures that image (almost) like ``q``: one view's depth flips (kinematic jumps).
 
     A view does not see depth along its viewing direction: reflecting the part
@@ -1110,7 +1110,9 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
 
     ``depth`` (V,3): the viewing direction, or the camera centre where
     ``perspective``; ``subtree_joints`` (F,J) and ``subtree_markers`` (F,M): what
-    lies below each flip joint. Returns how many alternatives were written.
+    lies below each flip joint. At most ``max_refined`` flips that pass the screen are
+    refined (each refinement costs D evaluations a step). Returns how many alternatives
+    were written.
     """
     J, M, D = kin[0].shape[0], kin[6].shape[0], q.shape[0]
     V = views[0].shape[0]
@@ -1126,7 +1128,7 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
     targets, moved = np.empty((M, 3)), np.empty((J, 3))
     normal = np.empty(3)
     kind, P, K, dist = views
-    found = 0
+    found = refined = 0
     for v in range(V):
         for mask in masks:
             targets[:] = world
@@ -1150,6 +1152,9 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
             if blob_error(raw, fused, det, start, penalty, fuse_px, 0.0, limit, work[5], work[6],
                           work[7], NO_UNSEEN) > limit:
                 continue
+            if refined == max_refined:
+                return found
+            refined += 1
             reached = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
                              NO_UNSEEN, 1e9, 30, 1e-5, targets)
             cand = refine(reached, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
@@ -1165,7 +1170,7 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
     return found
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _distinct(cand, q, kept, n) -> bool:
     """True if some DOF of ``cand`` is more than 1 (degree, model unit) from ``q`` and each kept."""
     if np.max(np.abs(cand - q)) <= 1.0:
@@ -1206,6 +1211,8 @@ def _max_rank(binary, ranks, y, x, r):
     return best
 
 
+# Holds the GIL (no nogil): it runs for well under a millisecond per view, and ``index`` is a
+# scratch array core.detect shares between calls of one roi size, which threads must not share.
 @njit(cache=True)
 def detect_regions(image, binary, pixels, min_area, max_area, index):
     """Marker centroids of one view: regions of bright pixels, then weighted centroids.
@@ -1312,7 +1319,7 @@ _DISC_TOLERANCE_PX = 1e-3  # a disc fit has converged when its centre moves less
 _DISC_EVALUATIONS = 16  # model evaluations a disc fit may take (most converge in 3-5)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _disc_model(cu, cv, r, xcols, yrows, out, jac):
     """Each window pixel's area inside the disc (centre cu, cv; radius r), row by row, and,
     when ``jac`` has rows, its derivatives by (cu, cv, r) into ``jac`` (n, 3).
@@ -1381,7 +1388,7 @@ def _disc_model(cu, cv, r, xcols, yrows, out, jac):
                 jac[i, 0], jac[i, 1], jac[i, 2] = d_u / _SUBCOLUMNS, d_v / _SUBCOLUMNS, d_r / _SUBCOLUMNS
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def fit_field_discs(image, centres, radii, x_off, y_off, pitch, fitted, misfit):
     """Disc-model centres of markers in a field image.
 
@@ -1440,7 +1447,7 @@ def fit_field_discs(image, centres, radii, x_off, y_off, pitch, fitted, misfit):
             misfit[k] = _relative_misfit(theta, data, xcols, yrows, noise)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _relative_misfit(theta, data, xcols, yrows, noise):
     """Residual energy of the best-scaled disc beyond ``noise`` (the background's share),
     over the data's energy."""
@@ -1456,7 +1463,7 @@ def _relative_misfit(theta, data, xcols, yrows, noise):
     return max(0.0, dd - dm * dm / mm - noise) / dd
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _gauss_newton_disc(theta, data, xcols, yrows):
     """Fit ``a``·disc(theta) to ``data`` by Gauss–Newton; True if it converged.
 

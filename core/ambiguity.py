@@ -36,9 +36,16 @@ from core.error import Detections, view_offsets
 from core.model import KinematicModel, _topological_order
 from core.rig import Rig
 
-__all__ = ["Candidate", "FlipGeometry", "choose_candidates", "flip_alternatives"]
+__all__ = ["MAX_FLIP_REFINES", "Candidate", "FlipGeometry", "choose_candidates", "flip_alternatives",
+           "flip_masks"]
 
 MAX_ALTERNATIVES = 8
+# Flips refined per image at most. A flip that passes the screen (it images within the
+# tolerance) is refined twice (inverse kinematics, then 50 LM steps), each step costing
+# D·evaluation + V·M·D²: with one flip per joint, a model of many joints whose leaf flips all
+# pass made the search grow with the fourth power of its size. The locust leg tries 14
+# (3 flip joints: 7 subsets, 2 views), and keeps every one.
+MAX_FLIP_REFINES = 16
 _MAX_FULL_SUBSETS = 4  # flip joints up to which every subset is tried; beyond, one at a time
 _MIN_STEP = 0.5  # degrees (model units) per image: the smallest movement scale assumed
 _MIN_ERROR_SCALE_PX = 0.05
@@ -91,11 +98,21 @@ def _build_geometry(model: KinematicModel, rig: Rig) -> FlipGeometry:
     marker_joint = model.arrays.marker_joint
     subtree_joints = below[flip_joints]
     subtree_markers = subtree_joints[:, marker_joint].reshape(len(flip_joints), M)
-    F = len(flip_joints)
-    masks = (np.arange(1, 1 << F, dtype=np.int64) if F <= _MAX_FULL_SUBSETS
-             else (1 << np.arange(F, dtype=np.int64)))
     depth, perspective = _view_depths(rig)
-    return FlipGeometry(flip_joints, subtree_joints, subtree_markers, depth, perspective, masks)
+    return FlipGeometry(flip_joints, subtree_joints, subtree_markers, depth, perspective,
+                        flip_masks(len(flip_joints)))
+
+
+def flip_masks(n_flip_joints: int) -> np.ndarray:
+    """The subsets of flip joints tried in each view, (K,) int64 bit masks (bit f: flip joint f):
+    every non-empty subset of up to four flip joints, else each joint alone.
+
+    >>> flip_masks(2).tolist(), flip_masks(5).tolist()
+    ([1, 2, 3], [1, 2, 4, 8, 16])
+    """
+    F = n_flip_joints
+    return (np.arange(1, 1 << F, dtype=np.int64) if F <= _MAX_FULL_SUBSETS
+            else (1 << np.arange(F, dtype=np.int64)))
 
 
 def _view_depths(rig: Rig) -> tuple[np.ndarray, np.ndarray]:
@@ -134,7 +151,8 @@ def flip_alternatives(
     """Postures scoring within ``tolerance_px`` of ``fit`` reached by depth flips (step 1).
 
     Returns up to :data:`MAX_ALTERNATIVES` candidates, distinct from ``fit`` and
-    from each other (some DOF more than 1 degree or model unit apart).
+    from each other (some DOF more than 1 degree or model unit apart); at most
+    :data:`MAX_FLIP_REFINES` flips that pass the screen are refined.
     """
     geo = geometry
     if len(geo.flip_joints) == 0 or not math.isfinite(fit.objective):
@@ -146,7 +164,7 @@ def flip_alternatives(
         fit.dofs, fit.objective, float(tolerance_px), model.lower, model.upper, model.arrays,
         rig.arrays, off, detections.kernel_points, detections.start, float(empty_view_penalty_px),
         float(fusion_px), float(huber_px), geo.flip_joints, geo.subtree_joints, geo.subtree_markers,
-        geo.depth, geo.perspective, geo.masks, out_q, out_objective,
+        geo.depth, geo.perspective, geo.masks, MAX_FLIP_REFINES, out_q, out_objective,
     )
     return [
         Candidate(out_q[k].copy(), _plain_error(out_q[k], detections, model, rig, off,

@@ -11,6 +11,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
@@ -20,6 +21,7 @@ from rich.progress import Progress
 from typer.exceptions import TyperException
 
 from core.anneal import AnnealParams
+from core.cost import check_fit_cost, estimate_fit_cost
 from core.demo import FUSION_PX, locust_benchmark
 from core.detect import DetectorParams
 from core.error import fusion_distance
@@ -151,12 +153,14 @@ def fit(
         detector = DetectorParams(channel=channel, threshold=_threshold(threshold), erode=erode,
                                   dilate=dilate, blur=blur, min_area=min_area, max_area=max_area)
         source = VideoSource(tuple(videos), camera_rig, detector, deinterlace, field_order)
-        if diameter is None:
-            diameter = estimate_marker_diameter(source) or 0.0
         params = FitParams(
             anneal=AnnealParams().with_iterations(iterations), error_threshold_px=error_threshold_px,
-            max_attempts=max_attempts, fusion_px=fusion_distance(diameter),
+            max_attempts=max_attempts,
         )
+        check_fit_cost(estimate_fit_cost(kinematic, camera_rig, params, images=len(source)))
+        if diameter is None:
+            diameter = estimate_marker_diameter(source) or 0.0
+        params = replace(params, fusion_px=fusion_distance(diameter))
         root = None if root_marker is None else RootTracking(
             root_marker, _positions(root_start), root_max_jump_px)
         job = FitJob(source, kinematic, params, seed, chunk_size, root)

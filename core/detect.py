@@ -34,6 +34,7 @@ import numpy as np
 from core import _kernels
 from core.error import Detections
 from core.rig import Rig
+from core.video import MAX_FRAME_PIXELS
 
 __all__ = [
     "CHANNELS", "DetectorParams", "detect", "detect_views", "marker_diameter", "view_images",
@@ -52,11 +53,16 @@ cv2.setNumThreads(OPENCV_THREADS)
 CHANNELS = ("grey", "red", "green", "blue")
 _BGR_INDEX = {"blue": 0, "green": 1, "red": 2}
 _KERNEL3 = np.ones((3, 3), dtype=np.uint8)
+# Bounds of the filter parameters: each costs time per pixel of every view and image
+# (erosion and dilation passes, the blur kernel's side), and the areas go to the compiled
+# labelling as 64-bit integers. Markers are a few pixels across; these are far beyond.
+MAX_MORPHOLOGY_ITERATIONS = 20
+MAX_BLUR = 99
 
 
-def _check_int(name: str, value: object, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+def _check_int(name: str, value: object, minimum: int, maximum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not minimum <= value <= maximum:
+        raise ValueError(f"{name} must be an integer in {minimum}..{maximum}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -100,12 +106,12 @@ class DetectorParams:
         elif isinstance(t, bool) or not isinstance(t, numbers.Real) or not (0 <= t <= 255):
             raise ValueError(f"threshold must be a number 0..255 or 'otsu', got {t!r}")
         for name in ("erode", "dilate"):
-            _check_int(name, getattr(self, name), 0)
-        _check_int("blur", self.blur, 0)
+            _check_int(name, getattr(self, name), 0, MAX_MORPHOLOGY_ITERATIONS)
+        _check_int("blur", self.blur, 0, MAX_BLUR)
         if self.blur and self.blur % 2 == 0:
             raise ValueError(f"blur must be 0 (none) or an odd kernel size, got {self.blur!r}")
-        _check_int("min_area", self.min_area, 1)
-        _check_int("max_area", self.max_area, 1)
+        _check_int("min_area", self.min_area, 1, MAX_FRAME_PIXELS)
+        _check_int("max_area", self.max_area, 1, MAX_FRAME_PIXELS)
         if self.max_area < self.min_area:
             raise ValueError(
                 f"max_area must be >= min_area ({self.min_area}), got {self.max_area!r}"

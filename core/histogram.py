@@ -25,13 +25,17 @@ import numpy as np
 from core import _kernels
 from core.model import KinematicModel, ModelError, _esc, _float, _num, _parse_xml
 
-__all__ = ["MAX_BINS", "HistogramError", "Histograms"]
+__all__ = ["MAX_BINS", "MAX_COUNT", "HistogramError", "Histograms"]
 
 DEFAULT_BINS = 360
 # Most bins per distribution: 0.1° each. The search reads every bin of every DOF for
 # s(H) and the means of each image, and a file's ``bins`` must not decide how much
 # memory is allocated; a lab's 360 (1°) is far below.
 MAX_BINS = 3600
+# Largest count N of Eq. 4 a file or a prior may give. Huge counts are a use (a prior of 1e20
+# never moves), but near float's end two merged counts overflowed: 1e308 + 1e308 became inf,
+# was written as "inf", and the file no longer read. Sums of 1e300 stay finite.
+MAX_COUNT = 1e300
 _VALUE = re.compile(r"\S+")
 
 
@@ -72,8 +76,9 @@ class Histograms:
         """Uniform over each DOF's plausible range, zero elsewhere, worth ``prior_weight`` counts."""
         if bins < 1:
             raise ValueError(f"bins must be at least 1, got {bins}")
-        if not (prior_weight > 0 and math.isfinite(prior_weight)):
-            raise ValueError(f"prior_weight must be a positive finite number, got {prior_weight}")
+        if not (0 < prior_weight <= MAX_COUNT):
+            raise ValueError(f"prior_weight must be a positive finite number, at most {MAX_COUNT:g} "
+                             f"(MAX_COUNT), got {prior_weight}")
         empty = cls.empty(model, bins=bins)
         for r in range(len(empty.names)):
             mask = _range_mask(empty.lower[r], empty.upper[r], bins)
@@ -222,6 +227,8 @@ def _parse_dof(el, name: str, bins: int) -> tuple[float, np.ndarray]:
         raise HistogramError(f"{where}: {exc}") from None
     if not (math.isfinite(count) and count >= 0):
         raise HistogramError(f"{where}: count must be a non-negative number")
+    if count > MAX_COUNT:
+        raise HistogramError(f"{where}: count {count:g} is more than {MAX_COUNT:g} (MAX_COUNT)")
     if not np.all(np.isfinite(values)) or np.any(values < 0):
         raise HistogramError(f"{where}: values must be non-negative numbers")
     total = values.sum()

@@ -26,7 +26,8 @@ import numpy as np
 from core import _kernels
 from core._files import read_bounded
 
-__all__ = ["MAX_NAME_CHARS", "MAX_RIG_BYTES", "MAX_VIEWS", "Rig", "RigArrays", "RigError", "View"]
+__all__ = ["MAX_NAME_CHARS", "MAX_RIG_BYTES", "MAX_ROI_PIXELS", "MAX_VIEWS", "Rig", "RigArrays", "RigError",
+           "View"]
 
 PROJECTION_TYPES = ("affine", "pinhole", "matrix")
 _KIND = {"affine": 0, "pinhole": _kernels.PINHOLE, "matrix": 2}
@@ -38,6 +39,9 @@ MAX_NAME_CHARS = 1024
 # Views per rig: every view costs detection and projection in every image. Labs use up to
 # about 16 cameras (with mirrors, two views each); a 1 MiB file could otherwise hold 16,000.
 MAX_VIEWS = 256
+# Largest roi coordinate or side, pixels: the side of the largest frame a video may have
+# (core.video.MAX_FRAME_PIXELS is 4096 × 4096; a frame may be long and thin, not longer).
+MAX_ROI_PIXELS = 4096 * 4096
 # Longer integer literals are read as floats: Python's int() is quadratic in the digits
 # and refuses more than 4300 with a plain ValueError; no index or pixel needs 20 digits.
 _MAX_INT_DIGITS = 19
@@ -249,6 +253,11 @@ def _view_from_dict(d: Any, index: int) -> View:
             raise RigError(
                 f"{where}: roi must be [x, y, width, height], whole numbers, x, y >= 0, width, height > 0"
             )
+        if r[0] + r[2] > MAX_ROI_PIXELS or r[1] + r[3] > MAX_ROI_PIXELS or r[2] * r[3] > MAX_ROI_PIXELS:
+            raise RigError(
+                f"{where}: roi {[int(x) for x in r]} reaches beyond the largest frame a video may have "
+                f"({MAX_ROI_PIXELS} pixels, MAX_ROI_PIXELS)"
+            )
         roi = tuple(int(x) for x in r)
     proj = d.get("projection")
     if not isinstance(proj, dict) or proj.get("type") not in PROJECTION_TYPES:
@@ -263,6 +272,12 @@ def _check_video_indices(views: tuple[View, ...]) -> None:
     asks for ``max + 1`` files; a skipped index would be a file no view looks at,
     decoded for nothing — most likely a typo or a view missing from the rig.
     """
+    for v in views:  # bounds the index before it sizes anything below
+        if v.video >= len(views):
+            raise RigError(
+                f"view '{v.name}' uses video {v.video}, but a rig of {len(views)} view(s) can use "
+                f"videos 0..{len(views) - 1} at most: indices must be 0..n-1 with none skipped"
+            )
     used = sorted({v.video for v in views})
     # Sorted distinct indices: the first i with used[i] != i is missing. No range(max + 1):
     # an index of 19 digits would take forever.

@@ -159,8 +159,9 @@ def _new_job(
         raise InvalidError(f"rig {rig_id} expects {rig.n_videos} video(s), the job names {len(videos)}")
     rig.check_videos([(v.width, v.height) for v in videos])  # a roi outside its frame → 422 now
     limits.check_frames(videos, settings)
-    fit_params(options, marker_diameter(options, None))  # ValueError naming the option → 422
+    params = fit_params(options, marker_diameter(options, None))  # ValueError naming the option → 422
     detector_params(options)
+    limits.check_cost(model, rig, params, videos, 2 if options.deinterlace else 1, settings)
     start = histogram_version(session, model, options.histogram_version)
     job = Job(lab_id=lab.id, model_id=model.id, rig_id=rig_id, options=options.model_dump(),
               histogram_version_id=start.id, batch_id=None if batch is None else batch.id, trial=trial,

@@ -2,7 +2,8 @@
 
 - uploads in the last hour, in files and bytes, from ``videos.created_at`` and ``size_bytes``;
 - active (queued, running or re-analysing) jobs, from ``jobs.status``;
-- frames per job, from the videos' probed frame counts.
+- frames per job, from the videos' probed frame counts;
+- the work of one image, estimated from the model's and the rig's sizes (``core.cost``).
 
 Checks that admit new rows run with the lab's row locked (``SELECT … FOR UPDATE`` on
 PostgreSQL; SQLite's ``BEGIN IMMEDIATE`` already serialises writers), so concurrent
@@ -11,6 +12,7 @@ requests of one lab cannot both pass the last free place.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections.abc import Sequence
@@ -19,8 +21,12 @@ from datetime import UTC, datetime, timedelta
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
+from core.cost import FitCostError, check_fit_cost, estimate_fit_cost
+from core.fit import FitParams
+from core.model import KinematicModel
+from core.rig import Rig
 from service.errors import InvalidError, RateLimitedError
-from service.models import TERMINAL, Job, Lab, Video, utcnow
+from service.models import TERMINAL, Job, Lab, Model, Video, utcnow
 from service.settings import Settings
 
 logger = logging.getLogger(__name__)
@@ -74,6 +80,28 @@ def check_frames(videos: Sequence[Video], settings: Settings) -> None:
         raise InvalidError(f"the job's videos hold {frames} frames; this server fits at most "
                            f"{settings.max_frames_per_job} per job (MOCAP_MAX_FRAMES_PER_JOB): "
                            "split the trial")
+
+
+def check_cost(model: Model, rig: Rig, params: FitParams, videos: Sequence[Video], fields_per_frame: int,
+               settings: Settings) -> None:
+    """422 if one attempt on one image is estimated to outlast a chunk task's time limit (one
+    image must fit in a task), or to need more memory than a worker should give it."""
+    kinematic = _kinematic(model.xml)
+    images = min(v.frames for v in videos) * fields_per_frame
+    try:
+        check_fit_cost(estimate_fit_cost(kinematic, rig, params, images=images),
+                       max_attempt_s=settings.task_soft_time_limit_s,
+                       time_limit_name="a chunk task's time limit, MOCAP_TASK_SOFT_TIME_LIMIT_S")
+    except FitCostError as exc:
+        k = kinematic
+        sizes = f"{len(k.joints)} joints, {len(k.markers)} markers, {len(k.dofs)} DOFs"
+        raise InvalidError(f"model {model.id} ({sizes}) with {len(rig.views)} view(s): {exc}") from None
+
+
+@functools.lru_cache(maxsize=8)
+def _kinematic(xml: str) -> KinematicModel:
+    """A stored model parsed once per process: a batch checks it for each of its trials."""
+    return KinematicModel.from_xml(xml)
 
 
 def _refuse(lab: Lab, message: str, retry_after: int) -> None:

@@ -7,6 +7,9 @@ from typing import Annotated, Any, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
+from core.detect import MAX_BLUR, MAX_MORPHOLOGY_ITERATIONS
+from core.video import MAX_FRAME_PIXELS
+
 
 def _utc(moment: datetime | None) -> datetime | None:
     """Times are stored in UTC; SQLite hands them back without a zone, so add it."""
@@ -27,11 +30,11 @@ class DetectorOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
     threshold: Annotated[float, Field(ge=0, le=255)] | Literal["otsu"] = 100.0
     channel: Literal["grey", "red", "green", "blue"] = "grey"
-    blur: int = Field(default=0, ge=0, le=99)
-    erode: int = Field(default=0, ge=0, le=20)
-    dilate: int = Field(default=0, ge=0, le=20)
-    min_area: int = Field(default=2, ge=1)
-    max_area: int = Field(default=2000, ge=1)
+    blur: int = Field(default=0, ge=0, le=MAX_BLUR)
+    erode: int = Field(default=0, ge=0, le=MAX_MORPHOLOGY_ITERATIONS)
+    dilate: int = Field(default=0, ge=0, le=MAX_MORPHOLOGY_ITERATIONS)
+    min_area: int = Field(default=2, ge=1, le=MAX_FRAME_PIXELS)  # pixels of a region: at most a frame
+    max_area: int = Field(default=2000, ge=1, le=MAX_FRAME_PIXELS)
 
 
 class JobOptions(BaseModel):

@@ -47,6 +47,15 @@ def interlaced_clip(tmp_path_factory) -> Path:
     return out
 
 
+def _chain_xml(n: int) -> str:
+    """A chain of ``n`` joints, one DOF and one marker each (within the file limits)."""
+    joints = ['<joint name="j0"><dof axis="z" name="d0" min="-30" max="30"/></joint>'] + [
+        f'<joint name="j{i}" parent="j{i - 1}"><offset x="1"/><dof axis="z" name="d{i}" min="-30" '
+        'max="30"/></joint>' for i in range(1, n)]
+    markers = [f'<marker name="m{i}" joint="j{i}"/>' for i in range(n)]
+    return f'<model name="chain">{"".join(joints + markers)}</model>'
+
+
 def _fit(clip: Path, out: Path, *extra: str):
     return _invoke("fit", clip / "video0.avi", "--model", EXAMPLE / "model.xml",
                    "--rig", EXAMPLE / "rig.json", "--out", out, "--marker-diameter-px", "4", *extra)
@@ -118,7 +127,8 @@ def test_marker_diameter_is_estimated_in_frame_pixels_by_default(request, name, 
     ("case", "match"),
     [("missing_model", "cannot read model"), ("bad_rig", "rig"), ("text_video", "video"),
      ("two_videos", "expects 1 video"), ("bad_histograms", "histogram"),
-     ("bad_diameter", "--marker-diameter-px")],
+     ("bad_diameter", "--marker-diameter-px"),
+     ("model_of_1000_joints", "one attempt on one image is estimated to take up to")],
 )
 def test_bad_input_exits_2_with_one_line(clip, tmp_path, case, match):
     model, rig, video = EXAMPLE / "model.xml", EXAMPLE / "rig.json", clip / "video0.avi"
@@ -136,6 +146,9 @@ def test_bad_input_exits_2_with_one_line(clip, tmp_path, case, match):
         videos = [video, video]
     elif case == "bad_diameter":
         extra = ["--marker-diameter-px", "-3"]
+    elif case == "model_of_1000_joints":  # issue 12: one image's fit ran for hours
+        model = tmp_path / "chain.xml"
+        model.write_text(_chain_xml(1000))
     else:
         bad = tmp_path / "h.xml"
         bad.write_text('<histograms model="x" bins="360"></histograms>')

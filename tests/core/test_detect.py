@@ -156,6 +156,9 @@ def test_empty_and_saturated_images():
         ({"min_area": 0}, "min_area"),
         ({"max_area": 0}, "max_area"),
         ({"min_area": 10, "max_area": 5}, "max_area"),
+        ({"max_area": 2**64}, r"max_area must be an integer in 1..16777216"),  # numba's int64 overflowed
+        ({"erode": 10**9}, r"erode must be an integer in 0..20"),  # 10**9 passes over every roi
+        ({"blur": 10**6 + 1}, r"blur must be an integer in 0..99"),
     ],
 )
 def test_detector_params_validation(kwargs, name):

@@ -74,6 +74,7 @@ def test_uniform_coarse_bins_and_narrow_range():
         ({"prior_weight": -1}, "prior_weight must be a positive finite number"),
         ({"prior_weight": math.nan}, "prior_weight must be a positive finite number"),
         ({"prior_weight": math.inf}, "prior_weight must be a positive finite number"),
+        ({"prior_weight": 1e308}, r"at most 1e\+300 \(MAX_COUNT\)"),  # two such priors merged: inf
     ],
 )
 def test_uniform_validation(kwargs, match):
