@@ -53,9 +53,7 @@ def serve(
                                       "yields to the API on a shared machine")] = 10,
 ) -> None:
     """Run the API and worker processes: SQLite and a filesystem broker unless MOCAP_* say otherwise."""
-    import uvicorn
-
-    from service.api.app import create_app
+    from service.api.server import serve as serve_api
     from service.migrate import upgrade
     from service.settings import get_settings
     from worker.reaper import start_reaper
@@ -72,7 +70,7 @@ def serve(
     # uvicorn re-raises SIGTERM once it has shut down; as SystemExit, the workers are stopped below.
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     try:
-        uvicorn.run(create_app(), host=host, port=port, log_level="info")
+        serve_api(host, port)
     finally:
         if pool is not None:
             pool.send_signal(signal.SIGTERM)  # warm shutdown: running tasks finish or are re-queued

@@ -15,6 +15,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
+from service.api.guard import RequestGuard
 from service.api.routes import batches, jobs, models, rigs, videos
 from service.errors import ConflictError, NotFoundError, QueueUnavailableError, RateLimitedError
 from service.storage import get_storage
@@ -36,6 +37,7 @@ def create_app() -> FastAPI:
                               "videos, submit fitting jobs, download angles and histograms.")
     for router in (models.router, rigs.router, videos.router, jobs.router, batches.router):
         app.include_router(router, prefix="/v1")
+    app.add_middleware(RequestGuard)  # key, size and pace of a body checked before it is read
     _errors(app)
     return app
 
