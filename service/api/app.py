@@ -15,8 +15,10 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
+from service import crud
 from service.api.guard import RequestGuard
 from service.api.routes import batches, jobs, models, rigs, videos
+from service.db import read_session_factory
 from service.errors import ConflictError, NotFoundError, QueueUnavailableError, RateLimitedError
 from service.storage import get_storage
 from service.upload import TooLargeError
@@ -24,10 +26,18 @@ from service.upload import TooLargeError
 logger = logging.getLogger(__name__)
 
 
+# A stored video this old without a row is an orphan; a younger one may be being probed.
+ORPHAN_AGE_S = 3600
+
+
 @asynccontextmanager
 async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
-    """On start, delete the partial uploads of an API process that died mid-upload."""
-    get_storage().remove_abandoned()
+    """On start, delete the partial uploads of an API process that died mid-upload, and the
+    complete ones it stored but never registered."""
+    storage = get_storage()
+    storage.remove_abandoned()
+    with read_session_factory()() as session:
+        crud.remove_orphan_videos(session, storage, ORPHAN_AGE_S)
     yield
 
 

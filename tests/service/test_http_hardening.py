@@ -127,7 +127,7 @@ def test_a_json_body_declaring_more_than_the_limit_is_413_before_it_is_read(guar
         sock.sendall(_head("POST", "/jobs", key, Content_Type="application/json",
                            Content_Length=str(10 * 1024**2)))
         status, headers, body = _response(sock, timeout=2)
-        assert status == 413 and "at most 262144" in json.loads(body)["detail"]
+        assert status == 413 and "262144 bytes at most" in json.loads(body)["detail"]
         assert headers["connection"] == "close" and _closed(sock, 2)
 
 
