@@ -31,7 +31,16 @@ from service.labs import create_lab
 from service.settings import Settings
 from service.storage import LocalStorage
 
-pytestmark = pytest.mark.service
+pytestmark = [pytest.mark.service, pytest.mark.slow]
+
+
+def lab_client(deployment: Deployment, name: str) -> httpx.Client:
+    """A new lab's client, the lab written straight into the database (``mocap admin create-lab``
+    is tested in test_admin_cli.py; a process per lab would cost seconds)."""
+    with Session(deployment.db()) as session:
+        _, key = create_lab(session, name)
+        session.commit()
+    return httpx.Client(base_url=deployment.url, headers={"Authorization": f"Bearer {key}"}, timeout=30)
 
 
 def _frames(video: Path, count: int) -> list:
@@ -57,20 +66,33 @@ def exact(tmp_path_factory, clip):
         yield deployment
 
 
+@pytest.fixture(scope="module")
+def client(exact) -> httpx.Client:
+    return lab_client(exact, "exact")
+
+
+@pytest.fixture(scope="module")
+def pair(client, clip) -> dict[str, int]:
+    """A model, a rig of two cameras and the clip as the first camera's video."""
+    ids = upload_inputs(client, clip.video)
+    a = client.post("/videos", files={"file": ("a.avi", clip.video.read_bytes())}).json()["id"]
+    return {"model_id": ids["model_id"], "rig_id": _two_view_rig(client), "a": a}
+
+
 def _storage(deployment: Deployment) -> Path:
     return Path(deployment.env["MOCAP_DATA_DIR"]) / "storage"
 
 
-def test_an_upload_of_exactly_the_limit_is_stored_and_one_byte_more_is_413(exact, clip):
-    client = exact.create_lab("exact")
+def test_an_upload_of_exactly_the_limit_is_stored_and_one_byte_more_is_413(exact, client, clip):
+    before = set((_storage(exact) / "videos").glob("*"))
     data = clip.video.read_bytes()
     stored = client.post("/videos", files={"file": ("clip.avi", data)})
     assert stored.status_code == 201, stored.text
     assert stored.json()["size_bytes"] == len(data)
     refused = client.post("/videos", files={"file": ("clip.avi", data + b"\0")})
     assert refused.status_code == 413
-    files = [p.name for p in (_storage(exact) / "videos").iterdir()]
-    assert len(files) == 1  # the refused upload left nothing
+    added = set((_storage(exact) / "videos").glob("*")) - before
+    assert len(added) == 1  # the refused upload left nothing
 
 
 def test_the_size_column_holds_sizes_past_2_31_on_postgresql(exact, clip):
@@ -88,10 +110,9 @@ def test_the_size_column_holds_sizes_past_2_31_on_postgresql(exact, clip):
     assert size == 2**31 + 1
 
 
-def test_stored_videos_without_a_row_are_deleted_when_the_api_starts(exact, clip, tmp_path):
+def test_stored_videos_without_a_row_are_deleted_when_the_api_starts(exact, client, clip, tmp_path):
     """An old orphan (its API died between storing and registering) goes; a recent one may be
     being registered and stays, as do registered videos."""
-    client = exact.create_lab("orphans")
     registered = client.post("/videos", files={"file": ("clip.avi", clip.video.read_bytes())}).json()
     videos = _storage(exact) / "videos"
     old, recent = videos / uuid.uuid4().hex, videos / uuid.uuid4().hex
@@ -129,18 +150,16 @@ def _two_view_rig(client: httpx.Client) -> int:
     ((30, 50.0), "same number of frames (within 2); got video {a} ('a.avi'): 40, video {b} ('b.avi'): 30"),
     ((40, 25.0), "same frame rate; video {a} ('a.avi') has 50 fps, video {b} ('b.avi') 25"),
 ])
-def test_videos_that_cannot_be_fitted_together_are_422_at_submission(exact, clip, tmp_path, second,
+def test_videos_that_cannot_be_fitted_together_are_422_at_submission(client, pair, clip, tmp_path, second,
                                                                     problem):
-    client = exact.create_lab("pairs")
-    ids = upload_inputs(client, clip.video)
-    rig_id = _two_view_rig(client)
-    a = client.post("/videos", files={"file": ("a.avi", clip.video.read_bytes())}).json()["id"]
+    ids, rig_id, a = pair, pair["rig_id"], pair["a"]
+    jobs_before = client.get("/jobs").json()["items"]
     b_path = _variant(clip, tmp_path, "b.avi", *second)
     b = client.post("/videos", files={"file": ("b.avi", b_path.read_bytes())}).json()["id"]
     response = client.post("/jobs", json={"model_id": ids["model_id"], "rig_id": rig_id, "video_ids": [a, b]})
     assert response.status_code == 422
     assert problem.format(a=a, b=b) in response.json()["detail"]
-    assert client.get("/jobs").json()["items"] == []
+    assert client.get("/jobs").json()["items"] == jobs_before
     # Within the tolerance `mocap fit` allows (2 frames), the job is taken.
     c_path = _variant(clip, tmp_path, "c.avi", 38, 50.0)
     c = client.post("/videos", files={"file": ("c.avi", c_path.read_bytes())}).json()["id"]
@@ -150,7 +169,7 @@ def test_videos_that_cannot_be_fitted_together_are_422_at_submission(exact, clip
 
 @pytest.mark.slow
 def test_a_truncated_video_shows_its_missing_frames_in_the_job_report(redis_pg, clip):
-    client = redis_pg.create_lab("truncated")
+    client = lab_client(redis_pg, "truncated")
     data = clip.video.read_bytes()
     cut = Path(redis_pg.env["MOCAP_DATA_DIR"]) / "cut.avi"
     cut.write_bytes(data[: len(data) * 3 // 4])
@@ -170,7 +189,7 @@ def test_a_job_failing_on_its_video_names_it_as_uploaded_and_logs_no_traceback(r
     """The stored file is damaged after upload (a disk fault, or a file replaced by hand): the
     worker's probe fails. The job's error names the video by id and upload name; the worker
     logs the lab's error as expected (one line), not as "raised unexpected" with a traceback."""
-    client = redis_pg.create_lab("damaged")
+    client = lab_client(redis_pg, "damaged")
     ids = upload_inputs(client, clip.video)
     with redis_pg.db().connect() as conn:
         key = conn.execute(text("SELECT storage_key FROM videos WHERE id = :v"),
