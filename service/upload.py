@@ -88,7 +88,8 @@ class _FilePart:
 
 async def receive_video(request: Request, storage: Storage, limit: int) -> Received:
     """Stream the multipart field ``file`` into storage under a fresh key (atomic: all or nothing)."""
-    boundary = _boundary(request, "upload the video as multipart/form-data with a field named 'file'")
+    boundary = _boundary(request, "upload the video as multipart/form-data (with a boundary) and a "
+                                  "field named 'file'")
     check_length(request, limit + MULTIPART_SLACK)
     key = f"videos/{uuid.uuid4().hex}"
     with storage.writer(key) as out:

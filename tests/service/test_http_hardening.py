@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import select
 import socket
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from urllib.parse import urlsplit
@@ -218,3 +220,64 @@ def test_unknown_keys_from_one_address_earn_429_for_the_window(guarded, key):
     assert _status(guarded, "guess-elsewhere", "127.0.0.3")[0] == 401  # per address
     time.sleep(int(headers["retry-after"]))
     assert _status(guarded, key, guesser)[0] == 200
+
+
+# ---- parsers: any failure on user input is a 4xx naming it (issue 12, item 6) -----------------
+
+DEEP = 50_000
+
+
+def _nested(levels: int, inner: str = "0") -> bytes:
+    return ("[" * levels + inner + "]" * levels).encode()
+
+
+@pytest.mark.parametrize(("path", "body", "status", "problem"), [
+    ("/rigs", _nested(DEEP), 422, "nested too deeply"),
+    ("/rigs", b'{"views": [], "notes": ' + _nested(33) + b"}", 422,
+     "nests 34 levels deep; a rig nests at most 32"),
+    ("/jobs", b'{"model_id": ' + _nested(DEEP) + b"}", 400, "error parsing the body"),
+    ("/batches", _nested(DEEP), 400, "error parsing the body"),
+    ("/jobs", b'{"model_id": 1, "rig_id": 1, "video_ids": [1]', 422, "JSON decode error"),
+    ("/rigs", b"\xff\xfe{}", 422, "rig is not valid JSON"),
+])
+def test_deep_or_broken_json_is_4xx_naming_the_problem(guarded, key, path, body, status, problem):
+    with _connect(guarded) as sock:
+        sock.sendall(_head("POST", path, key, Content_Type="application/json",
+                           Content_Length=str(len(body))) + body)
+        got, _, answer = _response(sock)
+        assert got == status and problem in json.loads(answer)["detail"], answer
+
+
+NOT_FILE = b'--b\r\nContent-Disposition: form-data; name="other"\r\n\r\nx\r\n--b--\r\n'
+
+
+@pytest.mark.parametrize("path", ["/videos", "/models", "/rigs"])
+@pytest.mark.parametrize(("content_type", "body", "problem"), [
+    ("multipart/form-data; boundary=b", b"no multipart body at all\r\n", "multipart body is malformed"),
+    ("multipart/form-data; boundary=b", NOT_FILE, "no file field named 'file'"),
+    ("multipart/form-data", b"--b\r\n", "boundary"),
+])
+def test_malformed_multipart_is_422(guarded, key, path, content_type, body, problem):
+    with _connect(guarded) as sock:
+        sock.sendall(_head("POST", path, key, Content_Type=content_type,
+                           Content_Length=str(len(body))) + body)
+        status, _, answer = _response(sock)
+        assert status == 422 and problem in json.loads(answer)["detail"], answer
+
+
+# ---- keys revoked and rotated by `mocap admin` take effect at once (issue 12, item 9) ---------------
+
+def _admin(deployment: Deployment, *args: str) -> str:
+    return subprocess.run([sys.executable, "-m", "service.cli", "admin", *args], env=deployment.env,
+                          capture_output=True, text=True, check=True).stdout
+
+
+def test_revoked_and_rotated_keys(guarded):
+    old = guarded.create_lab("rotating").headers["Authorization"].removeprefix("Bearer ")
+    lab_id = _admin(guarded, "list-labs").splitlines()[-1].split()[0]
+    assert _status(guarded, old, "127.0.0.4")[0] == 200
+    new = _admin(guarded, "rotate-key", lab_id).splitlines()[-1]
+    assert _status(guarded, old, "127.0.0.4")[0] == 401
+    assert _status(guarded, new, "127.0.0.4")[0] == 200
+    _admin(guarded, "revoke-key", lab_id)
+    assert _status(guarded, new, "127.0.0.4")[0] == 401
