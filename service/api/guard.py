@@ -75,7 +75,7 @@ class RequestGuard:
                 return
         if declared is not None and declared > limit:
             await _refuse(scope, receive, send, 413, f"the request body ({declared} bytes) is larger "
-                          f"than {scope['path']} accepts ({limit} bytes at most)")
+                          f"than this server accepts for {scope['path']} ({limit} bytes at most)")
             return
         body = _Body(receive, limit, settings, scope["path"])
         await self.app(scope, body.receive, body.sender(send))
@@ -106,8 +106,8 @@ class _Body:
             self.done = True
         self.received += len(message.get("body", b""))
         if self.received > self.limit:
-            raise HTTPException(413, f"the request body is larger than {self.path} accepts ({self.limit} "
-                                "bytes at most)", CLOSE)
+            raise HTTPException(413, f"the request body is larger than this server accepts for "
+                                f"{self.path} ({self.limit} bytes at most)", CLOSE)
         return message
 
     def sender(self, send: Send) -> Send:
