@@ -9,8 +9,9 @@ An ASGI middleware in front of every route, for requests that carry a body
 - A body declaring more than its route accepts (:func:`body_limit`) is 413 before it is
   read; a chunked one is 413 as soon as it passes the limit.
 - A body must keep coming (uvicorn has no timeout on it): 408 when no byte arrives for
-  ``body_timeout_s``, or when, after the first ``body_timeout_s``, it has averaged fewer
-  than ``body_min_bytes_per_s`` (a slow-loris sending a byte a second).
+  ``body_timeout_s``, or when the time spent waiting for it passes ``body_timeout_s`` plus
+  the time its bytes so far take at ``body_min_bytes_per_s`` (a slow-loris sending a byte a
+  second). Time the route spends not reading does not count.
 - A response sent before the whole body was read carries ``Connection: close``, so uvicorn
   closes the connection instead of reading and discarding the rest.
 
@@ -87,21 +88,24 @@ class _Body:
     def __init__(self, receive: Receive, limit: int, settings: Settings, path: str) -> None:
         self._receive, self.limit, self.path = receive, limit, path
         self.idle_s, self.min_rate = settings.body_timeout_s, settings.body_min_bytes_per_s
-        self.started, self.received, self.done = time.monotonic(), 0, False
+        # Only time spent waiting for the client counts: a route that reads late (a lock, a
+        # database lookup) must not make a fast client's body time out.
+        self.waited, self.received, self.done = 0.0, 0, False
 
     async def receive(self) -> Message:
         if self.done:
             return await self._receive()
-        # The body has until `deadline` to have sent `received` bytes more at the minimum rate.
-        deadline = self.started + self.idle_s + self.received / self.min_rate
+        # Waiting so far may total idle_s plus the time `received` bytes take at the minimum rate.
+        allowed = self.idle_s + self.received / self.min_rate - self.waited
+        start = time.monotonic()
         try:
-            message = await asyncio.wait_for(self._receive(),
-                                             max(0.0, min(self.idle_s, deadline - time.monotonic())))
+            message = await asyncio.wait_for(self._receive(), max(0.0, min(self.idle_s, allowed)))
         except TimeoutError:
             raise HTTPException(408, f"the request body came too slowly ({self.received} bytes in "
-                                f"{time.monotonic() - self.started:.0f} s); send at least "
+                                f"{self.waited + time.monotonic() - start:.0f} s); send at least "
                                 f"{self.min_rate} bytes/s, and a byte at least every {self.idle_s:g} s",
                                 CLOSE) from None
+        self.waited += time.monotonic() - start
         if message["type"] != "http.request" or not message.get("more_body", False):
             self.done = True
         self.received += len(message.get("body", b""))
