@@ -14,6 +14,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import SQLAlchemyError
 
 from service import crud
 from service.api.guard import RequestGuard
@@ -36,8 +37,11 @@ async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
     complete ones it stored but never registered."""
     storage = get_storage()
     storage.remove_abandoned()
-    with read_session_factory()() as session:
-        crud.remove_orphan_videos(session, storage, ORPHAN_AGE_S)
+    try:
+        with read_session_factory()() as session:
+            crud.remove_orphan_videos(session, storage, ORPHAN_AGE_S)
+    except SQLAlchemyError:  # the database is down: serve anyway (requests will say so), sweep next start
+        logger.exception("orphan videos not swept: the database cannot be read")
     yield
 
 
