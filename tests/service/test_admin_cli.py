@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from sqlalchemy.orm import Session
 
 from service.db import make_engine
@@ -33,6 +34,7 @@ def _opens(data: Path, key: str) -> int | None:
         engine.dispose()
 
 
+@pytest.mark.slow  # 5 processes: ~5 s, 15 s on a busy machine
 def test_create_list_revoke_and_rotate(tmp_path):
     data = tmp_path / "lab-data"
     database = f"database: sqlite:///{data.resolve() / 'mocap.db'}"

@@ -19,7 +19,10 @@ from urllib.parse import urlsplit
 
 import pytest
 from conftest import Deployment, redis_pg_deployment
+from sqlalchemy.orm import Session
 from svc_helpers import EXAMPLE
+
+from service.labs import create_lab
 
 pytestmark = pytest.mark.service
 
@@ -273,8 +276,10 @@ def _admin(deployment: Deployment, *args: str) -> str:
 
 
 def test_revoked_and_rotated_keys(guarded):
-    old = guarded.create_lab("rotating").headers["Authorization"].removeprefix("Bearer ")
-    lab_id = _admin(guarded, "list-labs").splitlines()[-1].split()[0]
+    with Session(guarded.db()) as session:
+        lab, old = create_lab(session, "rotating")
+        session.commit()
+        lab_id = str(lab.id)
     assert _status(guarded, old, "127.0.0.4")[0] == 200
     new = _admin(guarded, "rotate-key", lab_id).splitlines()[-1]
     assert _status(guarded, old, "127.0.0.4")[0] == 401
