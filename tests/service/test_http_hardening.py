@@ -191,6 +191,17 @@ def test_slow_headers_are_disconnected(guarded, start):
         assert 0.9 < time.monotonic() - t0 < 2.5
 
 
+def test_an_oversized_header_is_431_once_past_64_kib(guarded):
+    """Sent as fast as the socket takes it (was: buffered whole, 66 MB in 8 s grew the API 106 MB)."""
+    with _connect(guarded) as sock:
+        sock.sendall(b"GET /v1/jobs HTTP/1.1\r\nHost: test\r\nX-Big: ")
+        sent = _send_until_answered(sock, b"a" * 65536, 300 * 1024**2)
+        status, headers, _ = _response(sock)
+        assert status == 431 and headers["connection"] == "close"
+        assert sent < 8 * 1024**2, sent
+        assert _closed(sock, 2)
+
+
 def test_a_keep_alive_connection_serves_requests_normally(guarded, key):
     """The clocks do not touch a normal client: three requests on one connection."""
     with _connect(guarded) as sock:
