@@ -73,8 +73,8 @@ def environment(data: Path, embedded: bool) -> tuple[dict[str, str], str | None]
 
 def start_api(env: dict[str, str], port: int, log: Path) -> subprocess.Popen:
     subprocess.run([sys.executable, "-m", "service.migrate"], env=env, check=True, capture_output=True)
-    api = subprocess.Popen([sys.executable, "-m", "uvicorn", "service.api.app:create_app", "--factory",
-                            "--port", str(port), "--log-level", "warning"],
+    api = subprocess.Popen([sys.executable, "-m", "service.api.server", "--port", str(port),
+                            "--log-level", "warning"],
                            env=env, stdout=log.open("w"), stderr=subprocess.STDOUT)
     for _ in range(300):
         try:

@@ -28,7 +28,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["MAX_FRAME_MISMATCH", "MAX_FRAME_PIXELS", "VideoError", "VideoInfo", "VideoSet", "probe"]
+__all__ = ["MAX_FRAME_MISMATCH", "MAX_FRAME_PIXELS", "VideoError", "VideoInfo", "VideoSet",
+           "check_synchronised", "probe"]
 
 # Videos of one rig are cut from synchronised cameras, but their files may end a
 # frame or two apart (a camera started late, a trailing partial frame dropped).
@@ -53,13 +54,18 @@ class VideoError(ValueError):
 
 @dataclass(frozen=True)
 class VideoInfo:
-    """What :func:`probe` learnt of one file: decodable frames, rate and frame size (pixels)."""
+    """What :func:`probe` learnt of one file: decodable frames, rate and frame size (pixels).
+
+    ``announced_frames`` is the container's own count (0 if it gives none): more than
+    ``frames`` for a truncated file.
+    """
 
     path: Path
     frames: int
     fps: float
     width: int
     height: int
+    announced_frames: int = 0
 
 
 def probe(path: str | Path) -> VideoInfo:
@@ -86,7 +92,7 @@ def probe(path: str | Path) -> VideoInfo:
     if not (math.isfinite(fps) and fps > 0):
         raise VideoError(f"{path}: the container gives no usable frame rate ({fps!r})")
     height, width = first.shape[:2]
-    return VideoInfo(path, frames, float(fps), int(width), int(height))
+    return VideoInfo(path, frames, float(fps), int(width), int(height), max(announced, 0))
 
 
 class VideoSet:
@@ -101,7 +107,8 @@ class VideoSet:
         if not paths:
             raise VideoError("no video file given")
         self.infos = tuple(probe(p) for p in paths)
-        _check_synchronised(self.infos)
+        check_synchronised([i.path.name for i in self.infos], [i.frames for i in self.infos],
+                           [i.fps for i in self.infos])
 
     @property
     def paths(self) -> tuple[Path, ...]:
@@ -215,18 +222,21 @@ def _next(capture: cv2.VideoCapture, path: Path, index: int) -> np.ndarray:
     return frame
 
 
-def _check_synchronised(infos: Sequence[VideoInfo]) -> None:
-    counts = [i.frames for i in infos]
-    if max(counts) - min(counts) > MAX_FRAME_MISMATCH:
-        listing = ", ".join(f"{i.path.name}: {i.frames}" for i in infos)
+def check_synchronised(names: Sequence[str], frames: Sequence[int], fps: Sequence[float]) -> None:
+    """Raise :class:`VideoError` unless the videos of one rig can be read as one set: frame
+    counts within :data:`MAX_FRAME_MISMATCH` of each other, the same frame rate.
+
+    names : how the message names each video (a file name; the service: id and upload name).
+    """
+    if max(frames) - min(frames) > MAX_FRAME_MISMATCH:
+        listing = ", ".join(f"{name}: {count}" for name, count in zip(names, frames, strict=True))
         raise VideoError(
             f"the videos of one rig must have the same number of frames (within "
             f"{MAX_FRAME_MISMATCH}); got {listing}"
         )
-    rate = infos[0].fps
-    for info in infos[1:]:
-        if abs(info.fps - rate) > _FPS_TOLERANCE * rate:
+    for name, rate in zip(names[1:], fps[1:], strict=True):
+        if abs(rate - fps[0]) > _FPS_TOLERANCE * fps[0]:
             raise VideoError(
-                f"the videos of one rig must have the same frame rate; {infos[0].path.name} "
-                f"has {rate:g} fps, {info.path.name} {info.fps:g}"
+                f"the videos of one rig must have the same frame rate; {names[0]} "
+                f"has {fps[0]:g} fps, {name} {rate:g}"
             )

@@ -1,4 +1,5 @@
 """``mocap``'s service commands (``serve``, ``worker``, ``reap``, ``admin create-lab``,
+``list-labs``, ``revoke-key``, ``rotate-key``,
 ``demo --service``) added to core's CLI.
 
 This is the console script: it registers the commands below on ``core.cli.app``
@@ -14,13 +15,18 @@ import os
 import signal
 import subprocess
 import sys
-from typing import Annotated
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from core.cli import app, user_errors
 from core.cli import demo as local_demo
 from core.cli import run as run_core
+
+if TYPE_CHECKING:
+    from sqlalchemy.orm import Session
 
 admin = typer.Typer(no_args_is_help=True, help="Administer labs.")
 app.add_typer(admin, name="admin")
@@ -53,9 +59,7 @@ def serve(
                                       "yields to the API on a shared machine")] = 10,
 ) -> None:
     """Run the API and worker processes: SQLite and a filesystem broker unless MOCAP_* say otherwise."""
-    import uvicorn
-
-    from service.api.app import create_app
+    from service.api.server import serve as serve_api
     from service.migrate import upgrade
     from service.settings import get_settings
     from worker.reaper import start_reaper
@@ -72,7 +76,7 @@ def serve(
     # uvicorn re-raises SIGTERM once it has shut down; as SystemExit, the workers are stopped below.
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     try:
-        uvicorn.run(create_app(), host=host, port=port, log_level="info")
+        serve_api(host, port)
     finally:
         if pool is not None:
             pool.send_signal(signal.SIGTERM)  # warm shutdown: running tasks finish or are re-queued
@@ -138,17 +142,74 @@ def reap() -> None:
 @admin.command("create-lab")
 def create_lab(name: Annotated[str, typer.Argument(help="the lab's name")]) -> None:
     """Create a lab and print its API key (last line; shown only this once)."""
-    from service.db import session_scope
     from service.labs import create_lab as create
-    from service.migrate import upgrade
 
-    with user_errors():
-        upgrade()
-        with session_scope() as session:
-            lab, key = create(session, name)
-            lab_id = lab.id
+    with _admin_session() as session:
+        lab, key = create(session, name)
+        lab_id = lab.id
     print(f"created lab {lab_id} ({name}); its API key (store it, it is shown only once):")
     print(key)
+
+
+@admin.command("list-labs")
+def list_labs() -> None:
+    """List the labs: id, whether their key is active or revoked, creation time, name."""
+    from service.labs import all_labs
+
+    with _admin_session() as session:
+        labs = all_labs(session)
+        print(f"{len(labs)} lab(s)")
+        for lab in labs:
+            state = "active " if lab.key_hash else "revoked"
+            print(f"{lab.id:>6}  {state}  {lab.created_at:%Y-%m-%d %H:%M}  {lab.name}")
+
+
+@admin.command("revoke-key")
+def revoke_key(lab_id: Annotated[int, typer.Argument(help="the lab's id (mocap admin list-labs)")]) -> None:
+    """Revoke a lab's API key: its requests get 401 until `rotate-key` gives it a new one."""
+    from service.labs import revoke_key as revoke
+
+    with _admin_session() as session:
+        lab = revoke(session, lab_id)
+        print(f"revoked the API key of lab {lab.id} ({lab.name})")
+
+
+@admin.command("rotate-key")
+def rotate_key(lab_id: Annotated[int, typer.Argument(help="the lab's id (mocap admin list-labs)")]) -> None:
+    """Give a lab a new API key (last line; shown only this once); the old one stops working."""
+    from service.labs import rotate_key as rotate
+
+    with _admin_session() as session:
+        lab, key = rotate(session, lab_id)
+        print(f"new API key of lab {lab.id} ({lab.name}); the old one no longer works (store it, it "
+              "is shown only once):")
+    print(key)
+
+
+@contextmanager
+def _admin_session() -> Iterator[Session]:
+    """A committed session on the settings' database, migrated first, after printing which
+    database it is (run from another folder, the default SQLite file is another database).
+    A database that cannot be used is exit code 2 with one line."""
+    from sqlalchemy import inspect, make_url
+    from sqlalchemy.exc import SQLAlchemyError
+
+    from service.db import get_engine, session_scope
+    from service.migrate import upgrade
+    from service.settings import get_settings
+
+    shown = make_url(get_settings().database_url)._replace(password=None).render_as_string(False)
+    with user_errors():
+        try:
+            fresh = "alembic_version" not in inspect(get_engine()).get_table_names()
+            print(f"database: {shown}" + (" (new: created now; set MOCAP_DATABASE_URL or "
+                                          "MOCAP_DATA_DIR if you meant another)" if fresh else ""))
+            upgrade()
+            with session_scope() as session:
+                yield session
+        except SQLAlchemyError as exc:
+            problem = str(getattr(exc, "orig", None) or exc).splitlines()[0]
+            raise ValueError(f"cannot use the database {shown}: {problem}") from None
 
 
 if __name__ == "__main__":

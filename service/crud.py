@@ -16,7 +16,7 @@ from sqlalchemy.orm import Session
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
-from core.video import probe
+from core.video import VideoError, check_synchronised, probe
 from service import histstore, limits
 from service.errors import ConflictError, InvalidError, NotFoundError
 from service.fitjob import detector_params, fit_params, marker_diameter
@@ -34,9 +34,10 @@ from service.models import (
     RigRow,
     Video,
 )
+from service.redact import redact, stored_names, video_label
 from service.schemas import BatchCreate, JobCreate, JobOptions
 from service.settings import Settings
-from service.storage import Storage
+from service.storage import LocalStorage, Storage
 
 logger = logging.getLogger(__name__)
 
@@ -102,23 +103,60 @@ def create_rig(session: Session, lab: Lab, spec: Any) -> RigRow:
 
 
 def register_video(
-    session: Session, storage: Storage, lab: Lab, settings: Settings, *, key: str, filename: str, size: int,
-    sha256: str,
+    session: Session, storage: LocalStorage, lab: Lab, settings: Settings, *, key: str, filename: str,
+    size: int, sha256: str,
 ) -> Video:
-    """Probe a fully stored upload and register it within the lab's hourly upload limits;
-    an unusable or over-limit file is deleted (VideoError → 422, RateLimitedError → 429)."""
+    """Probe a fully stored upload and register it within the lab's hourly upload limits.
+
+    The file is deleted on any failure, so no stored video is without its row: unusable
+    (VideoError → 422, naming ``filename``, never the server's path), over a limit
+    (RateLimitedError → 429), or a failed INSERT.
+    """
+    path = storage.path(key)
     try:
-        info = probe(storage.path(key))
+        try:
+            info = probe(path)
+        except VideoError as exc:
+            names = stored_names(key, path, repr(filename))
+            raise VideoError(redact(str(exc), names, storage.root)) from None
         limits.lock_lab(session, lab)
         limits.check_upload(session, lab, settings, size)
+        row = Video(lab_id=lab.id, storage_key=key, filename=filename, frames=info.frames,
+                    announced_frames=info.announced_frames, fps=info.fps, width=info.width,
+                    height=info.height, size_bytes=size, sha256=sha256)
+        session.add(row)
+        session.commit()
     except BaseException:
+        session.rollback()
         storage.delete(key)
         raise
-    row = Video(lab_id=lab.id, storage_key=key, filename=filename, frames=info.frames, fps=info.fps,
-                width=info.width, height=info.height, size_bytes=size, sha256=sha256)
-    session.add(row)
-    session.commit()
     return row
+
+
+def missing_frames(video: Video) -> str | None:
+    """Say so when the container announces frames that do not decode (a truncated file)."""
+    if not video.announced_frames or video.announced_frames <= video.frames:
+        return None
+    return (f"{video_label(video)}: the file announces {video.announced_frames} frames but only "
+            f"{video.frames} decode ({video.announced_frames - video.frames} missing: truncated?); "
+            f"jobs fit the {video.frames} that decode")
+
+
+def remove_orphan_videos(session: Session, storage: LocalStorage, older_than_s: float) -> int:
+    """Delete stored videos that no row names (their API process died between storing and
+    registering), if older than ``older_than_s`` (younger ones may be being registered)."""
+    stored = dict(storage.files("videos", older_than_s))
+    keys, known = list(stored), set()
+    for start in range(0, len(keys), 500):  # bound values per statement (SQLite: 32,766)
+        batch = keys[start:start + 500]
+        known.update(session.scalars(select(Video.storage_key).where(Video.storage_key.in_(batch))))
+    orphans = [key for key in keys if key not in known]
+    for key in orphans:
+        storage.delete(key)
+    if orphans:
+        logger.warning("removed %d stored video(s) without a row (%d bytes)", len(orphans),
+                       sum(stored[k] for k in orphans))
+    return len(orphans)
 
 
 # ---- jobs and batches ---------------------------------------------------------------------------
@@ -158,6 +196,8 @@ def _new_job(
     if len(videos) != rig.n_videos:
         raise InvalidError(f"rig {rig_id} expects {rig.n_videos} video(s), the job names {len(videos)}")
     rig.check_videos([(v.width, v.height) for v in videos])  # a roi outside its frame → 422 now
+    # Videos that cannot be read as one set (as `mocap fit` reads them) → 422 now, not in a worker.
+    check_synchronised([video_label(v) for v in videos], [v.frames for v in videos], [v.fps for v in videos])
     limits.check_frames(videos, settings)
     params = fit_params(options, marker_diameter(options, None))  # ValueError naming the option → 422
     detector_params(options)

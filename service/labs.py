@@ -30,3 +30,29 @@ def create_lab(session: Session, name: str) -> tuple[Lab, str]:
 
 def lab_for_key(session: Session, key: str) -> Lab | None:
     return session.scalars(select(Lab).where(Lab.key_hash == hash_key(key))).first()
+
+
+def all_labs(session: Session) -> list[Lab]:
+    return list(session.scalars(select(Lab).order_by(Lab.id)))
+
+
+def revoke_key(session: Session, lab_id: int) -> Lab:
+    """Forget the lab's key (its hash): no key opens the lab until :func:`rotate_key`."""
+    lab = _lab(session, lab_id)
+    lab.key_hash = None
+    return lab
+
+
+def rotate_key(session: Session, lab_id: int) -> tuple[Lab, str]:
+    """A new key for the lab (shown once); the old one stops working."""
+    lab = _lab(session, lab_id)
+    key = secrets.token_urlsafe(32)
+    lab.key_hash = hash_key(key)
+    return lab, key
+
+
+def _lab(session: Session, lab_id: int) -> Lab:
+    lab = session.get(Lab, lab_id)
+    if lab is None:
+        raise ValueError(f"there is no lab {lab_id} in this database (mocap admin list-labs)")
+    return lab

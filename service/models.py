@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 
 from sqlalchemy import (
     JSON,
+    BigInteger,
     DateTime,
     Float,
     ForeignKey,
@@ -67,7 +68,7 @@ class Lab(Base):
     __tablename__ = "labs"
     id: Mapped[int] = mapped_column(primary_key=True)
     name: Mapped[str] = mapped_column(String(200))
-    key_hash: Mapped[str] = mapped_column(String(64), unique=True)  # sha256 hex of the key
+    key_hash: Mapped[str | None] = mapped_column(String(64), unique=True)  # sha256 hex; None: revoked
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
@@ -116,11 +117,14 @@ class Video(Base):
     lab_id: Mapped[int] = mapped_column(ForeignKey("labs.id"), index=True)
     storage_key: Mapped[str] = mapped_column(String(200))
     filename: Mapped[str] = mapped_column(String(255))  # shown back only, never a path
-    frames: Mapped[int] = mapped_column(Integer)
+    frames: Mapped[int] = mapped_column(Integer)  # that decode
+    # What the container announces (None: uploaded before this was recorded); more than
+    # ``frames`` for a truncated file.
+    announced_frames: Mapped[int | None] = mapped_column(Integer)
     fps: Mapped[float] = mapped_column(Float)
     width: Mapped[int] = mapped_column(Integer)
     height: Mapped[int] = mapped_column(Integer)
-    size_bytes: Mapped[int] = mapped_column(Integer)
+    size_bytes: Mapped[int] = mapped_column(BigInteger)  # 2 GiB and more
     sha256: Mapped[str] = mapped_column(String(64))
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 

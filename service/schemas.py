@@ -82,7 +82,11 @@ class RigPublic(BaseModel):
 class VideoPublic(BaseModel):
     id: int
     filename: str
-    frames: int
+    frames: int = Field(description="frames that decode: what a job fits")
+    announced_frames: int | None = Field(description="frames the container announces (0: it gives "
+                                         "no count); more than frames for a truncated file")
+    warning: str | None = Field(description="what is wrong with the file though it can be used, "
+                                "e.g. frames announced that do not decode")
     fps: float
     width: int
     height: int

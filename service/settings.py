@@ -32,6 +32,17 @@ class Settings(BaseSettings):
     upload_bytes_per_hour: int = Field(default=200 * 1024**3, ge=1)
     max_active_jobs_per_lab: int = Field(default=1000, ge=1)
     max_frames_per_job: int = Field(default=1_000_000, ge=1)
+    # Slow clients (service.api.guard, service.api.server): a request's line and headers must
+    # arrive within header_timeout_s; its body must send a byte at least every body_timeout_s
+    # and, after the first body_timeout_s, average body_min_bytes_per_s; else 408 and closed.
+    header_timeout_s: float = Field(default=10.0, gt=0)
+    body_timeout_s: float = Field(default=30.0, gt=0)
+    body_min_bytes_per_s: int = Field(default=16 * 1024, ge=1)
+    # Open connections per API process; more are answered 503 (uvicorn's limit_concurrency).
+    max_connections: int = Field(default=1000, ge=1)
+    # Unknown API keys from one address in a window before it gets 429 (service.api.auth).
+    auth_failures: int = Field(default=30, ge=1)
+    auth_failure_window_s: float = Field(default=60.0, gt=0)
     # Cancel is cooperative: a fitting worker reads its job's status this often (seconds).
     cancel_check_s: float = Field(default=0.5, gt=0)
     # A fitting chunk writes its heartbeat at most this often (seconds); the reaper

@@ -19,6 +19,7 @@ import logging
 import os
 import re
 import tempfile
+import time
 from collections.abc import Iterable, Iterator
 from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
@@ -104,6 +105,18 @@ class LocalStorage:
 
     def delete(self, key: str) -> None:
         self.path(key).unlink(missing_ok=True)
+
+    def files(self, folder: str, older_than_s: float = 0.0) -> Iterator[tuple[str, int]]:
+        """(key, size in bytes) of the complete files in ``folder`` last written more than
+        ``older_than_s`` seconds ago (partial files are :meth:`remove_abandoned`'s)."""
+        cutoff = time.time() - older_than_s
+        for path in sorted(self.path(folder).glob("*")):
+            try:
+                stat = path.stat()
+            except FileNotFoundError:  # deleted meanwhile
+                continue
+            if path.is_file() and not path.name.startswith(PARTIAL_PREFIX) and stat.st_mtime < cutoff:
+                yield f"{folder}/{path.name}", stat.st_size
 
 
 def get_storage() -> LocalStorage:

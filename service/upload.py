@@ -4,11 +4,13 @@ in memory, and a body over the size limit is refused (413) as soon as it passes 
 from __future__ import annotations
 
 import hashlib
+import io
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import BinaryIO
 
+from python_multipart.exceptions import FormParserError
 from python_multipart.multipart import MultipartParser, parse_options_header
 from starlette.requests import Request
 
@@ -86,44 +88,64 @@ class _FilePart:
 
 async def receive_video(request: Request, storage: Storage, limit: int) -> Received:
     """Stream the multipart field ``file`` into storage under a fresh key (atomic: all or nothing)."""
-    content_type, params = parse_options_header(request.headers.get("content-type", ""))
-    if content_type != b"multipart/form-data" or b"boundary" not in params:
-        raise InvalidError("upload the video as multipart/form-data with a field named 'file'")
+    boundary = _boundary(request, "upload the video as multipart/form-data (with a boundary) and a "
+                                  "field named 'file'")
     check_length(request, limit + MULTIPART_SLACK)
     key = f"videos/{uuid.uuid4().hex}"
     with storage.writer(key) as out:
-        part = _FilePart(out, limit)
-        parser = MultipartParser(params[b"boundary"], part.callbacks())  # type: ignore[arg-type]
-        received = 0
+        part = await _stream_file_part(request, boundary, out, limit)
+    return Received(key, part.filename or "upload", part.size, part.digest.hexdigest())
+
+
+async def read_document(request: Request, limit: int) -> bytes:
+    """A small document (model XML, rig JSON): the raw body, or a multipart field ``file``;
+    either is refused (413) as soon as it passes ``limit`` bytes, never read whole first."""
+    check_length(request, limit + MULTIPART_SLACK)
+    content_type, _ = parse_options_header(request.headers.get("content-type", ""))
+    if content_type == b"multipart/form-data":
+        out = io.BytesIO()
+        await _stream_file_part(request, _boundary(request, ""), out, limit)
+        data = out.getvalue()
+    else:
+        chunks, size = [], 0
+        async for chunk in request.stream():
+            size += len(chunk)
+            if size > limit:
+                raise TooLargeError
+            chunks.append(chunk)
+        data = b"".join(chunks)
+    if not data.strip():
+        raise InvalidError("the request body is empty")
+    return data
+
+
+def _boundary(request: Request, problem: str) -> bytes:
+    """The multipart boundary of the request's Content-Type; ``problem`` (422) without one."""
+    content_type, params = parse_options_header(request.headers.get("content-type", ""))
+    if content_type != b"multipart/form-data" or not params.get(b"boundary"):
+        raise InvalidError(problem or "a multipart/form-data body needs a boundary in its Content-Type")
+    return params[b"boundary"]
+
+
+async def _stream_file_part(request: Request, boundary: bytes, out: BinaryIO, limit: int) -> _FilePart:
+    """Parse the multipart body as it arrives, writing the field ``file`` to ``out``: 413 as soon
+    as the file passes ``limit`` bytes (or the body ``limit`` plus the multipart overhead), 422
+    for a malformed body or one without that field."""
+    part = _FilePart(out, limit)
+    parser = MultipartParser(boundary, part.callbacks())  # type: ignore[arg-type]
+    received = 0
+    try:
         async for chunk in request.stream():
             received += len(chunk)
             if received > limit + MULTIPART_SLACK:
                 raise TooLargeError
             parser.write(chunk)
         parser.finalize()
-        if part.filename is None:
-            raise InvalidError("the multipart body has no field named 'file'")
-    return Received(key, part.filename, part.size, part.digest.hexdigest())
-
-
-async def read_document(request: Request, limit: int) -> bytes:
-    """A small document (model XML, rig JSON): the raw body, or a multipart field ``file``."""
-    check_length(request, limit + MULTIPART_SLACK)
-    content_type, _ = parse_options_header(request.headers.get("content-type", ""))
-    if content_type == b"multipart/form-data":
-        buffered = await _buffered(request, limit + MULTIPART_SLACK)
-        form = await buffered.form(max_files=1, max_fields=10, max_part_size=limit)
-        upload = form.get("file")
-        if upload is None or isinstance(upload, str):
-            raise InvalidError("the multipart body has no file field named 'file'")
-        data = await upload.read(limit + 1)
-    else:
-        data = await _body(request, limit)
-    if len(data) > limit:
-        raise TooLargeError
-    if not data.strip():
-        raise InvalidError("the request body is empty")
-    return data
+    except FormParserError as exc:
+        raise InvalidError(f"the multipart body is malformed: {exc}") from None
+    if part.filename is None:
+        raise InvalidError("the multipart body has no file field named 'file'")
+    return part
 
 
 async def read_documents(request: Request, limit: int, max_files: int) -> list[tuple[str, bytes]]:

@@ -60,7 +60,7 @@ from core.pipeline import FitJob, FitOutcome, build_report, finish, fit_range, p
 from core.pipeline import reanalyse as reanalyse_step
 from core.results import read_angles_csv, write_angles_csv
 from service import histstore
-from service.crud import add_histogram_version, histogram_version
+from service.crud import add_histogram_version, histogram_version, missing_frames
 from service.db import session_scope
 from service.fitjob import build_fit_job
 from service.models import (
@@ -72,9 +72,12 @@ from service.models import (
     ImageResult,
     Job,
     JobStatus,
+    JobVideo,
     Model,
+    Video,
     utcnow,
 )
+from service.redact import redact, video_names
 from service.settings import get_settings
 from service.storage import Storage, get_storage
 from worker.celery_app import FIT_CHUNK, REANALYSE_IMAGE, app
@@ -436,7 +439,9 @@ def _report(session: Session, loaded: _Loaded, result: Any, fits: list[ImageFit]
     seconds = ((utcnow() - _aware(job.started_at)).total_seconds() if job.started_at else 0.0)
     workers = session.scalars(select(Chunk.worker).where(Chunk.job_id == job.id).distinct()).all()
     report = build_report(loaded.fit, FitOutcome(result, seconds, max(len(workers), 1)))
-    report["videos"] = [p.name for p in loaded.fit.source.videos]  # storage keys, not server paths
+    report["videos"] = [  # as the lab knows them, never server paths or storage keys
+        {"id": v.id, "filename": v.filename, "frames": v.frames, "announced_frames": v.announced_frames,
+         "warning": missing_frames(v)} for v in _videos(session, job.id)]
     report["service"] = {"job_id": job.id, "chunks": job.chunks_total, "workers": sorted(workers),
                          "histogram_version_id": job.histogram_version_id,
                          "attempts_total": sum(f.attempts for f in fits)}
@@ -454,8 +459,11 @@ def fail_chunk(chunk_id: int, message: str) -> None:
 
 
 def fail_job(job_id: int, message: str) -> None:
-    """Mark a job failed with ``message`` unless it has already ended."""
+    """Mark a job failed with ``message`` unless it has already ended; the message names the
+    job's videos by id and upload name, never by server path or storage key."""
+    root = get_storage().root
     with session_scope() as session:
+        message = redact(message, video_names(_videos(session, job_id), root), root)
         session.execute(update(Job).where(Job.id == job_id, Job.status.not_in(list(TERMINAL)))
                         .values(status=JobStatus.FAILED, error=message, finished_at=utcnow()))
 
@@ -470,6 +478,12 @@ def _changed(session: Session, statement: Any) -> int:
     """Rows an UPDATE changed: 0 means another delivery (or a cancel) got there first."""
     result: CursorResult[Any] = session.execute(statement)  # type: ignore[assignment]
     return result.rowcount
+
+
+def _videos(session: Session, job_id: int) -> list[Video]:
+    """The job's videos in the rig's order."""
+    return list(session.scalars(select(Video).join(JobVideo, JobVideo.video_id == Video.id)
+                                .where(JobVideo.job_id == job_id).order_by(JobVideo.position)))
 
 
 def _fits(session: Session, job_id: int) -> list[ImageFit]:

@@ -1,7 +1,10 @@
 """Celery tasks: ids in, ``worker.orchestration`` does the work, failures recorded and re-raised.
 
 Each task is idempotent (the orchestration guards every state change in the
-database), so a message delivered twice changes nothing.
+database), so a message delivered twice changes nothing. A failure caused by the lab's
+files (core's ModelError, RigError, HistogramError, VideoError) is the lab's to fix: logged
+in one line and declared in ``throws`` (Celery logs it "raised expected", without a
+traceback); anything else is the operator's, logged with its traceback.
 """
 
 from __future__ import annotations
@@ -13,10 +16,16 @@ from contextlib import contextmanager
 from celery import Task
 from celery.exceptions import SoftTimeLimitExceeded
 
+from core.histogram import HistogramError
+from core.model import ModelError
+from core.rig import RigError
+from core.video import VideoError
 from worker import orchestration
 from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, RESUME_JOB, app
 
 logger = logging.getLogger(__name__)
+
+USER_ERRORS = (ModelError, RigError, HistogramError, VideoError)
 
 
 @contextmanager
@@ -24,6 +33,10 @@ def _recorded(what: str, record: Callable[[str], None]) -> Iterator[None]:
     """Log a failure, write its message to the database, and re-raise it."""
     try:
         yield
+    except USER_ERRORS as exc:
+        logger.info("%s failed on the lab's input: %s", what, exc)
+        record(_describe(exc))
+        raise
     except Exception as exc:
         logger.exception("%s failed", what)
         record(_describe(exc))
@@ -48,7 +61,7 @@ def _caused_by(exc: BaseException | None, kind: type[BaseException]) -> bool:
     return False
 
 
-@app.task(bind=True, name=PLAN_JOB)
+@app.task(bind=True, name=PLAN_JOB, throws=USER_ERRORS)
 def plan_job(self: Task, job_id: int) -> None:
     """Count the job's images and queue one task per chunk."""
     job_id = int(job_id)
@@ -56,7 +69,7 @@ def plan_job(self: Task, job_id: int) -> None:
         orchestration.plan_job(job_id)
 
 
-@app.task(bind=True, name=FIT_CHUNK)
+@app.task(bind=True, name=FIT_CHUNK, throws=USER_ERRORS)
 def fit_chunk(self: Task, chunk_id: int) -> None:
     """Fit one chunk; the last chunk of a job merges and starts re-analysis."""
     chunk_id = int(chunk_id)
@@ -64,7 +77,7 @@ def fit_chunk(self: Task, chunk_id: int) -> None:
         orchestration.run_chunk(chunk_id, worker=self.request.hostname or "")
 
 
-@app.task(bind=True, name=RESUME_JOB)
+@app.task(bind=True, name=RESUME_JOB, throws=USER_ERRORS)
 def resume_job(self: Task, job_id: int) -> None:
     """Merge or finish a job whose worker died between its last step and the next (reaper)."""
     job_id = int(job_id)
@@ -72,7 +85,7 @@ def resume_job(self: Task, job_id: int) -> None:
         orchestration.resume(job_id)
 
 
-@app.task(bind=True, name=REANALYSE_IMAGE)
+@app.task(bind=True, name=REANALYSE_IMAGE, throws=USER_ERRORS)
 def reanalyse_image(self: Task, job_id: int, sample: int, attempt: int) -> None:
     """One more attempt on one image; the last one pending finishes the job."""
     job_id = int(job_id)

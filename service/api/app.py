@@ -15,8 +15,12 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
+from sqlalchemy.exc import SQLAlchemyError
 
+from service import crud
+from service.api.guard import RequestGuard
 from service.api.routes import apidocs, batches, dashboard, jobs, models, rigs, videos
+from service.db import read_session_factory
 from service.errors import ConflictError, NotFoundError, QueueUnavailableError, RateLimitedError
 from service.storage import get_storage
 from service.upload import TooLargeError
@@ -24,10 +28,21 @@ from service.upload import TooLargeError
 logger = logging.getLogger(__name__)
 
 
+# A stored video this old without a row is an orphan; a younger one may be being probed.
+ORPHAN_AGE_S = 3600
+
+
 @asynccontextmanager
 async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
-    """On start, delete the partial uploads of an API process that died mid-upload."""
-    get_storage().remove_abandoned()
+    """On start, delete the partial uploads of an API process that died mid-upload, and the
+    complete ones it stored but never registered."""
+    storage = get_storage()
+    storage.remove_abandoned()
+    try:
+        with read_session_factory()() as session:
+            crud.remove_orphan_videos(session, storage, ORPHAN_AGE_S)
+    except SQLAlchemyError:  # the database is down: serve anyway (requests will say so), sweep next start
+        logger.exception("orphan videos not swept: the database cannot be read")
     yield
 
 
@@ -42,6 +57,7 @@ def create_app() -> FastAPI:
     app.include_router(apidocs.router)
     app.mount(dashboard.STATIC_URL, StaticFiles(directory=dashboard.STATIC_DIR), name="dashboard-static")
     app.mount(apidocs.ASSETS_URL, StaticFiles(directory=apidocs.ASSETS_DIR), name="apidocs-static")
+    app.add_middleware(RequestGuard)  # key, size and pace of a body checked before it is read
     _errors(app)
     return app
 

@@ -5,12 +5,12 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Path, Query, Request, status
+from fastapi import Depends, Path, Query, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
+from service.api.auth import authenticate
 from service.db import read_session_factory, session_factory
-from service.labs import lab_for_key
 from service.models import Lab
 from service.schemas import MAX_DB_INT
 from service.settings import Settings, get_settings
@@ -37,17 +37,12 @@ _bearer = HTTPBearer(auto_error=False, description="the lab's API key (`mocap ad
 
 
 def current_lab(
-    session: SessionDep, credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]
+    request: Request, session: SessionDep,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> Lab:
-    """The lab whose key the request carries; 401 without a valid one."""
-    challenge = {"WWW-Authenticate": "Bearer"}
-    if credentials is None:
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED,
-                            "send the lab's API key as 'Authorization: Bearer <key>'", challenge)
-    lab = lab_for_key(session, credentials.credentials)
-    if lab is None:
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "unknown API key", challenge)
-    return lab
+    """The lab whose key the request carries; 401 without a valid one (``service.api.auth``)."""
+    token = credentials.credentials if credentials is not None else None
+    return authenticate(session, token, request.client.host if request.client else None)
 
 
 CurrentLab = Annotated[Lab, Depends(current_lab)]

@@ -85,8 +85,8 @@ class Deployment:
         assert self.data is not None
         port = self.url.removesuffix("/v1").rsplit(":", 1)[1]
         api = subprocess.Popen(
-            [sys.executable, "-m", "uvicorn", "service.api.app:create_app", "--factory", "--port", port,
-             "--log-level", "warning"], env=self.env, stdout=(self.data / "api.log").open("a"),
+            [sys.executable, "-m", "service.api.server", "--port", port, "--log-level", "warning"],
+            env=self.env, stdout=(self.data / "api.log").open("a"),
             stderr=subprocess.STDOUT)
         self.processes.append(api)
         return api

@@ -15,8 +15,9 @@ router = APIRouter(prefix="/videos", tags=["videos"])
 
 
 def _public(row: Video) -> VideoPublic:
-    return VideoPublic(id=row.id, filename=row.filename, frames=row.frames, fps=row.fps, width=row.width,
-                       height=row.height, size_bytes=row.size_bytes, sha256=row.sha256,
+    return VideoPublic(id=row.id, filename=row.filename, frames=row.frames,
+                       announced_frames=row.announced_frames, warning=crud.missing_frames(row), fps=row.fps,
+                       width=row.width, height=row.height, size_bytes=row.size_bytes, sha256=row.sha256,
                        created_at=row.created_at)
 
 
