@@ -47,7 +47,7 @@ CLOSE = {"Connection": "close"}
 def body_limit(path: str, settings: Settings) -> int:
     """Bytes a request body to ``path`` may have, multipart overhead included."""
     documents = {"/v1/videos": settings.max_upload_bytes, "/v1/models": models.DOCUMENT_LIMIT,
-                 "/v1/rigs": rigs.DOCUMENT_LIMIT}
+                 "/v1/rigs": rigs.DOCUMENT_LIMIT, "/v1/rigs/import": rigs.DOCUMENT_LIMIT}
     limit = documents.get(path.rstrip("/"))
     return JSON_BODY_LIMIT if limit is None else limit + MULTIPART_SLACK
 
