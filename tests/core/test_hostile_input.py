@@ -293,7 +293,8 @@ HOSTILE_RIG_DOCS = {
                             r"views use video indices \[0, 2\]: no view uses video 1"),
     "negative_video_index": ({"views": [_view(video=-1)]}, "'video' must be a non-negative integer index"),
     "video_index_of_19_digits": ({"views": [_view(video=10**18)]},
-                                 r"views use video indices \[1000000000000000000\]: no view uses video 0"),
+                                 r"uses video 1000000000000000000, but a rig of 1 view\(s\) can use "
+                                 r"videos 0\.\.0 at most"),
     "negative_roi": ({"views": [_view(roi=[-1, 0, 10, 10])]}, r"roi must be \[x, y, width, height\]"),
     "roi_beyond_any_frame": ({"views": [_view(roi=[10**9, 0, 10, 10])]},
                              "roi .* reaches beyond the largest frame a video may have"),
