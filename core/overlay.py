@@ -42,7 +42,7 @@ from core.rig import Rig
 from core.track import RootTracking
 
 __all__ = [
-    "DETECTION_BGR", "MANIFEST", "MARK_BGR", "OVERLAY_DIR", "ImageMarks", "draw", "image_marks",
+    "DETECTION_BGR", "MANIFEST", "MARK_BGR", "OVERLAY_DIR", "ImageMarks", "draw", "header", "image_marks",
     "job_from_report", "marker_errors", "overlay_job", "render_overlay", "select_images",
 ]
 
@@ -154,12 +154,13 @@ def draw(frames: Sequence[np.ndarray], marks: ImageMarks, *, model: KinematicMod
     """Copies of ``frames`` (one BGR uint8 (H, W, 3) per video file) with ``marks`` drawn.
 
     A marker projected at (u, v) colours the pixel (floor(u), floor(v)) (FORMATS §2:
-    pixel centres at +0.5) and its neighbours within :data:`MARKER_RADIUS_PX`.
+    pixel centres at +0.5) and its neighbours within :data:`MARKER_RADIUS_PX`; the dots
+    are drawn over every other mark but the image's line of text at the top.
     """
     out = [_bgr(f) for f in frames]
     colour = MARK_BGR[marks.mark]
     parents = _parent_indices(model)
-    for v, view in enumerate(rig.views):
+    for v, view in enumerate(rig.views):  # first what the dots may cover
         image = out[view.video]
         x0, y0 = (view.roi[0], view.roi[1]) if view.roi is not None else (0, 0)
         _text(image, view.name, (x0 + 4, y0 + 28))
@@ -170,19 +171,25 @@ def draw(frames: Sequence[np.ndarray], marks: ImageMarks, *, model: KinematicMod
             cv2.circle(image, _fixed(point), DETECTION_RADIUS_PX << _SHIFT, DETECTION_BGR, 1,
                        cv2.LINE_8, _SHIFT)
         for m, marker in enumerate(model.markers):
-            at = marks.markers[v, m]
-            if not np.all(np.isfinite(at)):
-                continue
-            cv2.circle(image, _fixed(at), MARKER_RADIUS_PX << _SHIFT, colour, -1, cv2.LINE_8, _SHIFT)
-            error = marks.errors[v, m]
-            label = marker.name if not math.isfinite(error) else f"{marker.name} {error:.1f}"
-            _text(image, label, (int(at[0]) + 6, int(at[1]) - 4), scale=0.33)
+            at, error = marks.markers[v, m], marks.errors[v, m]
+            if np.all(np.isfinite(at)):
+                label = marker.name if not math.isfinite(error) else f"{marker.name} {error:.1f}"
+                _text(image, label, (int(at[0]) + 6, int(at[1]) - 4), scale=0.33)
+    for v, view in enumerate(rig.views):
+        for at in marks.markers[v]:
+            if np.all(np.isfinite(at)):
+                cv2.circle(out[view.video], _fixed(at), MARKER_RADIUS_PX << _SHIFT, colour, -1,
+                           cv2.LINE_8, _SHIFT)
+    for image in out:
+        _text(image, header(marks), (4, 14), colour=colour)
+    return out
+
+
+def header(marks: ImageMarks) -> str:
+    """The image's line of text: frame (field), sample, Eq. 5 error and mark."""
     field = f" {marks.field}" if marks.field else ""
     error = "-" if not math.isfinite(marks.error_px) else f"{marks.error_px:.2f} px"
-    header = f"frame {marks.frame}{field}  sample {marks.sample}  error {error}  {marks.mark}"
-    for image in out:
-        _text(image, header, (4, 14), colour=colour)
-    return out
+    return f"frame {marks.frame}{field}  sample {marks.sample}  error {error}  {marks.mark}"
 
 
 def _bgr(frame: np.ndarray) -> np.ndarray:
@@ -312,7 +319,7 @@ def render_overlay(
                     side = _side_by_side(drawn)
                     cv2.imwrite(str(out / "images" / _image_name(sample)), side)
                     if len(tiles) < MAX_SHEET_TILES:
-                        tiles[sample] = _tile(side)
+                        tiles[sample] = _tile(side, header(marks), MARK_BGR[marks.mark])
                 sample += 1
     finally:
         for writer in writers:
@@ -367,12 +374,15 @@ def _side_by_side(images: list[np.ndarray]) -> np.ndarray:
     return np.concatenate(padded, axis=1)
 
 
-def _tile(image: np.ndarray) -> np.ndarray:
+def _tile(image: np.ndarray, caption: str, colour: tuple[int, int, int]) -> np.ndarray:
+    """The image scaled to at most :data:`TILE_WIDTH_PX` wide, its caption legible above it."""
     scale = min(1.0, TILE_WIDTH_PX / image.shape[1])
-    if scale == 1.0:
-        return image
     size = (round(image.shape[1] * scale), max(1, round(image.shape[0] * scale)))
-    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    small = cv2.resize(image, size, interpolation=cv2.INTER_AREA) if scale < 1.0 else image
+    tile = np.zeros((small.shape[0] + 20, small.shape[1], 3), dtype=np.uint8)
+    tile[20:] = small
+    _text(tile, caption, (4, 14), colour=colour)
+    return tile
 
 
 def _sheet(tiles: list[np.ndarray]) -> np.ndarray:

@@ -96,7 +96,7 @@ def angles_figure(table: AnglesTable, model: KinematicModel, final: Histograms |
             lo, hi = histogram_interval(final, histogram_row[dof.name])
             ax.axhspan(lo, hi, color="#1f77b4", alpha=0.15, lw=0,
                        label=f"final histogram, central {SHADED_MASS:.0%}")
-        ax.plot(t, y, color="#1f77b4", lw=1.0, label=dof.name)
+        ax.plot(t, y, color="#1f77b4", lw=1.0, label="fitted value")
         ax.plot(t[over], y[over], "x", color=_OVER_THRESHOLD, ms=6, label="over threshold")
         ax.plot(t[ambiguous], y[ambiguous], "o", mfc="none", color=_AMBIGUOUS, ms=7, label="ambiguous")
         bottom = blended_transform_factory(ax.transData, ax.transAxes)
@@ -106,7 +106,11 @@ def angles_figure(table: AnglesTable, model: KinematicModel, final: Histograms |
         ax.set_ylabel(f"{dof.name} ({'deg' if dof.rotational else model.units})")
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("time (s)")
-    axes[0].legend(loc="upper right", fontsize="small", ncols=5)
+    legend: dict = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            legend.setdefault(label, handle)
+    figure.legend(legend.values(), legend.keys(), loc="outside upper center", fontsize="small", ncols=5)
     figure.suptitle(f"{model.name}: {len(t)} images; × over threshold {over.sum()}, "
                     f"○ ambiguous {ambiguous.sum()}, | re-analysed {reanalysed.sum()}")
     return figure
