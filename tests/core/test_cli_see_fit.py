@@ -138,3 +138,37 @@ def test_detect_preview_prints_core_detects_counts(clip, tmp_path):
 def test_detect_bad_frames_exit_2(clip, tmp_path, frames, match):
     result = _invoke("detect", clip / "video0.avi", "--rig", RIG, "--frames", frames, "--out", tmp_path)
     assert result.exit_code == 2 and match in result.output, result.output
+
+
+def test_overlay_shows_every_ambiguous_image_of_angles_csv(clip, fitted, tmp_path):
+    """angles.csv's optional alternative_deg column (FORMATS §3) marks images ambiguous."""
+    results = tmp_path / "results"
+    shutil.copytree(fitted, results, ignore=shutil.ignore_patterns("overlay", "plots"))
+    lines = (results / "angles.csv").read_text().splitlines()
+    table = read_angles_csv(fitted / "angles.csv")
+    best = int(np.argmin(table.errors))  # never among the worst 2
+    rows = [lines[0] + ",error_per_marker_px,alternative_deg"] + [
+        line + "," + ("0.1,35.5" if i == best else "0.1,") for i, line in enumerate(lines[1:])]
+    (results / "angles.csv").write_text("\n".join(rows) + "\n")
+    result = _invoke("overlay", results, clip / "video0.avi", "--model", MODEL, "--rig", RIG,
+                     "--worst", "2")
+    assert result.exit_code == 0, result.output
+    images = json.loads((results / "overlay" / "overlay.json").read_text())["images"]
+    assert [i["sample"] for i in images] == [*np.argsort(-table.errors, kind="stable")[:2].tolist(), best]
+    assert images[-1]["alternative_deg"] == 35.5 and images[0]["alternative_deg"] is None
+    image = cv2.imread(str(results / "overlay" / images[-1]["file"]))
+    u, v = Rig.from_json(RIG).project(KinematicModel.from_xml(MODEL).marker_positions(table.dofs[best]))[0, 1]
+    assert image[int(v), int(u)].tolist() == list(MARK_BGR["ambiguous"])
+
+
+def test_deinterlaced_overlay_draws_every_field(tmp_path):
+    clip = tmp_path / "clip"
+    assert _invoke("synth", "--model", MODEL, "--rig", RIG, "--out", clip, "--samples", "6",
+                   "--interlaced", "--seed", "2").exit_code == 0
+    result = _invoke("fit", clip / "video0.avi", "--model", MODEL, "--rig", RIG, "--out", tmp_path / "out",
+                     "--marker-diameter-px", "4", "--iterations", "3000", "--deinterlace", "--overlay")
+    assert result.exit_code == 0, result.output
+    assert VideoSet([tmp_path / "out" / "overlay" / "video0.avi"]).frames == 6  # 3 frames, 2 fields
+    images = json.loads((tmp_path / "out" / "overlay" / "overlay.json").read_text())["images"]
+    assert sorted((i["frame"], i["field"]) for i in images) == [
+        (f, p) for f in range(3) for p in ("even", "odd")]
