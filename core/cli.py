@@ -392,7 +392,7 @@ def overlay(
     with user_errors():
         kinematic = KinematicModel.from_xml(_in_results(model, results, "model.xml", "--model"))
         camera_rig = Rig.from_json(_in_results(rig, results, "rig.json", "--rig"))
-        report = json.loads(_in_results(None, results, "report.json", "").read_text())
+        report = _report(_in_results(None, results, "report.json", ""))
         job = job_from_report(report, videos, model=kinematic, rig=camera_rig)
         _draw_overlay(job, results, worst)
 
@@ -461,6 +461,16 @@ def _draw_plots(results: Path, model: KinematicModel, start: Histograms, final: 
     table = read_angles_csv(results / "angles.csv")
     names = write_plots(results / PLOTS_DIR, table, model, start, final)
     print(f"wrote {results / PLOTS_DIR}: {', '.join(names)}")
+
+
+def _report(path: Path) -> dict:
+    try:
+        report = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path} is not a report.json of mocap fit: {exc}") from None
+    if not isinstance(report, dict):
+        raise ValueError(f"{path} is not a report.json of mocap fit: not a JSON object")
+    return report
 
 
 def _in_results(given: Path | None, results: Path, name: str, option: str) -> Path:

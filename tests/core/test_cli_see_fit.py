@@ -98,6 +98,7 @@ def test_overlay_command_redraws_the_same_images_from_the_results(clip, fitted, 
     ("other_video", "angles.csv has 8 images, the videos give 5"),
     ("two_videos", "expects 1 video"),
     ("not_results", "is not a directory of results"),
+    ("bad_report", "is not a report.json of mocap fit"),
 ])
 def test_overlay_bad_input_exits_2_with_one_line(clip, fitted, tmp_path, case, match):
     results, videos, extra = fitted, [clip / "video0.avi"], ["--model", MODEL, "--rig", RIG]
@@ -109,6 +110,10 @@ def test_overlay_bad_input_exits_2_with_one_line(clip, fitted, tmp_path, case, m
         videos = [tmp_path / "video0.avi"]
     elif case == "two_videos":
         videos = videos * 2
+    elif case == "bad_report":
+        results = tmp_path / "results"
+        shutil.copytree(fitted, results, ignore=shutil.ignore_patterns("overlay", "plots"))
+        (results / "report.json").write_text("[1, 2")
     else:
         results = tmp_path / "nothing"
         extra = []
