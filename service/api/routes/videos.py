@@ -65,9 +65,11 @@ def get_video(video_id: PathId, session: SessionDep, lab: CurrentLab) -> VideoPu
 @router.post("/{video_id}/detect-preview", response_model=DetectPreview,
              summary="Detect markers in one frame with given detector options: counts, centroids and "
              "an image of rois, mask and centroids (to choose options before a job)")
-def detect_preview(video_id: PathId, body: DetectPreviewCreate, session: SessionDep, storage: StorageDep,
-                   lab: CurrentLab) -> DetectPreview:
-    video = crud.owned(session, Video, video_id, lab)
+def detect_preview(video_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab,
+                   body: DetectPreviewCreate | None = None) -> DetectPreview:
+    video = crud.owned(session, Video, video_id, lab)  # another lab's video: 404 before the body's 422
+    if body is None:
+        raise InvalidError('a JSON body naming the rig is required: {"rig_id": ...}')
     rig = Rig.from_dict(crud.owned(session, RigRow, body.rig_id, lab).spec)
     views = tuple(replace(v, video=0) for v in rig.views if v.video == body.video_index)
     if not views:
