@@ -26,7 +26,8 @@ ROI_BGR = (0, 255, 255)
 MASK_BGR = (0, 0, 255)
 CENTROID_BGR = (0, 255, 0)
 MASK_OPACITY = 0.5
-CROSS_PX = 4
+CROSS_PX = 7
+CROSS_GAP_PX = 3
 
 
 def preview_frame(
@@ -66,7 +67,11 @@ def preview_frame(
 
 
 def _cross(image: np.ndarray, u: float, v: float) -> None:
-    """A cross centred on the pixel holding (u, v) (full-frame pixels, FORMATS §2)."""
+    """A cross on the pixel holding (u, v) (full-frame pixels, FORMATS §2): that pixel, and
+    arms from :data:`CROSS_GAP_PX` to :data:`CROSS_PX` away, so the mask around it shows."""
     cu, cv_ = int(np.floor(u)), int(np.floor(v))
-    cv2.line(image, (cu - CROSS_PX, cv_), (cu + CROSS_PX, cv_), CENTROID_BGR, 1, cv2.LINE_8)
-    cv2.line(image, (cu, cv_ - CROSS_PX), (cu, cv_ + CROSS_PX), CENTROID_BGR, 1, cv2.LINE_8)
+    image[cv_, cu] = CENTROID_BGR
+    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        a = (cu + du * CROSS_GAP_PX, cv_ + dv * CROSS_GAP_PX)
+        b = (cu + du * CROSS_PX, cv_ + dv * CROSS_PX)
+        cv2.line(image, a, b, CENTROID_BGR, 1, cv2.LINE_8)
