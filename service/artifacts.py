@@ -56,7 +56,7 @@ def render(storage: Storage, job_id: int, fit: FitJob, start: Histograms, result
             if plots:
                 write_plots(folder / PLOTS_DIR, read_angles_csv(folder / "angles.csv"), fit.model, start,
                             result.histograms)
-        except (ValueError, OSError) as exc:
+        except Exception as exc:  # whatever breaks a drawing must not lose the fit it draws
             logger.exception("job %s: artifacts not drawn", job_id)
             error = f"{type(exc).__name__}: {exc}"
         names = sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*")
