@@ -13,7 +13,9 @@ from __future__ import annotations
 import json
 import logging
 import re
+import shutil
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 from core.fit import SequenceResult
@@ -43,30 +45,40 @@ def render(storage: Storage, job_id: int, fit: FitJob, start: Histograms, result
            overlay: bool, plots: bool) -> dict[str, object]:
     """Draw the job's overlay and/or plots and store them; return what :data:`INDEX` holds.
 
-    A drawing that fails is logged and reported in the index (``error``): the fit itself
-    succeeded and its results stand.
+    A drawing that fails is logged and named in the index's ``error`` (the other is still
+    drawn): the fit itself succeeded and its results stand.
     """
     with tempfile.TemporaryDirectory(prefix=f"mocap-job-{job_id}-") as tmp:
         folder = Path(tmp)
         write_angles_csv(folder / "angles.csv", fit.model, result.fits, fit.clock)
-        error = None
-        try:
-            if overlay:
-                overlay_job(fit, folder)
-            if plots:
-                write_plots(folder / PLOTS_DIR, read_angles_csv(folder / "angles.csv"), fit.model, start,
-                            result.histograms)
-        except Exception as exc:  # whatever breaks a drawing must not lose the fit it draws
-            logger.exception("job %s: artifacts not drawn", job_id)
-            error = f"{type(exc).__name__}: {exc}"
+        errors = []
+        if overlay:
+            errors += _drawn(job_id, folder / OVERLAY_DIR, lambda: overlay_job(fit, folder))
+        if plots:
+            errors += _drawn(job_id, folder / PLOTS_DIR, lambda: write_plots(
+                folder / PLOTS_DIR, read_angles_csv(folder / "angles.csv"), fit.model, start,
+                result.histograms))
         names = sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*")
                        if p.is_file() and NAME.match(p.relative_to(folder).as_posix()))
         for name in names:
             with (folder / name).open("rb") as f:
                 storage.put(f"jobs/{job_id}/{name}", iter(lambda f=f: f.read(1 << 20), b""))
-    index = {"files": names, "error": error}
+    index = {"files": names, "error": "; ".join(errors) or None}
     storage.put(f"jobs/{job_id}/{INDEX}", [(json.dumps(index, indent=2) + "\n").encode()])
     return index
+
+
+def _drawn(job_id: int, folder: Path, draw: Callable[[], object]) -> list[str]:
+    """Run ``draw``, which writes into ``folder``. A failure is logged, its partial files are
+    removed, and a message without server paths is returned, never raised: whatever breaks a
+    drawing must not lose the fit it draws."""
+    try:
+        draw()
+    except Exception as exc:
+        logger.exception("job %s: %s not drawn", job_id, folder.name)
+        shutil.rmtree(folder, ignore_errors=True)
+        return [f"{folder.name} not drawn ({type(exc).__name__}; the worker's log says why)"]
+    return []
 
 
 def listed(storage: Storage, job_id: int) -> list[str]:
