@@ -139,8 +139,7 @@ def image_marks(
         joints = rig.project(np.ascontiguousarray(model.joint_transforms(dofs)[:, :3, 3]))
         if offsets is not None:
             markers, joints = markers + offsets[:, None], joints + offsets[:, None]
-    alternative = table.alternative_deg
-    ambiguous = alternative is not None and math.isfinite(alternative[row])
+    ambiguous = math.isfinite(table.alternative_deg[row])
     return ImageMarks(
         sample=int(table.samples[row]), frame=int(table.frames[row]), field=table.fields[row],
         detections=detections, markers=markers, joints=joints,
@@ -262,8 +261,7 @@ def select_images(table: AnglesTable, worst: int) -> list[int]:
         raise ValueError(f"worst must be >= 0, got {worst}")
     finite = np.flatnonzero(np.isfinite(table.errors))
     ranked = finite[np.argsort(-table.errors[finite], kind="stable")][:worst].tolist()
-    alternative = table.alternative_deg
-    ambiguous = [] if alternative is None else np.flatnonzero(np.isfinite(alternative)).tolist()
+    ambiguous = np.flatnonzero(np.isfinite(table.alternative_deg)).tolist()
     return ranked + [r for r in ambiguous if r not in set(ranked)]
 
 
@@ -335,12 +333,12 @@ def render_overlay(
 def _manifest(table: AnglesTable, chosen: list[int], writers: list, sheet: list,
               worst: int) -> dict[str, Any]:
     def row(r: int) -> dict[str, Any]:
-        alt = table.alternative_deg
+        alt = table.alternative_deg[r]
         return {
             "sample": int(table.samples[r]), "frame": int(table.frames[r]), "field": table.fields[r],
             "error_px": None if not math.isfinite(table.errors[r]) else float(table.errors[r]),
             "status": table.statuses[r].value, "attempts": int(table.attempts[r]),
-            "alternative_deg": None if alt is None or not math.isfinite(alt[r]) else float(alt[r]),
+            "alternative_deg": None if not math.isfinite(alt) else float(alt),
             "file": f"images/{_image_name(int(table.samples[r]))}",
         }
 

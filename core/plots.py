@@ -85,8 +85,7 @@ def angles_figure(table: AnglesTable, model: KinematicModel, final: Histograms |
                     layout="constrained")
     axes = figure.subplots(len(model.dofs), 1, sharex=True, squeeze=False)[:, 0]
     over = np.array([s is Status.OVER_THRESHOLD for s in table.statuses], dtype=bool)
-    alternative = table.alternative_deg
-    ambiguous = np.zeros(len(over), bool) if alternative is None else np.isfinite(alternative)
+    ambiguous = np.isfinite(table.alternative_deg)
     reanalysed = table.attempts > 1
     histogram_row = {name: r for r, name in enumerate(final.names)} if final is not None else {}
     t = table.times

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import shutil
 from pathlib import Path
@@ -61,7 +62,7 @@ def test_fit_overlay_draws_every_image_and_the_fitted_markers_on_their_pixels(fi
     for item in manifest["images"]:
         image = cv2.imread(str(fitted / "overlay" / item["file"]))
         projected = rig.project(model.marker_positions(table.dofs[item["sample"]]))
-        colour = list(MARK_BGR[item["status"]])
+        colour = list(MARK_BGR["ambiguous" if item["alternative_deg"] is not None else item["status"]])
         for u, v in projected.reshape(-1, 2):
             if v >= 20:  # below the line of text at the top
                 assert image[int(v), int(u)].tolist() == colour
@@ -149,12 +150,15 @@ def test_overlay_shows_every_ambiguous_image_of_angles_csv(clip, fitted, tmp_pat
     """angles.csv's optional alternative_deg column (FORMATS §3) marks images ambiguous."""
     results = tmp_path / "results"
     shutil.copytree(fitted, results, ignore=shutil.ignore_patterns("overlay", "plots"))
-    lines = (results / "angles.csv").read_text().splitlines()
     table = read_angles_csv(fitted / "angles.csv")
     best = int(np.argmin(table.errors))  # never among the worst 2
-    rows = [lines[0] + ",error_per_marker_px,alternative_deg"] + [
-        line + "," + ("0.1,35.5" if i == best else "0.1,") for i, line in enumerate(lines[1:])]
-    (results / "angles.csv").write_text("\n".join(rows) + "\n")
+    with (fitted / "angles.csv").open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    column = rows[0].index("alternative_deg")
+    for i, row in enumerate(rows[1:]):
+        row[column] = "35.5" if i == best else ""
+    with (results / "angles.csv").open("w", newline="") as fh:
+        csv.writer(fh, lineterminator="\n").writerows(rows)
     result = _invoke("overlay", results, clip / "video0.avi", "--model", MODEL, "--rig", RIG,
                      "--worst", "2")
     assert result.exit_code == 0, result.output

@@ -41,7 +41,8 @@ def table(dofs: list[float], errors: list[float], statuses: list[Status],
         dof_names=["a"], samples=np.arange(n), frames=np.arange(n), fields=[""] * n,
         times=np.arange(n) / 50.0, dofs=np.array(dofs, dtype=float).reshape(n, 1),
         errors=np.array(errors, dtype=float), attempts=np.ones(n, dtype=np.int64),
-        statuses=statuses, alternative_deg=None if alternative is None else np.array(alternative),
+        statuses=statuses, error_per_marker=np.full(n, np.nan),
+        alternative_deg=np.full(n, np.nan) if alternative is None else np.array(alternative, dtype=float),
     )
 
 

@@ -33,7 +33,7 @@ def sequence(model: KinematicModel, n: int = 30) -> tuple[AnglesTable, Histogram
         dof_names=model.dof_names, samples=np.arange(n), frames=np.arange(n), fields=[""] * n,
         times=np.arange(n) / 50.0, dofs=dofs, errors=rng.uniform(0, 3, n),
         attempts=np.where(np.isin(np.arange(n), [5, 17, 20]), 3, 1), statuses=statuses,
-        alternative_deg=alternative,
+        error_per_marker=np.full(n, np.nan), alternative_deg=alternative,
     )
     final = Histograms.uniform(model)
     for row in dofs[:, model.rotational]:
