@@ -110,8 +110,8 @@ def angles_figure(table: AnglesTable, model: KinematicModel, final: Histograms |
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             legend.setdefault(label, handle)
     figure.legend(legend.values(), legend.keys(), loc="outside upper center", fontsize="small", ncols=5)
-    figure.suptitle(f"{model.name}: {len(t)} images; × over threshold {over.sum()}, "
-                    f"○ ambiguous {ambiguous.sum()}, | re-analysed {reanalysed.sum()}")
+    axes[0].set_title(f"{model.name}: {len(t)} images; × over threshold {over.sum()}, "
+                      f"○ ambiguous {ambiguous.sum()}, | re-analysed {reanalysed.sum()}")
     return figure
 
 
