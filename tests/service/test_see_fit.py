@@ -11,7 +11,9 @@ import defusedxml.ElementTree as SafeET
 import numpy as np
 import pytest
 from svc_helpers import submit, upload_inputs, wait_for
+from typer.testing import CliRunner
 
+from core.cli import app
 from core.detect import DetectorParams, detect
 from core.video import VideoSet
 
@@ -26,7 +28,7 @@ def lab(redis_pg, clip):
     return client, upload_inputs(client, clip.video)
 
 
-def test_a_job_asked_for_overlay_and_plots_serves_and_archives_them(redis_pg, lab):
+def test_a_job_asked_for_overlay_and_plots_serves_and_archives_them(redis_pg, lab, clip, tmp_path):
     client, ids = lab
     job = wait_for(client, submit(client, ids, overlay=True, plots=True, **OPTIONS)["id"])
     assert job["status"] == "succeeded", job
@@ -50,6 +52,13 @@ def test_a_job_asked_for_overlay_and_plots_serves_and_archives_them(redis_pg, la
     archive = zipfile.ZipFile(io.BytesIO(client.get(f"/jobs/{job['id']}/archive.zip").content))
     assert {"angles.csv", "model.xml", *names} <= set(archive.namelist())
     assert archive.read("plots/angles.svg") == svg.content
+    # The unpacked archive is a results directory: `mocap overlay` redraws the worker's images.
+    archive.extractall(tmp_path / "job")
+    again = CliRunner().invoke(app, ["overlay", str(tmp_path / "job"), str(clip.video), "--worst", "3"])
+    assert again.exit_code == 0, again.output
+    for item in manifest["images"][:3]:
+        file = f"overlay/{item['file']}"
+        assert (tmp_path / "job" / file).read_bytes() == archive.read(file)
 
     for bad in ("angles.csv", "plots/nothing.png", "overlay/images/sample_999999.png", "overlay/x/../a.png"):
         response = client.get(f"/jobs/{job['id']}/artifacts/{bad}")
