@@ -6,15 +6,17 @@ line on stderr saying what is wrong.
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Annotated
 
+import cv2
 import numpy as np
 import typer
 from rich.progress import Progress
@@ -29,11 +31,15 @@ from core.export import EXPORTS, unit_scale
 from core.fit import FitParams, Status, fit_sequence
 from core.histogram import HistogramError, Histograms
 from core.model import KinematicModel, ModelError
+from core.overlay import OVERLAY_DIR, job_from_report, overlay_job
 from core.pipeline import FitJob, VideoSource, estimate_marker_diameter, run_fit, write_outputs
+from core.plots import PLOTS_DIR, write_plots
+from core.preview import preview_frame
+from core.results import read_angles_csv
 from core.rig import Rig, RigError
 from core.synth import natural_movements, read_truth_csv, render_frames, write_truth_csv, write_video
 from core.track import RootTracking
-from core.video import VideoError
+from core.video import VideoError, VideoSet
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0])
 
@@ -98,6 +104,15 @@ def demo(
 
 Opt = typer.Option
 
+# Detector options (core.detect.DetectorParams), shared by `fit` and `detect`.
+ThresholdOpt = Annotated[str, Opt(help="detection threshold: grey level 0..255 or 'otsu'")]
+ChannelOpt = Annotated[str, Opt(help="grey, red, green or blue")]
+BlurOpt = Annotated[int, Opt(help="Gaussian blur kernel before the threshold (0: none, odd)")]
+ErodeOpt = Annotated[int, Opt(help="erosion iterations after the threshold")]
+DilateOpt = Annotated[int, Opt(help="dilation iterations after erosion")]
+MinAreaOpt = Annotated[int, Opt(help="smallest marker region, pixels")]
+MaxAreaOpt = Annotated[int, Opt(help="largest marker region, pixels")]
+
 
 @app.command()
 def fit(
@@ -121,13 +136,13 @@ def fit(
         str, Opt(help="marker diameter in pixels, close markers may image as one blob: a number, "
                  "'auto' (from the detected blobs of the first images) or 0 (the paper's plain "
                  "Eq. 5)")] = "auto",
-    threshold: Annotated[str, Opt(help="detection threshold: grey level 0..255 or 'otsu'")] = "100",
-    channel: Annotated[str, Opt(help="grey, red, green or blue")] = "grey",
-    blur: Annotated[int, Opt(help="Gaussian blur kernel before the threshold (0: none, odd)")] = 0,
-    erode: Annotated[int, Opt(help="erosion iterations after the threshold")] = 0,
-    dilate: Annotated[int, Opt(help="dilation iterations after erosion")] = 0,
-    min_area: Annotated[int, Opt(help="smallest marker region, pixels")] = 2,
-    max_area: Annotated[int, Opt(help="largest marker region, pixels")] = 2000,
+    threshold: ThresholdOpt = "100",
+    channel: ChannelOpt = "grey",
+    blur: BlurOpt = 0,
+    erode: ErodeOpt = 0,
+    dilate: DilateOpt = 0,
+    min_area: MinAreaOpt = 2,
+    max_area: MaxAreaOpt = 2000,
     prior_weight: Annotated[float, Opt(help="counts of the uniform prior histograms")] = 100.0,
     root_marker: Annotated[
         str | None, Opt(help="track this marker (at the root's origin) to move the root")] = None,
@@ -137,6 +152,9 @@ def fit(
     export: Annotated[str | None, Opt(help="also write some of mot,trc,c3d,detections "
                                       "(docs/INTERCHANGE.md)")] = None,
     export_units: Annotated[str, Opt(help="trc/c3d positions, mot translations: model or m")] = "model",
+    # ---- seeing the fit (core.overlay, core.plots; docs/SEEING_THE_FIT.md) ----
+    overlay: Annotated[bool, Opt("--overlay", help="then draw the fit over the videos: OUT/overlay")] = False,
+    plots: Annotated[bool, Opt("--plots", help="then plot angles and histograms: OUT/plots/")] = False,
 ) -> None:
     """Detect markers in VIDEO(s) and fit the model to every image: angles, histograms, report."""
     with user_errors():
@@ -150,8 +168,7 @@ def fit(
         start = (Histograms.from_xml(histograms, kinematic) if histograms is not None
                  else Histograms.uniform(kinematic, prior_weight=prior_weight))
         diameter = _diameter(marker_diameter_px)
-        detector = DetectorParams(channel=channel, threshold=_threshold(threshold), erode=erode,
-                                  dilate=dilate, blur=blur, min_area=min_area, max_area=max_area)
+        detector = _detector(threshold, channel, blur, erode, dilate, min_area, max_area)
         source = VideoSource(tuple(videos), camera_rig, detector, deinterlace, field_order)
         params = FitParams(
             anneal=AnnealParams().with_iterations(iterations), error_threshold_px=error_threshold_px,
@@ -171,6 +188,18 @@ def fit(
     print(f"{report['images']} images in {report['seconds']} s ({report['images_per_s']} images/s); "
           f"status {report['status']}; mean error {report['error_px']['mean']} px; "
           f"wrote {out}/angles.csv, histograms.xml, report.json{exported}")
+    with user_errors():
+        if overlay:
+            _draw_overlay(job, out, OVERLAY_WORST)
+        if plots:
+            _draw_plots(out, kinematic, start, outcome.result.histograms)
+
+
+def _detector(threshold: str, channel: str, blur: int, erode: int, dilate: int, min_area: int,
+              max_area: int) -> DetectorParams:
+    """The detector options of `fit` and `detect` as DetectorParams (ValueError naming the option)."""
+    return DetectorParams(channel=channel, threshold=_threshold(threshold), erode=erode,
+                          dilate=dilate, blur=blur, min_area=min_area, max_area=max_area)
 
 
 def _positions(text: str | None) -> tuple[tuple[float, float], ...] | None:
@@ -345,3 +374,127 @@ def _export_fit(out: Path, kinds: list[str], units: str, job: FitJob) -> str:
         write_detections_csv(out / DETECTIONS_FILE, source[0:len(source)], source.rig, job.clock)
         paths.append(out / DETECTIONS_FILE)
     return "".join(f", {p.name}" for p in paths)
+# ---- seeing the fit: `overlay`, `plots`, `detect` (core.overlay, core.plots, core.preview;
+# docs/SEEING_THE_FIT.md) ------------------------------------------------------------------
+
+OVERLAY_WORST = 12  # images of the largest errors on the contact sheet (and every ambiguous one)
+
+
+@app.command()
+def overlay(
+    results: Annotated[Path, typer.Argument(help="a results directory of `mocap fit` (or a job's archive)")],
+    videos: Annotated[list[Path], typer.Argument(help="the video file(s) it was fitted from")],
+    model: Annotated[Path | None, Opt("--model", help="model.xml (default: RESULTS/model.xml)")] = None,
+    rig: Annotated[Path | None, Opt("--rig", help="rig.json (default: RESULTS/rig.json)")] = None,
+    worst: Annotated[int, Opt(min=0, max=1000, help="images of the largest errors to show")] = OVERLAY_WORST,
+) -> None:
+    """Draw a computed fit over its videos: RESULTS/overlay/ (videos, worst images, contact sheet)."""
+    with user_errors():
+        kinematic = KinematicModel.from_xml(_in_results(model, results, "model.xml", "--model"))
+        camera_rig = Rig.from_json(_in_results(rig, results, "rig.json", "--rig"))
+        report = _report(_in_results(None, results, "report.json", ""))
+        job = job_from_report(report, videos, model=kinematic, rig=camera_rig)
+        _draw_overlay(job, results, worst)
+
+
+@app.command()
+def plots(
+    results: Annotated[Path, typer.Argument(help="a results directory of `mocap fit` (or a job's archive)")],
+    model: Annotated[Path | None, Opt("--model", help="model.xml (default: RESULTS/model.xml)")] = None,
+    histograms: Annotated[Path | None, Opt("--histograms", help="the fit's starting histograms.xml "
+                                           "(default: uniform, --prior-weight counts)")] = None,
+    prior_weight: Annotated[float, Opt(help="counts of the uniform starting histograms")] = 100.0,
+) -> None:
+    """Plot a computed fit: RESULTS/plots/angles.{png,svg} and histograms.{png,svg}."""
+    with user_errors():
+        kinematic = KinematicModel.from_xml(_in_results(model, results, "model.xml", "--model"))
+        start = (Histograms.from_xml(histograms, kinematic) if histograms is not None
+                 else Histograms.uniform(kinematic, prior_weight=prior_weight))
+        final = Histograms.from_xml(_in_results(None, results, "histograms.xml", ""), kinematic)
+        _draw_plots(results, kinematic, start, final)
+
+
+@app.command()
+def detect(
+    videos: Annotated[list[Path], typer.Argument(help="video file(s), one per camera of the rig")],
+    rig: Annotated[Path, Opt("--rig", help="rig.json (FORMATS §2)")],
+    out: Annotated[Path, Opt("--out", help="output directory for the preview images")],
+    frames: Annotated[str, Opt(help="frame indices, comma-separated")] = "0",
+    threshold: ThresholdOpt = "100",
+    channel: ChannelOpt = "grey",
+    blur: BlurOpt = 0,
+    erode: ErodeOpt = 0,
+    dilate: DilateOpt = 0,
+    min_area: MinAreaOpt = 2,
+    max_area: MaxAreaOpt = 2000,
+) -> None:
+    """Preview detection on a few frames: each view's roi, thresholded mask and centroids; counts."""
+    with user_errors():
+        camera_rig = Rig.from_json(rig)
+        detector = _detector(threshold, channel, blur, erode, dilate, min_area, max_area)
+        indices = _frame_indices(frames)
+        video_set = VideoSet(videos)
+        camera_rig.check_videos([(i.width, i.height) for i in video_set.infos])
+        if indices[-1] >= video_set.frames:
+            raise ValueError(f"--frames: frame {indices[-1]} is past the videos' {video_set.frames} frames")
+        out.mkdir(parents=True, exist_ok=True)
+        counts = {}
+        for index in indices:
+            (decoded,) = video_set.read(index, index + 1)
+            drawn, found = preview_frame(decoded, rig=camera_rig, params=detector)
+            for k, image in enumerate(drawn):
+                cv2.imwrite(str(out / f"frame_{index:06d}_video{k}.png"), image)
+            counts[index] = {v.name: int(n) for v, n in zip(camera_rig.views, found.counts, strict=True)}
+            print(f"frame {index}: " + ", ".join(f"{name} {n}" for name, n in counts[index].items()))
+        (out / "counts.json").write_text(json.dumps({"detector": asdict(detector), "counts": counts},
+                                                    indent=2) + "\n")
+    print(f"wrote {len(indices) * camera_rig.n_videos} image(s) and counts.json to {out}")
+
+
+def _draw_overlay(job: FitJob, results: Path, worst: int) -> None:
+    manifest = overlay_job(job, results, worst=worst)
+    print(f"wrote {results / OVERLAY_DIR}: {', '.join(manifest['videos'])}, "
+          f"{len(manifest['images'])} image(s), {manifest['contact_sheet'] or 'no contact sheet'}")
+
+
+def _draw_plots(results: Path, model: KinematicModel, start: Histograms, final: Histograms) -> None:
+    table = read_angles_csv(results / "angles.csv")
+    names = write_plots(results / PLOTS_DIR, table, model, start, final)
+    print(f"wrote {results / PLOTS_DIR}: {', '.join(names)}")
+
+
+def _report(path: Path) -> dict:
+    try:
+        report = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path} is not a report.json of mocap fit: {exc}") from None
+    if not isinstance(report, dict):
+        raise ValueError(f"{path} is not a report.json of mocap fit: not a JSON object")
+    return report
+
+
+def _in_results(given: Path | None, results: Path, name: str, option: str) -> Path:
+    """``given``, else RESULTS/name; an error naming the option when neither exists."""
+    if given is not None:
+        return given
+    if not results.is_dir():
+        raise ValueError(f"{results} is not a directory of results")
+    path = results / name
+    if not path.is_file():
+        hint = f": give it with {option}" if option else " (not a results directory of mocap fit?)"
+        raise ValueError(f"{results} has no {name}{hint}")
+    return path
+
+
+def _frame_indices(text: str) -> list[int]:
+    """--frames: '0,100,200' → sorted distinct indices >= 0."""
+    try:
+        indices = sorted({int(x) for x in text.split(",")})
+    except ValueError:
+        raise ValueError(f"--frames must be frame indices separated by commas, got {text!r}") from None
+    if not indices or indices[0] < 0 or len(indices) > MAX_PREVIEW_FRAMES:
+        raise ValueError(f"--frames must hold 1 to {MAX_PREVIEW_FRAMES} indices >= 0, got {text!r}")
+    return indices
+
+
+MAX_PREVIEW_FRAMES = 100

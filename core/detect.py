@@ -37,7 +37,8 @@ from core.rig import Rig
 from core.video import MAX_FRAME_PIXELS
 
 __all__ = [
-    "CHANNELS", "DetectorParams", "detect", "detect_views", "marker_diameter", "view_images",
+    "CHANNELS", "DetectorParams", "detect", "detect_views", "marker_diameter", "marker_mask",
+    "view_images",
 ]
 
 # OpenCV's threads per process, set when this module is imported. One: the filters run on
@@ -224,13 +225,12 @@ def view_image(frames: Sequence[np.ndarray], rig: Rig, index: int, channel: str)
     return np.ascontiguousarray(crop[:, :, _BGR_INDEX[channel]])
 
 
-def _detect_view(
-    image: np.ndarray, params: DetectorParams, rig: Rig, index: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 2) float64 full-frame centroids of the marker regions of one view's image, and
-    their (N,) areas in pixels (none in an empty image: a one-row roi has no rows of one field)."""
-    if image.size == 0:
-        return np.empty((0, 2)), np.empty(0)
+def marker_mask(image: np.ndarray, params: DetectorParams) -> np.ndarray:
+    """The binary image of one view's (h, w) uint8 image after blur, threshold, erosion and
+    dilation: (h, w) uint8, 1 where a pixel may belong to a marker (before the area filter).
+
+    What detection labels, and what ``core.preview`` draws.
+    """
     work = image
     if params.blur > 1:
         work = cv2.GaussianBlur(work, (params.blur, params.blur), 0)
@@ -242,6 +242,17 @@ def _detect_view(
         binary = cv2.erode(binary, _KERNEL3, iterations=params.erode)
     if params.dilate:
         binary = cv2.dilate(binary, _KERNEL3, iterations=params.dilate)
+    return binary
+
+
+def _detect_view(
+    image: np.ndarray, params: DetectorParams, rig: Rig, index: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) float64 full-frame centroids of the marker regions of one view's image, and
+    their (N,) areas in pixels (none in an empty image: a one-row roi has no rows of one field)."""
+    if image.size == 0:
+        return np.empty((0, 2)), np.empty(0)
+    binary = marker_mask(image, params)
     pixels = np.flatnonzero(binary.view(bool))
     centroids, areas = _kernels.detect_regions(image, binary, pixels, params.min_area,
                                                params.max_area, _scratch(binary.size))

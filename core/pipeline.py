@@ -121,11 +121,12 @@ class VideoSource(Sequence[Detections]):
             raise IndexError(f"image {index} out of range for {n} images")
         return next(self._range(index % n, index % n + 1))
 
-    def _range(self, start: int, stop: int) -> Iterator[Detections]:
-        """Detections of images [start, stop), decoding frames in one pass."""
-        k = self.per_frame
-        first, last = start // k, (stop + k - 1) // k
-        sample = first * k
+    def decoded(
+        self, first: int, last: int
+    ) -> Iterator[tuple[tuple[np.ndarray, ...], tuple[Detections, ...]]]:
+        """Frames ``[first, last)`` with the detections of their images, in one decoding pass:
+        per frame, one BGR uint8 (H, W, 3) frame per video and :attr:`per_frame` Detections
+        (its fields in time order when de-interlacing). Overlays draw on these."""
         for frames in self._videos.read(first, last):
             images = (
                 detect_fields(frames, rig=self.rig, params=self.detector,
@@ -133,6 +134,14 @@ class VideoSource(Sequence[Detections]):
                 if self.deinterlace
                 else (detect(frames, rig=self.rig, params=self.detector),)
             )
+            yield frames, images
+
+    def _range(self, start: int, stop: int) -> Iterator[Detections]:
+        """Detections of images [start, stop), decoding frames in one pass."""
+        k = self.per_frame
+        first, last = start // k, (stop + k - 1) // k
+        sample = first * k
+        for _, images in self.decoded(first, last):
             for det in images:
                 if start <= sample < stop:
                     yield det

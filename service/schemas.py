@@ -62,6 +62,11 @@ class JobOptions(BaseModel):
         "images, as `mocap fit` does)")
     histogram_version: DbId | None = None
     detector: DetectorOptions = Field(default_factory=DetectorOptions)
+    # ---- seeing the fit (service/artifacts.py, docs/SEEING_THE_FIT.md) ----
+    overlay: bool = Field(default=False, description="also draw the fit over the video: "
+                          "GET /v1/jobs/{id}/artifacts/overlay/... (as `mocap fit --overlay`)")
+    plots: bool = Field(default=False, description="also plot angles and histograms: "
+                        "GET /v1/jobs/{id}/artifacts/plots/... (as `mocap fit --plots`)")
 
 
 class ModelPublic(BaseModel):
@@ -172,3 +177,26 @@ class BatchPublic(BaseModel):
     statuses: dict[str, int]
     progress: Progress
     jobs: list[JobPublic]
+
+
+# ---- seeing the fit: detection preview (core.preview, docs/SEEING_THE_FIT.md) ----
+
+
+class DetectPreviewCreate(BaseModel):
+    """One frame of an uploaded video through ``core.detect``, with a rig's views of that video."""
+
+    model_config = ConfigDict(extra="forbid")
+    rig_id: DbId
+    frame: int = Field(default=0, ge=0, le=MAX_DB_INT)
+    video_index: int = Field(default=0, ge=0, le=255, description="which of the rig's videos this "
+                             "is (its views' `video`); only those views are previewed")
+    detector: DetectorOptions = Field(default_factory=DetectorOptions)
+
+
+class DetectPreview(BaseModel):
+    video_id: int
+    rig_id: int
+    frame: int
+    counts: dict[str, int] = Field(description="detections per view, as core.detect (mocap fit) finds them")
+    centroids: dict[str, list[list[float]]] = Field(description="(u, v) full-frame pixels per view")
+    image: str = Field(description="the frame with rois, thresholded mask and centroids: a PNG data URL")

@@ -59,7 +59,7 @@ from core.model import KinematicModel
 from core.pipeline import FitJob, FitOutcome, build_report, finish, fit_range, plan
 from core.pipeline import reanalyse as reanalyse_step
 from core.results import read_angles_csv, write_angles_csv
-from service import histstore
+from service import artifacts, histstore
 from service.crud import add_histogram_version, histogram_version, missing_frames
 from service.db import session_scope
 from service.fitjob import build_fit_job
@@ -78,6 +78,7 @@ from service.models import (
     utcnow,
 )
 from service.redact import redact, video_names
+from service.schemas import JobOptions
 from service.settings import get_settings
 from service.storage import Storage, get_storage
 from worker.celery_app import FIT_CHUNK, REANALYSE_IMAGE, app
@@ -376,7 +377,9 @@ def resume(job_id: int) -> None:
 
 # ---- 5. finish ---------------------------------------------------------------------------------
 def _finish(job_id: int) -> None:
-    """Write the results and fold the job into the model's archive, then mark it succeeded."""
+    """Write the results (and the artifacts the options ask for: drawn with no transaction
+    open, they decode the videos again), fold the job into the model's archive, then mark it
+    succeeded."""
     storage = get_storage()
     with session_scope() as session:
         loaded = _load(session, job_id)
@@ -389,8 +392,13 @@ def _finish(job_id: int) -> None:
         _join_detections(session, storage, job_id)
         storage.put(f"jobs/{job_id}/histograms.xml", [result.histograms.to_xml().encode()])
         report = _report(session, loaded, result, fits)
-        storage.put(f"jobs/{job_id}/report.json", [(json.dumps(report, indent=2) + "\n").encode()])
-        model = session.scalars(select(Model).where(Model.id == loaded.job.model_id)
+        model_id, options = loaded.job.model_id, JobOptions.model_validate(loaded.job.options)
+    if options.overlay or options.plots:
+        report["artifacts"] = artifacts.render(storage, job_id, loaded.fit, loaded.prior, result,
+                                               overlay=options.overlay, plots=options.plots)
+    storage.put(f"jobs/{job_id}/report.json", [(json.dumps(report, indent=2) + "\n").encode()])
+    with session_scope() as session:
+        model = session.scalars(select(Model).where(Model.id == model_id)
                                 .with_for_update()).one()  # one fold at a time per model
         ended = _changed(session,
             update(Job).where(Job.id == job_id, Job.status.in_([JobStatus.RUNNING, JobStatus.REANALYSING]))

@@ -225,7 +225,7 @@ def owner_job(redis_pg, clip):
     """Lab "owner": its model, rig, video, a succeeded job and a batch (submitted, not awaited)."""
     client = redis_pg.create_lab("owner")
     ids = upload_inputs(client, clip.video)
-    job = wait_for(client, submit(client, ids, marker_diameter_px=4.0, chunk_size=40)["id"])
+    job = wait_for(client, submit(client, ids, marker_diameter_px=4.0, chunk_size=40, plots=True)["id"])
     assert job["status"] == "succeeded", job
     batch = client.post("/batches", json={"model_id": ids["model_id"], "rig_id": ids["rig_id"],
                                           "trials": [{"video_ids": [ids["video_id"]]}],

@@ -28,13 +28,15 @@ def test_another_labs_key_gets_404_on_every_endpoint(redis_pg, owner_job, clip):
     owner, ids = owner_job
     other = redis_pg.create_lab("other")
     values = {"model_id": ids["model_id"], "rig_id": ids["rig_id"], "video_id": ids["video_id"],
-              "job_id": ids["job_id"], "batch_id": ids["batch_id"]}
+              "job_id": ids["job_id"], "batch_id": ids["batch_id"], "name": "plots/angles.svg"}
     operations = _paths_with_ids(redis_pg)
-    assert len(operations) == 13, operations  # 12 downloads and reads, and cancel
+    assert len(operations) == 16, operations  # 14 downloads and reads, cancel and detect-preview
     for method, template in operations:
         path = template.format(**values)
         if method == "GET":
             assert owner.get(path).status_code in (200, 409), path  # exists for its owner
+        elif path.endswith("/detect-preview"):
+            assert owner.post(path).status_code == 422, path  # its owner is asked for a body
         response = other.request(method, path)
         assert response.status_code == 404, (method, path)
         assert "not found" in response.json()["detail"]

@@ -12,10 +12,10 @@ from kombu.exceptions import OperationalError
 from sqlalchemy.orm import Session
 
 from core.export import DETECTIONS_FILE, EXPORT_FILES
-from service import crud
+from service import artifacts, crud
 from service.api.deps import CurrentLab, Cursor, Limit, PathId, SessionDep, SettingsDep, StorageDep
 from service.archive import stream_zip
-from service.errors import QueueUnavailableError
+from service.errors import NotFoundError, QueueUnavailableError
 from service.models import Job, JobStatus, Lab, Model, RigRow
 from service.schemas import JobCreate, JobPage, JobPublic, Progress
 from service.storage import Storage
@@ -111,7 +111,7 @@ for _name in RESULTS:
 
 @router.get("/{job_id}/archive.zip", response_class=StreamingResponse,
             summary="angles.csv, histograms.xml, report.json, angles.mot, markers.trc, markers.c3d, "
-                    "detections.csv, model.xml and rig.json in one zip")
+                    "detections.csv, model.xml, rig.json and the artifacts in one zip")
 def archive(job_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> StreamingResponse:
     entries = list(job_entries(session, storage, lab, job_id, folder=""))
     return StreamingResponse(stream_zip(entries), media_type="application/zip",
@@ -131,3 +131,30 @@ def job_entries(session: Session, storage: Storage, lab: Lab, job_id: int,
     yield f"{folder}model.xml", session.get_one(Model, job.model_id).xml.encode()
     rig = session.get_one(RigRow, job.rig_id).spec
     yield f"{folder}rig.json", (json.dumps(rig, indent=2) + "\n").encode()
+    for name in artifacts.listed(storage, job_id):
+        yield f"{folder}{name}", storage, f"jobs/{job_id}/{name}"
+
+
+# ---- seeing the fit: the artifacts options.overlay and options.plots ask for (service/artifacts.py)
+
+
+@router.get("/{job_id}/artifacts", response_model=list[str],
+            summary="Names of a succeeded job's overlay and plot files (empty unless its options asked)")
+def list_artifacts(job_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> list[str]:
+    crud.result_key(session, lab, job_id, artifacts.INDEX)  # 404 another lab's, 409 before success
+    return artifacts.listed(storage, job_id)
+
+
+@router.get("/{job_id}/artifacts/{name:path}", response_class=FileResponse,
+            summary="Download one artifact, e.g. overlay/contact_sheet.png or plots/angles.svg")
+def download_artifact(job_id: PathId, name: str, session: SessionDep, storage: StorageDep,
+                      lab: CurrentLab) -> FileResponse:
+    key = crud.result_key(session, lab, job_id, name)
+    if not artifacts.NAME.match(name) or name not in artifacts.listed(storage, job_id):
+        raise NotFoundError(f"job {job_id} has no artifact {name!r}: GET /v1/jobs/{job_id}/artifacts "
+                            "lists them (submit with options.overlay or options.plots)")
+    suffix = name[name.rfind("."):]
+    headers = {"Content-Security-Policy": "default-src 'none'; style-src 'unsafe-inline'"}
+    return FileResponse(storage.path(key), media_type=artifacts.MEDIA_TYPES[suffix], headers=headers,
+                        filename=f"job-{job_id}-{name.replace('/', '-')}",
+                        content_disposition_type="attachment" if suffix == ".avi" else "inline")

@@ -2,13 +2,22 @@
 
 from __future__ import annotations
 
+import base64
+from dataclasses import replace
+
+import cv2
 from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
 
+from core.detect import DetectorParams
+from core.preview import preview_frame
+from core.rig import Rig, RigError
+from core.video import VideoError, VideoSet
 from service import crud, limits
 from service.api.deps import CurrentLab, Cursor, Limit, PathId, SessionDep, SettingsDep, StorageDep
-from service.models import Video
-from service.schemas import VideoPage, VideoPublic
+from service.errors import InvalidError
+from service.models import RigRow, Video
+from service.schemas import DetectPreview, DetectPreviewCreate, VideoPage, VideoPublic
 from service.upload import MULTIPART_SLACK, check_length, declared_length, receive_video
 
 router = APIRouter(prefix="/videos", tags=["videos"])
@@ -48,3 +57,43 @@ def list_videos(session: SessionDep, lab: CurrentLab, cursor: Cursor = None, lim
 @router.get("/{video_id}", response_model=VideoPublic)
 def get_video(video_id: PathId, session: SessionDep, lab: CurrentLab) -> VideoPublic:
     return _public(crud.owned(session, Video, video_id, lab))
+
+
+# ---- seeing the fit: detection preview (core.preview; docs/SEEING_THE_FIT.md) ----
+
+
+@router.post("/{video_id}/detect-preview", response_model=DetectPreview,
+             summary="Detect markers in one frame with given detector options: counts, centroids and "
+             "an image of rois, mask and centroids (to choose options before a job)")
+def detect_preview(video_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab,
+                   body: DetectPreviewCreate | None = None) -> DetectPreview:
+    video = crud.owned(session, Video, video_id, lab)  # another lab's video: 404 before the body's 422
+    if body is None:
+        raise InvalidError('a JSON body naming the rig is required: {"rig_id": ...}')
+    rig = Rig.from_dict(crud.owned(session, RigRow, body.rig_id, lab).spec)
+    views = tuple(replace(v, video=0) for v in rig.views if v.video == body.video_index)
+    if not views:
+        raise InvalidError(f"rig {body.rig_id} has no view in video {body.video_index}")
+    if body.frame >= video.frames:
+        raise InvalidError(f"frame {body.frame} is past the {video.frames} frames of video {video_id} "
+                           f"({video.filename})")
+    try:
+        params = DetectorParams(**body.detector.model_dump())
+    except ValueError as exc:
+        raise InvalidError(f"detector: {exc}") from None
+    name = f"video {video_id} ({video.filename})"
+    try:
+        Rig(views).check_videos([(video.width, video.height)])
+        (frames,) = VideoSet([storage.path(video.storage_key)]).read(body.frame, body.frame + 1)
+    except RigError as exc:
+        raise InvalidError(f"rig {body.rig_id} and {name}: {exc}") from None
+    except VideoError:  # its message names the server's path: not shown
+        raise InvalidError(f"frame {body.frame} of {name} does not decode") from None
+    drawn, found = preview_frame(frames, rig=Rig(views), params=params)
+    png = cv2.imencode(".png", drawn[0])[1].tobytes()
+    return DetectPreview(
+        video_id=video_id, rig_id=body.rig_id, frame=body.frame,
+        counts={v.name: int(n) for v, n in zip(views, found.counts, strict=True)},
+        centroids={v.name: found.view(i).round(3).tolist() for i, v in enumerate(views)},
+        image="data:image/png;base64," + base64.b64encode(png).decode(),
+    )
