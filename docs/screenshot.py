@@ -59,16 +59,19 @@ def main() -> None:
 
 
 def _submit_batch(client: httpx.Client) -> int:
-    """A batch of two trials of the uploaded video, awaited; returns the first job's id."""
+    """A batch of two trials of the uploaded video with overlays and plots, awaited; returns
+    the id of its first trial's job."""
     model, rig, video = (client.get(f"/{kind}").json()["items"][0]["id"]
                          for kind in ("models", "rigs", "videos"))
-    batch = client.post("/batches", json={"model_id": model, "rig_id": rig, "options": {"chunk_size": 25},
+    options = {"chunk_size": 25, "overlay": True, "plots": True}
+    batch = client.post("/batches", json={"model_id": model, "rig_id": rig, "options": options,
                                           "trials": [{"video_ids": [video]}, {"video_ids": [video]}]})
     batch.raise_for_status()
     while (status := client.get(f"/batches/{batch.json()['id']}").json()["status"]) == "running":
         time.sleep(0.5)
     print(f"batch {batch.json()['id']} {status}")
-    return client.get("/jobs", params={"limit": 200}).json()["items"][-1]["id"]
+    # Newest first: the demo's own job is the oldest, the batch's first trial the one before it.
+    return client.get("/jobs", params={"limit": 200}).json()["items"][-2]["id"]
 
 
 def _shoot(base: str, key: str, job_id: int, out: Path) -> None:
