@@ -8,13 +8,14 @@ process pool started with ``fork``) compiles once; the children inherit the
 compiled code, and later runs load it from the cache.
 
 The warm-up goes through the same public functions as a real fit (detection,
-a single chain, a tree with a free root, fusion on), so the signatures match.
+a single chain, a tree with a free root, fusion on), so the signatures match. It needs no
+file: the models and the rig are written here.
 """
 
 from __future__ import annotations
 
+import json
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -27,7 +28,16 @@ from core.rig import Rig
 
 __all__ = ["compile_kernels"]
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "locust_hind_leg"
+_CHAIN = """<model name="warmup_chain" units="mm">
+  <joint name="base"><dof axis="y" name="p" min="120" max="220"/>
+    <dof axis="x" name="q" min="-40" max="40"/></joint>
+  <joint name="knee" parent="base"><offset x="10" y="0" z="0"/>
+    <dof axis="z" name="k" min="20" max="160"/></joint>
+  <joint name="tip" parent="knee"><offset x="10" y="0" z="0"/></joint>
+  <marker name="m0" joint="base" x="0" y="0" z="0"/>
+  <marker name="m1" joint="knee" x="0" y="0" z="0"/>
+  <marker name="m2" joint="tip" x="0" y="0" z="0"/>
+</model>"""
 
 _TREE = """<model name="warmup" units="mm">
   <joint name="root"><dof axis="tx" name="tx" min="-5" max="5"/>
@@ -49,13 +59,15 @@ _TREE = """<model name="warmup" units="mm">
 def compile_kernels() -> float:
     """Run a few tiny fits so that every kernel is compiled or loaded; returns the seconds taken."""
     t0 = time.perf_counter()
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    rig = Rig.from_json(json.dumps({"views": [  # a mirror rig: two views of one frame
+        {"name": "side", "video": 0, "roi": [0, 0, 720, 288],
+         "projection": {"type": "affine", "matrix": [[3, 0, 0, 360], [0, -3, 0, 144]]}},
+        {"name": "top", "video": 0, "roi": [0, 288, 720, 288],
+         "projection": {"type": "affine", "matrix": [[3, 0, 0, 360], [0, 0, 3, 432]]}}]}))
     frame = np.zeros((576, 720), dtype=np.uint8)
     frame[100:104, 100:104] = 255
     detect([frame], rig=rig)
-    tree = KinematicModel.from_xml(_TREE)
-    for m in (model, tree):
+    for m in (KinematicModel.from_xml(_CHAIN), KinematicModel.from_xml(_TREE)):
         postures = np.linspace(m.lower + 0.3 * (m.upper - m.lower), m.lower + 0.4 * (m.upper - m.lower), 3)
         images = [Detections.from_views(list(p)) for p in rig.project(m.marker_positions(postures))]
         params = FitParams(anneal=FitParams().anneal.with_iterations(300), fusion_px=8.0, max_attempts=2)
