@@ -6,7 +6,10 @@ import re
 import subprocess
 import sys
 
+import pytest
 
+
+@pytest.mark.slow  # starts the embedded service, its workers and a fit: ~15 s
 def test_the_service_demo_fits_the_locust_clip_over_http(tmp_path):
     """Embedded default (SQLite, filesystem broker, worker processes): nothing to start first."""
     done = subprocess.run(
