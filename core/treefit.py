@@ -2,8 +2,11 @@
 
 The trunk is fitted first, then each branch given the trunk, each by the paper's
 SA (``core._kernels.fit_attempt``) over its own DOFs and markers; then the whole
-posture is refined jointly. ε, the paper's SA stop (1 px for its 4 markers × 2
-views), is scaled to each part's marker projections.
+posture is refined jointly. ε, the SA stop (``AnnealParams.eps``, 1 px), counts per
+:data:`EPS_PROJECTIONS` marker projections of a part, 0.25 px each by default: twice the
+paper's 1 px over 4 markers × 2 views, which the detection noise of real markers (0.1-0.2
+px a projection) keeps out of reach of a part seen in many views, so SA would run every
+part to its patience limit.
 
 Branches compete for blobs. Eq. 5 charges each marker its nearest blob and never
 charges a blob no marker explains, so a leg that settles on its neighbour's
