@@ -197,8 +197,7 @@ class ImageFit:
         if not self.alternatives or not rotational.any():
             return math.nan
         best = min(self.alternatives, key=lambda c: c.objective)
-        diff = np.abs((best.dofs - self.dofs + 180.0) % 360.0 - 180.0)[rotational]
-        return float(diff.max())
+        return float(_angle_gaps(best.dofs, self.dofs)[rotational].max())
 
     def to_record(self) -> dict:
         """The fit as JSON-safe values (None for NaN), for a database row or a message.
@@ -432,11 +431,7 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     jumped must not need every other leg to be as it was. At most the best two are kept.
     """
     rot = model.rotational
-
-    def distinct(q: np.ndarray, c: Candidate) -> bool:
-        return _apart(q, c.dofs, rot)
-
-    if not distinct(warm, fit):
+    if not _apart(warm, fit.dofs, rot):
         return []
     starts = [warm]
     if model.tree is not None:
@@ -451,15 +446,20 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     for start in starts:
         q, error, objective = refine_whole(start.copy(), det, model, rig, params, off)
         if objective <= fit.objective + tolerance and all(
-                distinct(q, c) for c in (fit, *others, *found)):
+                _apart(q, c.dofs, rot) for c in (fit, *others, *found)):
             found.append(Candidate(q, error, objective))
     return sorted(found, key=lambda c: c.objective)[:2]
 
 
 def _apart(a: np.ndarray, b: np.ndarray, rotational: np.ndarray) -> bool:
     """Whether postures ``a`` and ``b`` differ by more than :data:`DISTINCT_DEG` in some angle."""
-    diff = np.abs((a - b + 180.0) % 360.0 - 180.0)[rotational]
-    return bool(diff.max(initial=0.0) > DISTINCT_DEG)
+    return bool(_angle_gaps(a, b)[rotational].max(initial=0.0) > DISTINCT_DEG)
+
+
+def _angle_gaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Absolute differences of two postures, degrees the shorter way round (meaningful for
+    rotational DOFs only)."""
+    return np.abs((a - b + 180.0) % 360.0 - 180.0)
 
 
 def reanalyse_image(
