@@ -35,7 +35,15 @@ from functools import partial
 import numpy as np
 
 from core import _kernels
-from core.ambiguity import Candidate, FlipGeometry, choose_candidates, flip_alternatives
+from core.ambiguity import (
+    Candidate,
+    FlipGeometry,
+    angle_gaps,
+    choose_candidates,
+    flip_alternatives,
+    residual_tolerance,
+    undetermined_alternative,
+)
 from core.anneal import AnnealParams, SearchSpace, search_space
 from core.error import (
     DEFAULT_EMPTY_VIEW_PENALTY_PX,
@@ -197,7 +205,7 @@ class ImageFit:
         if not self.alternatives or not rotational.any():
             return math.nan
         best = min(self.alternatives, key=lambda c: c.objective)
-        return float(_angle_gaps(best.dofs, self.dofs)[rotational].max())
+        return float(angle_gaps(best.dofs, self.dofs)[rotational].max())
 
     def to_record(self) -> dict:
         """The fit as JSON-safe values (None for NaN), for a database row or a message.
@@ -380,7 +388,9 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
 
     Alternatives are the depth flips of the fit (``core.ambiguity``) and, given ``warm``
     (the previous image's posture), that posture refined on this image, when it lands
-    in a distinct minimum scoring within the tolerance: at 50-200 Hz the previous
+    in a distinct minimum scoring within :func:`alternative_tolerance`; without either,
+    a posture more than ``core.ambiguity.UNDETERMINED_DEG`` away in a DOF the image does
+    not determine (``core.ambiguity.undetermined_alternative``). At 50-200 Hz the previous
     posture is usually near the truth, so a fit that jumped into another minimum that
     explains the image as well (the paper's Fig. 9) gets the truth as its alternative,
     and the choice by continuity can take it. SA itself never starts from it: one
@@ -392,7 +402,7 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     )
     fit = Candidate(dofs, error, objective)
     others = []
-    tolerance = alternative_tolerance(params, det, len(model.markers))
+    tolerance = alternative_tolerance(params, det, model, error, len(model.dofs))
     if tolerance > 0:
         others = flip_alternatives(
             fit, det, model=model, rig=rig, geometry=geometry, tolerance_px=tolerance,
@@ -403,19 +413,33 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             others += _warm_alternatives(fit, others, warm, det, model, rig, params, tolerance,
                                          offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
+    if tolerance > 0 and len(ranked) == 1:
+        witness = undetermined_alternative(
+            fit, det, model=model, rig=rig, tolerance_px=alternative_tolerance(
+                params, det, model, error, 1),
+            fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
+            huber_px=params.anneal.huber_px, offsets=offsets,
+        )
+        ranked += [witness] if witness is not None else []
     return ranked[0], tuple(ranked[1:]), its
 
 
-def alternative_tolerance(params: FitParams, det: Detections, n_markers: int) -> float:
-    """Pixels of objective within which another minimum is an alternative of an image's fit:
-    ``params.alternative_tolerance_px`` per 8 compared marker projections, never less.
-
-    >>> det = Detections.from_views([np.zeros((3, 2))] * 6)
-    >>> alternative_tolerance(FitParams(), det, 4), alternative_tolerance(FitParams(), det, 20)
-    (1.5, 7.5)
+def alternative_tolerance(params: FitParams, det: Detections, model: KinematicModel,
+                          error: float, tested_dofs: int) -> float:
+    """Pixels of objective within which another posture is an alternative of an image's fit
+    of plain Eq. 5 error ``error``: ``params.alternative_tolerance_px`` per 8 compared
+    marker projections (never less), or what the image's own residual cannot tell apart
+    for postures differing in ``tested_dofs`` DOFs (``core.ambiguity.residual_tolerance``:
+    ``len(model.dofs)`` for another minimum, 1 for one DOF's interval), whichever is
+    larger; 0 when ``params.alternative_tolerance_px`` is 0 (the search is off). Clean
+    footage (0.05 px a projection) keeps the fixed tolerance; sliding skin markers (1 px)
+    widen it.
     """
-    compared = _compared(tuple(det.counts.tolist()), n_markers)
-    return params.alternative_tolerance_px * max(1.0, compared / 8.0)
+    if params.alternative_tolerance_px == 0:
+        return 0.0
+    compared = _compared(tuple(det.counts.tolist()), len(model.markers))
+    return max(params.alternative_tolerance_px * max(1.0, compared / 8.0),
+               residual_tolerance(error, compared, len(model.dofs), tested_dofs))
 
 
 def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray, det: Detections,
@@ -453,13 +477,7 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
 
 def _apart(a: np.ndarray, b: np.ndarray, rotational: np.ndarray) -> bool:
     """Whether postures ``a`` and ``b`` differ by more than :data:`DISTINCT_DEG` in some angle."""
-    return bool(_angle_gaps(a, b)[rotational].max(initial=0.0) > DISTINCT_DEG)
-
-
-def _angle_gaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Absolute differences of two postures, degrees the shorter way round (meaningful for
-    rotational DOFs only)."""
-    return np.abs((a - b + 180.0) % 360.0 - 180.0)
+    return bool(angle_gaps(a, b)[rotational].max(initial=0.0) > DISTINCT_DEG)
 
 
 def reanalyse_image(
