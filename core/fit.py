@@ -104,7 +104,8 @@ class FitParams:
         image's posture refined) scoring within this of an image's fit are kept as its
         alternatives, and the best-scoring one becomes the fit (``core.ambiguity``); per
         8 compared marker projections (the paper's 4 markers × 2 views), scaled up to an
-        image's own (:func:`alternative_tolerance`); 0 turns the search off.
+        image's own, and widened where the image's residual cannot tell postures apart
+        (:func:`alternative_tolerance`); 0 turns the search off.
     choose_by_continuity : at the end of a sequence, choose each image's posture
         among its alternatives by continuity with its neighbours (``core.ambiguity``).
     outlier_factor : an image whose objective is more than this times the sequence's
@@ -194,8 +195,9 @@ class ImageFit:
         the posture and its best alternative (FORMATS §3 ``alternative_deg``); NaN when the
         image has none.
 
-        Alternatives are postures whose objective is within
-        ``FitParams.alternative_tolerance_px`` of the fit (``core.ambiguity``).
+        Alternatives are postures whose objective is within :func:`alternative_tolerance`
+        of the fit: other minima, or a posture at least ``core.ambiguity.UNDETERMINED_DEG``
+        away in a DOF the image does not determine (``core.ambiguity``).
 
         >>> alt = Candidate(np.array([10.0, 350.0]), 0.1, 0.1)
         >>> fit = ImageFit(0, np.array([30.0, 5.0]), 0.1, 0.1, 1, Status.OK, 1, (4,), (alt,))
