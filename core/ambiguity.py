@@ -63,7 +63,7 @@ CONFIDENCE = 0.99  # postures inside the image's 99 % confidence region are not 
 _Z_CONFIDENCE = 2.3263  # the standard normal quantile at CONFIDENCE
 _WITNESS_DOUBLINGS = 3  # a witness is pushed to 2, 4, 8 × UNDETERMINED_DEG while it stays within
 _PROFILE_STEPS = 10  # LM steps of a witness refined with its DOF held
-_SCREEN = 4.0  # DOFs whose linearised rise is above this many tolerances are not tried
+_SCREEN = 2.0  # DOFs whose linearised rise is above this many tolerances are not tried
 
 
 @dataclass(frozen=True)
@@ -251,7 +251,8 @@ def undetermined_alternative(
     objective (as the fit's: fusion, a lost marker per view) stays within the tolerance;
     a step that leaves it is refined with d held (the profile's minimum, nonlinear).
     DOFs whose linearised rise at the first step is above :data:`_SCREEN` tolerances are
-    not tried. Of the postures within the tolerance, the one farthest from the fit.
+    not tried (most DOFs of a clean image: the search costs a Jacobian and a few errors).
+    Of the postures within the tolerance, the one farthest from the fit.
     """
     q = fit.dofs
     rot = model.rotational
@@ -273,10 +274,13 @@ def undetermined_alternative(
                                float(fusion_px), _kernels.NO_UNSEEN, float(huber_px),
                                _PROFILE_STEPS, 1e-5, _kernels.NO_TARGETS)
 
-    profiles, variance = _profiles(q, model, rig, detections)
-    rise = UNDETERMINED_DEG**2 / variance  # Σ‖Δr‖² at the first step, px²
+    profiles, moves = _profiles(q, model, rig, detections)
     mean = max(fit.error / compared, 1e-12)
-    screened = np.minimum(rise / (2 * mean), np.sqrt(rise)) <= _SCREEN * tolerance_px
+    # Linearised rise of Eq. 5 at the first step: a projection moved by m from a residual
+    # of about ē rises by ~m²/(2ē) while m << ē, by ~m when m >> ē.
+    step_moves = UNDETERMINED_DEG * moves
+    rise = np.minimum(step_moves, step_moves**2 / (2 * mean)).sum(axis=1)
+    screened = rise <= _SCREEN * tolerance_px
     limit = objective(q) + tolerance_px
     best, best_gap = None, UNDETERMINED_DEG
     for d in np.flatnonzero(rot & screened):
@@ -305,20 +309,22 @@ def angle_gaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig,
               detections: Detections) -> tuple[np.ndarray, np.ndarray]:
     """Profile directions (D, D), row d the change of every DOF per unit change of DOF d,
-    and (D,) diag((JᵀJ)⁻¹) (DOF units² per px²), from the Jacobian J of the projections in
-    the views with detections (forward differences)."""
+    and (D, P) how far each of the P compared marker projections moves along each, pixels
+    per unit, from the Jacobian J of the projections in the views with detections (forward
+    differences; linearised least squares: column d of (JᵀJ)⁻¹)."""
     D = len(q)
     h = 1e-3
     postures = np.repeat(q[None], D + 1, axis=0)
     postures[1:] += np.eye(D) * h
     proj = rig.project(model.marker_positions(postures))  # (D + 1, V, M, 2)
     seen = np.asarray(detections.counts) > 0
-    J = ((proj[1:] - proj[:1])[:, seen] / h).reshape(D, -1).T
+    J = ((proj[1:] - proj[:1])[:, seen] / h).reshape(D, -1).T  # (2P, D)
     A = J.T @ J
     A += np.eye(D) * (1e-9 * max(float(np.trace(A)) / D, 1e-12))  # a DOF no marker moves
     C = np.linalg.inv(A)
-    variance = np.diag(C).copy()
-    return (C / variance[None, :]).T, variance
+    profiles = (C / np.diag(C)[None, :]).T
+    moves = np.linalg.norm((J @ profiles.T).T.reshape(D, -1, 2), axis=2)
+    return profiles, moves
 
 
 def choose_candidates(candidates: Sequence[Sequence[Candidate]]) -> list[int]:
