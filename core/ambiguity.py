@@ -42,9 +42,9 @@ from core.error import Detections, view_offsets
 from core.model import KinematicModel, _topological_order
 from core.rig import Rig
 
-__all__ = ["MAX_FLIP_REFINES", "UNDETERMINED_DEG", "Candidate", "FlipGeometry", "angle_gaps",
-           "choose_candidates", "confidence_chi2", "flip_alternatives", "flip_masks",
-           "residual_tolerance", "undetermined_alternative"]
+__all__ = ["MAX_FLIP_REFINES", "PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "Candidate",
+           "FlipGeometry", "angle_gaps", "choose_candidates", "confidence_chi2", "flip_alternatives",
+           "flip_masks", "residual_tolerance", "undetermined_alternative"]
 
 MAX_ALTERNATIVES = 8
 # Flips refined per image at most. A flip that passes the screen (it images within the
@@ -61,8 +61,8 @@ _MIN_ERROR_SCALE_PX = 0.05
 UNDETERMINED_DEG = 10.0
 CONFIDENCE = 0.99  # postures inside the image's 99 % confidence region are not told apart
 _Z_CONFIDENCE = 2.3263  # the standard normal quantile at CONFIDENCE
-_WITNESS_DOUBLINGS = 3  # a witness is pushed to 2, 4, 8 × UNDETERMINED_DEG while it stays within
-_PROFILE_STEPS = 10  # LM steps of a witness refined with its DOF held
+WITNESS_DOUBLINGS = 3  # a witness is pushed to 2, 4, 8 × UNDETERMINED_DEG while it stays within
+PROFILE_STEPS = 10  # LM steps of a witness refined with its DOF held
 _SCREEN = 2.0  # DOFs whose linearised rise is above this many tolerances are not tried
 
 
@@ -272,7 +272,7 @@ def undetermined_alternative(
         lower[d] = upper[d] = p[d]
         return _kernels.refine(p, lower, upper, kin, views, off, points, start, penalty,
                                float(fusion_px), _kernels.NO_UNSEEN, float(huber_px),
-                               _PROFILE_STEPS, 1e-5, _kernels.NO_TARGETS)
+                               PROFILE_STEPS, 1e-5, _kernels.NO_TARGETS)
 
     profiles, moves = _profiles(q, model, rig, detections)
     mean = max(fit.error / compared, 1e-12)
@@ -285,7 +285,7 @@ def undetermined_alternative(
     best, best_gap = None, UNDETERMINED_DEG
     for d in np.flatnonzero(rot & screened):
         for sign in (1.0, -1.0):
-            for k in range(_WITNESS_DOUBLINGS + 1):
+            for k in range(WITNESS_DOUBLINGS + 1):
                 step = sign * UNDETERMINED_DEG * 2**k
                 p = np.clip(q + step * profiles[d], model.lower, model.upper)
                 if objective(p) > limit:

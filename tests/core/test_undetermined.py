@@ -77,7 +77,7 @@ def test_the_residual_tolerance_per_projection_arithmetic():
 
 
 def test_clean_images_keep_the_fixed_tolerance_and_zero_turns_it_off():
-    model, rig = _subject("locust_hind_leg")
+    model, _ = _subject("locust_hind_leg")
     det = Detections.from_views([np.zeros((4, 2))] * 2)  # 4 markers x 2 views: 8 projections
     assert alternative_tolerance(FitParams(), det, model, 0.4, 5) == 0.5
     assert alternative_tolerance(FitParams(), det, model, 8.0, 1) == pytest.approx(
