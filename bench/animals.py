@@ -107,10 +107,16 @@ def soft_tissue_offsets(subject: Subject, truth: np.ndarray, rng: np.random.Gene
     return offsets
 
 
+def fit_params(data: Rendered) -> tuple[FitParams, float]:
+    """``mocap fit``'s default settings for these images, and the marker diameter (px) they
+    were estimated from (the blobs of the first 50 images)."""
+    diameter = marker_diameter(data.detections[:50]) or 0.0
+    return FitParams(fusion_px=fusion_distance(diameter)), diameter
+
+
 def fit(subject: Subject, data: Rendered, *, seed: int, jobs: int) -> tuple[SequenceResult, dict]:
     """Fit like ``mocap fit`` with default settings; returns the result and its timings."""
-    diameter = marker_diameter(data.detections[:50]) or 0.0
-    params = FitParams(fusion_px=fusion_distance(diameter))
+    params, diameter = fit_params(data)
     prior = Histograms.uniform(subject.model, prior_weight=100.0)
     kwargs = dict(model=subject.model, rig=subject.rig, histograms=prior, params=params, seed=seed)
     # Compile (or load the cached kernels) outside the timing, with a short fit of one image.
