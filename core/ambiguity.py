@@ -41,6 +41,7 @@ from core import _kernels
 from core.error import Detections, view_offsets
 from core.model import KinematicModel, _topological_order
 from core.rig import Rig
+from core.treefit import _frames
 
 __all__ = ["MAX_FLIP_REFINES", "PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "Candidate",
            "FlipGeometry", "angle_gaps", "choose_candidates", "confidence_chi2", "flip_alternatives",
@@ -63,7 +64,8 @@ CONFIDENCE = 0.99  # postures inside the image's 99 % confidence region are not 
 _Z_CONFIDENCE = 2.3263  # the standard normal quantile at CONFIDENCE
 WITNESS_DOUBLINGS = 3  # a witness is pushed to 2, 4, 8 × UNDETERMINED_DEG while it stays within
 PROFILE_STEPS = 10  # LM steps of a witness refined with its DOF held
-_SCREEN = 2.0  # DOFs whose linearised rise is above this many tolerances are not tried
+_SCREEN = 4.0  # DOFs whose linearised rise is above this many tolerances are not tried
+_NEAR = 2.0  # a straight step at most this many tolerances beyond the limit is refined
 
 
 @dataclass(frozen=True)
@@ -249,7 +251,8 @@ def undetermined_alternative(
     with every other DOF following (column d of (JᵀJ)⁻¹, J the Jacobian of the
     projections), by ±:data:`UNDETERMINED_DEG`, then 2, 4, 8 times as far while the
     objective (as the fit's: fusion, a lost marker per view) stays within the tolerance;
-    a step that leaves it is refined with d held (the profile's minimum, nonlinear).
+    a step that leaves it by less than :data:`_NEAR` tolerances is refined with d held
+    (towards the profile's minimum, nonlinear).
     DOFs whose linearised rise at the first step is above :data:`_SCREEN` tolerances are
     not tried (most DOFs of a clean image: the search costs a Jacobian and a few errors).
     Of the postures within the tolerance, the one farthest from the fit.
@@ -268,11 +271,20 @@ def undetermined_alternative(
                                             float(fusion_px), _kernels.NO_UNSEEN, penalty))
 
     def pinned(p: np.ndarray, d: int) -> np.ndarray:
-        lower, upper = model.lower.copy(), model.upper.copy()
-        lower[d] = upper[d] = p[d]
-        return _kernels.refine(p, lower, upper, kin, views, off, points, start, penalty,
-                               float(fusion_px), _kernels.NO_UNSEEN, float(huber_px),
-                               PROFILE_STEPS, 1e-5, _kernels.NO_TARGETS)
+        """``p`` refined with DOF d held: the whole model, or for a tree (``core.tree``) d's
+        part alone, the rest where ``p`` puts it (a leg's DOFs, not all 42)."""
+        dofs, part_kin = np.arange(len(p)), kin
+        if model.tree is not None:
+            part = next(x for x in model.tree.parts if d in x.dofs)
+            rotation, origin = _frames(p, model)
+            dofs, part_kin = part.dofs, part.at(rotation[part.base], origin[part.base])
+        lower, upper = model.lower[dofs].copy(), model.upper[dofs].copy()
+        lower[dofs == d] = upper[dofs == d] = p[d]
+        out = p.copy()
+        out[dofs] = _kernels.refine(p[dofs].copy(), lower, upper, part_kin, views, off, points,
+                                    start, penalty, float(fusion_px), _kernels.NO_UNSEEN,
+                                    float(huber_px), PROFILE_STEPS, 1e-5, _kernels.NO_TARGETS)
+        return out
 
     profiles, moves = _profiles(q, model, rig, detections)
     mean = max(fit.error / compared, 1e-12)
@@ -288,7 +300,7 @@ def undetermined_alternative(
             for k in range(WITNESS_DOUBLINGS + 1):
                 step = sign * UNDETERMINED_DEG * 2**k
                 p = np.clip(q + step * profiles[d], model.lower, model.upper)
-                if objective(p) > limit:
+                if limit < objective(p) <= limit + _NEAR * tolerance_px:
                     p = pinned(p, int(d))
                 gap = float(angle_gaps(p, q)[rot].max())
                 if objective(p) > limit or gap < abs(step) * (1 - 1e-9):  # worse, or at a bound
