@@ -1,7 +1,7 @@
 """Why images are off with real markers: a wrong basin, or the minimum itself moved?
 
     python bench/basins.py --subject stick|locust|biped|hexapod [--images N] [--soft-tissue]
-        [--seed S]
+        [--seed S] [--huber PX]
 
 Renders and fits a subject as ``bench/animals.py`` does (same seed, same images), then
 refines the *true* posture on every image (``core.treefit.refine_whole``, as a fit's last
@@ -13,12 +13,16 @@ step): the minimum nearest the truth. Prints
 - for every image more than 10° off reported ``ok``: its objective and tolerance, the
   refined truth's objective, how far it lies from the truth and from the fit (0: the
   truth's basin is the fit's: the minimum moved), and whether an alternative was given.
+
+``--huber`` refines the truth with another least-squares radius than the fit's (1 px): how
+much a loss closer to least squares would move the minimum nearest the truth.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +50,7 @@ def main() -> None:
     parser.add_argument("--images", type=int, default=300)
     parser.add_argument("--soft-tissue", action="store_true")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--huber", type=float, default=None, help="px, for the truth's refinement")
     args = parser.parse_args()
     subject = load(args.subject)
     model, rig, rot = subject.model, subject.rig, subject.model.rotational
@@ -54,10 +59,12 @@ def main() -> None:
                              rng=np.random.default_rng(args.seed))
     result, _ = fit(subject, data, seed=args.seed, jobs=1)
     params = fit_params(data)[0]
+    truth_params = params if args.huber is None else replace(
+        params, anneal=replace(params.anneal, huber_px=args.huber))
     off = view_offsets(None, rig)
     fitted, nearest, best, rows = [], [], [], []
     for fit_, det, truth in zip(result.fits, data.detections, data.truth, strict=True):
-        q, _, objective = refine_whole(truth.copy(), det, model, rig, params, off)
+        q, _, objective = refine_whole(truth.copy(), det, model, rig, truth_params, off)
         gaps = angle_gaps(fit_.dofs, truth)[rot]
         fitted.append(gaps)
         nearest.append(angle_gaps(q, truth)[rot])
