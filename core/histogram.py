@@ -23,8 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from core import _kernels
+from core._files import decimal, parse_decimal
 from core.model import KinematicModel
-from core.xmlio import attribute, decimal, parse, parse_decimal
+from core.xmlio import attribute, parse
 
 __all__ = ["MAX_BINS", "MAX_COUNT", "HistogramError", "Histograms"]
 

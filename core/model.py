@@ -21,7 +21,8 @@ from xml.etree.ElementTree import Element
 import numpy as np
 
 from core import _kernels
-from core.xmlio import attribute, decimal, parse, parse_decimal
+from core._files import decimal, parse_decimal
+from core.xmlio import attribute, parse
 
 if TYPE_CHECKING:
     from core.tree import Tree

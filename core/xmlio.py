@@ -3,9 +3,8 @@ attribute and number syntax both write.
 
 Files that users upload are parsed with defusedxml (no DTDs or entities) and refused
 while they are read once they pass a limit below, so a hostile file costs bounded time
-and memory. Numbers are C-locale decimals both ways: written without exponents, the
-shortest digits that read back to the same float, and read refusing Python's extras
-('1_0', non-ASCII digits), so that a typo cannot silently become another number.
+and memory. Numbers are C-locale decimals both ways (``core._files.decimal`` and ``parse_decimal``,
+which the CSV files share).
 """
 
 from __future__ import annotations
@@ -14,14 +13,13 @@ from pathlib import Path
 from xml.etree.ElementTree import Element, TreeBuilder
 
 import defusedxml.ElementTree as SafeET
-import numpy as np
 from defusedxml import DefusedXmlException
 
 from core._files import read_bounded
 
 __all__ = [
     "MAX_ATTRIBUTE_CHARS", "MAX_XML_ATTRIBUTES", "MAX_XML_BYTES", "MAX_XML_DEPTH", "MAX_XML_ELEMENTS",
-    "attribute", "decimal", "parse", "parse_decimal",
+    "attribute", "parse",
 ]
 
 # Limits on XML that users upload (model files and histogram files). Real files are far
@@ -33,7 +31,7 @@ MAX_XML_BYTES = 16 * 2**20  # bytes of a file or bytes object; characters of a s
 MAX_XML_DEPTH = 16  # a model nests three deep (model > joint > dof)
 MAX_XML_ELEMENTS = 100_000  # a 1000-joint model with three dofs per joint has ~7000
 MAX_XML_ATTRIBUTES = 200_000  # in the whole file; a 1000-joint model has ~25,000
-MAX_ATTRIBUTE_CHARS = 1024  # names, and numbers as decimal() writes them (1e-300 takes 302)
+MAX_ATTRIBUTE_CHARS = 1024  # names, and numbers as core._files.decimal writes them (1e-300 takes 302)
 
 
 def parse(source: str | bytes | Path, what: str, error: type[ValueError]) -> Element:
@@ -98,26 +96,6 @@ def _check_lengths(tag: str, attrs: dict[str, str], error: type[ValueError]) -> 
         if longest > MAX_ATTRIBUTE_CHARS:
             raise error(f"<{tag}> attribute {key[:40]!r} is {longest} characters long; at most "
                         f"{MAX_ATTRIBUTE_CHARS} are allowed (MAX_ATTRIBUTE_CHARS)")
-
-
-def parse_decimal(raw: str) -> float:
-    """``float(raw)`` for C-locale decimals only (raises ValueError otherwise).
-
-    >>> parse_decimal("-4.5e-1")
-    -0.45
-    """
-    if "_" in raw or not raw.isascii():
-        raise ValueError(f"could not convert string to float: {raw!r}")
-    return float(raw)
-
-
-def decimal(value: float) -> str:
-    """A C-locale decimal (never an exponent), shortest that reads back to the same float.
-
-    >>> decimal(4.0), decimal(1e-05), decimal(-0.5)
-    ('4', '0.00001', '-0.5')
-    """
-    return np.format_float_positional(float(value), trim="-")
 
 
 def attribute(text: str) -> str:

@@ -10,9 +10,10 @@ import pytest
 from core.detect import detect
 from core.fields import detect_fields, field_rig
 from core.model import KinematicModel
+from core.render import _Painter
 from core.results import SampleClock
 from core.rig import Rig
-from core.synth import _Painter, render_frames
+from core.synth import render_frames
 
 EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 

@@ -11,9 +11,9 @@ import pytest
 
 from core.detect import detect
 from core.model import KinematicModel
+from core.render import _disc_coverage
 from core.rig import Rig
 from core.synth import (
-    _disc_coverage,
     natural_movements,
     read_truth_csv,
     render_frames,
