@@ -20,7 +20,8 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from core.demo import EXAMPLE, FPS, MARKER_DIAMETER_PX
+from core.demo import FPS, MARKER_DIAMETER_PX
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.results import read_angles_csv
 from core.rig import Rig
@@ -58,8 +59,8 @@ def run_demo(samples: int, seed: int, workers: int) -> None:
 
 
 def _render(path: Path, samples: int, seed: int) -> tuple[np.ndarray, Path]:
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
+    rig = Rig.from_json(LOCUST / "rig.json")
     rng = np.random.default_rng(seed)
     truth = natural_movements(model, rig, samples, rng=rng, fps=FPS)
     write_video(path, render_frames(model, rig, truth, rng=rng, marker_diameter_px=MARKER_DIAMETER_PX),
@@ -101,9 +102,9 @@ def _wait_until_up(client: httpx.Client, server: subprocess.Popen, log: Path) ->
 
 def _fit_over_http(client: httpx.Client, video: Path, seed: int) -> bytes:
     """Upload, submit, poll to a terminal status, return angles.csv."""
-    model = _created(client.post("/models", content=(EXAMPLE / "model.xml").read_bytes(),
+    model = _created(client.post("/models", content=(LOCUST / "model.xml").read_bytes(),
                                  headers={"Content-Type": "application/xml"}))
-    rig = _created(client.post("/rigs", content=(EXAMPLE / "rig.json").read_bytes(),
+    rig = _created(client.post("/rigs", content=(LOCUST / "rig.json").read_bytes(),
                                headers={"Content-Type": "application/json"}))
     with video.open("rb") as f:
         uploaded = _created(client.post("/videos", files={"file": (video.name, f, "video/x-msvideo")}))

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from scenes import EXAMPLE
 
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.rig import Rig
 
@@ -13,6 +13,6 @@ from core.rig import Rig
 def locust() -> tuple[KinematicModel, Rig]:
     """The locust hind-leg example's model and two-view rig (a module may define its own)."""
     return (
-        KinematicModel.from_xml(EXAMPLE / "model.xml"),
-        Rig.from_json(EXAMPLE / "rig.json"),
+        KinematicModel.from_xml(LOCUST / "model.xml"),
+        Rig.from_json(LOCUST / "rig.json"),
     )

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from core.anneal import AnnealParams
@@ -11,7 +9,6 @@ from core.error import Detections
 from core.model import KinematicModel
 from core.rig import Rig
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 FAST = AnnealParams(n_end=6000, n_l=600, n_tau=300)
 
 

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import io
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from core.error import Detections
+from core.examples import LOCUST
 from core.fit import FitParams, ImageFit, Status, fit_sequence
 from core.histogram import Histograms
 from core.model import KinematicModel
@@ -23,12 +23,10 @@ from core.results import (
 )
 from core.rig import Rig
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
-
 
 @pytest.fixture(scope="module")
 def locust() -> tuple[KinematicModel, Rig]:
-    return KinematicModel.from_xml(EXAMPLE / "model.xml"), Rig.from_json(EXAMPLE / "rig.json")
+    return KinematicModel.from_xml(LOCUST / "model.xml"), Rig.from_json(LOCUST / "rig.json")
 
 
 def _views(model, rig, q, noise_px, drop_view=None, seed=0) -> Detections:

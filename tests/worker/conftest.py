@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from recorded_queue import CHUNK_SIZE, EXAMPLE, IMAGES, MISFIT, Recorder
+from recorded_queue import CHUNK_SIZE, IMAGES, MISFIT, Recorder
 
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.rig import Rig
 from core.synth import natural_movements, render_frames, write_video
@@ -59,8 +60,8 @@ def _half_scale(rig_json: dict) -> Rig:
 @pytest.fixture(scope="session")
 def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The locust example's video of ``IMAGES`` frames, the ``MISFIT`` ones drawn at half scale."""
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    spec = json.loads((EXAMPLE / "rig.json").read_text())
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
+    spec = json.loads((LOCUST / "rig.json").read_text())
     rig, wrong = Rig.from_dict(spec), _half_scale(json.loads(json.dumps(spec)))
     rng = np.random.default_rng(3)
     truth = natural_movements(model, rig, IMAGES, rng=rng, n_sequences=1)
@@ -79,8 +80,8 @@ def job_id(queue: Recorder, clip: Path) -> int:
     with db.session_scope() as session:
         lab, _ = create_lab(session, "lab")
         session.commit()
-        model = crud.create_model(session, storage, lab, (EXAMPLE / "model.xml").read_bytes())
-        rig = crud.create_rig(session, lab, json.loads((EXAMPLE / "rig.json").read_text()))
+        model = crud.create_model(session, storage, lab, (LOCUST / "model.xml").read_bytes())
+        rig = crud.create_rig(session, lab, json.loads((LOCUST / "rig.json").read_text()))
         storage.put("videos/clip.avi", [clip.read_bytes()])
         video = crud.register_video(session, storage, lab, config, key="videos/clip.avi",
                                     filename="clip.avi", size=clip.stat().st_size, sha256="0" * 64)

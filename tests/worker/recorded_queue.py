@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 IMAGES = 8
 CHUNK_SIZE = 4
 # Images rendered through a rig at half the true scale: no posture of the model explains them,
