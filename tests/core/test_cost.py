@@ -13,14 +13,14 @@ from core.ambiguity import Candidate, FlipGeometry, flip_alternatives
 from core.anneal import AnnealParams, search_space
 from core.cost import FitCost, FitCostError, check_fit_cost, estimate_fit_cost
 from core.error import Detections, view_error
-from core.examples import LOCUST
+from core.examples import EXAMPLES
 from core.fit import FitParams, fit_image, image_stream
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 
-RIG = Rig.from_json(LOCUST / "rig.json")
-LOCUST = KinematicModel.from_xml(LOCUST / "model.xml")
+RIG = Rig.from_json(EXAMPLES / "locust_hind_leg" / "rig.json")
+LOCUST = KinematicModel.from_xml(EXAMPLES / "locust_hind_leg" / "model.xml")
 
 
 def chain(n: int) -> KinematicModel:

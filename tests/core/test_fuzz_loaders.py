@@ -22,7 +22,7 @@ from collections.abc import Callable
 import hypothesis.strategies as st
 from hypothesis import HealthCheck, given, settings
 
-from core.examples import LOCUST
+from core.examples import EXAMPLES
 from core.histogram import HistogramError, Histograms
 from core.model import KinematicModel, ModelError
 from core.rig import Rig, RigError
@@ -66,7 +66,7 @@ def _bounded(call: Callable[[], object], error: type[ValueError]) -> None:
 
 
 def _valid_rig() -> dict:
-    return json.loads((LOCUST / "rig.json").read_text())
+    return json.loads((EXAMPLES / "locust_hind_leg" / "rig.json").read_text())
 
 
 @st.composite
@@ -182,7 +182,7 @@ def test_model_from_xml_of_random_bytes(data):
 
 # ---- histogram XML -------------------------------------------------------------------------------
 
-LOCUST = KinematicModel.from_xml(LOCUST / "model.xml")
+LOCUST = KinematicModel.from_xml(EXAMPLES / "locust_hind_leg" / "model.xml")
 
 
 @st.composite
