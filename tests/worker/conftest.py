@@ -85,8 +85,7 @@ def job_id(queue: Recorder, clip: Path) -> int:
         storage.put("videos/clip.avi", [clip.read_bytes()])
         video = crud.register_video(session, storage, lab, config, key="videos/clip.avi",
                                     filename="clip.avi", size=clip.stat().st_size, sha256="0" * 64)
-        options = JobOptions(chunk_size=CHUNK_SIZE, marker_diameter_px=4.0, max_attempts=2,
-                             iterations=5000)
+        options = JobOptions(chunk_size=CHUNK_SIZE, marker_diameter_px=4.0, max_attempts=2)
         body = JobCreate(model_id=model.id, rig_id=rig.id, video_ids=[video.id], options=options)
         job = crud.submit_job(session, session.get_one(Lab, lab.id), config, body)
         return job.id
