@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import json
+import math
 from datetime import UTC, datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 from core.detect import MAX_BLUR, MAX_MORPHOLOGY_ITERATIONS
 from core.video import MAX_FRAME_PIXELS
+from service.errors import InvalidError
 
 
 def _utc(moment: datetime | None) -> datetime | None:
@@ -22,6 +25,102 @@ UtcDatetime = Annotated[datetime, AfterValidator(_utc)]
 # PostgreSQL (where it would fail the query: a 500). Found by tests/service/test_schemathesis.py.
 MAX_DB_INT = 2**31 - 1
 DbId = Annotated[int, Field(ge=1, le=MAX_DB_INT)]
+
+
+class Problem(BaseModel):
+    """Every error: a message naming what is wrong in the lab's terms (ids, filenames, fields)."""
+
+    model_config = ConfigDict(json_schema_extra={"examples": [
+        {"detail": "video 3 is used by job(s) 7, 9; an upload a job names (finished or not) cannot "
+                   "be deleted: its results and archive refer to it"}]})
+    detail: str
+
+
+# ---- names and free metadata of uploads, jobs, batches and trials ----------------------------
+NAME_MAX_CHARS = 200  # the name columns' String(200)
+METADATA_MAX_BYTES = 4096  # the object as compact UTF-8 JSON
+METADATA_MAX_DEPTH = 4  # nested objects and arrays, the metadata object itself counting 1
+METADATA_MAX_KEY_CHARS = 64
+METADATA_MAX_STRING_CHARS = 1000
+
+
+def json_depth(value: Any) -> int:
+    """Nesting depth of parsed JSON (a number: 0, ``[1]``: 1), without recursion."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        deepest = max(deepest, depth)
+        if isinstance(item, dict | list):
+            stack.extend((child, depth + 1) for child in (item.values() if isinstance(item, dict) else item))
+    return deepest
+
+
+def _printable(text: str) -> str:
+    """Names and metadata keys are shown in listings and folder names: no control characters
+    (PostgreSQL text cannot hold NUL either)."""
+    if not text.isprintable():
+        raise ValueError("must not contain control characters")
+    return text
+
+
+def _bounded(metadata: dict[str, Any]) -> dict[str, Any]:
+    """The metadata object if within the bounds above: stored as JSON and copied into every
+    report.json, so a client cannot make rows or reports grow without limit."""
+    if (depth := json_depth(metadata)) > METADATA_MAX_DEPTH:
+        raise ValueError(f"nests {depth} levels deep; at most {METADATA_MAX_DEPTH}")
+    stack: list[Any] = [metadata]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, dict):
+            for key in item:
+                if not 1 <= len(key) <= METADATA_MAX_KEY_CHARS:
+                    raise ValueError(f"key {key[:METADATA_MAX_KEY_CHARS]!r}… has {len(key)} characters; "
+                                     f"keys have 1 to {METADATA_MAX_KEY_CHARS}")
+                _printable(key)
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+        elif isinstance(item, str) and (len(item) > METADATA_MAX_STRING_CHARS or "\x00" in item):
+            raise ValueError(f"a string value has {len(item)} characters; at most "
+                             f"{METADATA_MAX_STRING_CHARS}, without NUL")
+        elif isinstance(item, float) and not math.isfinite(item):
+            raise ValueError("numbers must be finite (JSON has no NaN or Infinity)")
+    size = len(json.dumps(metadata, separators=(",", ":"), ensure_ascii=False).encode())
+    if size > METADATA_MAX_BYTES:
+        raise ValueError(f"is {size} bytes as JSON; at most {METADATA_MAX_BYTES}")
+    return metadata
+
+
+METADATA_EXAMPLE = {"subject": "locust 7", "condition": "walking", "temperature_c": 24.5}
+Name = Annotated[str, Field(min_length=1, max_length=NAME_MAX_CHARS, examples=["walk-07"],
+                            description="the lab's name for it: shown back, in report.json and in "
+                                        "batch archive folder names"),
+                 AfterValidator(_printable)]
+Metadata = Annotated[dict[str, Any], Field(
+    examples=[METADATA_EXAMPLE],
+    description=f"free JSON object, carried into report.json: at most {METADATA_MAX_BYTES} bytes as "
+                f"JSON, {METADATA_MAX_DEPTH} levels deep, keys of 1-{METADATA_MAX_KEY_CHARS} and "
+                f"strings of at most {METADATA_MAX_STRING_CHARS} characters"),
+    AfterValidator(_bounded)]
+_METADATA = TypeAdapter(Metadata)
+_NAME = TypeAdapter(Name)
+
+
+def labels_from_query(name: str | None, metadata: str | None) -> tuple[str | None, dict[str, Any] | None]:
+    """``?name=`` and ``?metadata=`` (JSON text) of an upload, checked as in JSON bodies; 422
+    naming the parameter."""
+    try:
+        checked_name = None if name is None else _NAME.validate_python(name)
+    except ValidationError as exc:
+        raise InvalidError(f"name: {exc.errors()[0]['msg']}") from None
+    if metadata is None:
+        return checked_name, None
+    if len(metadata.encode()) > METADATA_MAX_BYTES:
+        raise InvalidError(f"metadata: is {len(metadata.encode())} bytes; at most {METADATA_MAX_BYTES}")
+    try:
+        return checked_name, _METADATA.validate_json(metadata)
+    except ValidationError as exc:
+        raise InvalidError(f"metadata: {exc.errors()[0]['msg']}") from None
 
 
 class DetectorOptions(BaseModel):
@@ -71,14 +170,35 @@ class JobOptions(BaseModel):
 
 class ModelPublic(BaseModel):
     id: int
-    name: str
+    name: str = Field(description="the lab's name for it (?name= on upload), else the XML's <model name>")
     dofs: list[str]
     histogram_versions: int
+    sha256: str | None = Field(description="of the XML as uploaded: identical uploads share it")
+    metadata: dict[str, Any] | None
     created_at: UtcDatetime
+
+
+class ExistingArchive(BaseModel):
+    """An identical model (same sha256) of the same lab and its histogram archive."""
+
+    model_id: int
+    histogram_versions: int
+    latest_version: int = Field(description="GET /v1/models/{model_id}/histograms.xml serves it")
+
+
+class ModelCreated(ModelPublic):
+    existing_model_id: int | None = Field(
+        description="an identical model this lab uploaded before (the one with the most histogram "
+                    "versions): submit jobs with its id to go on with its archive; null: none")
+    existing: ExistingArchive | None = Field(description="that model's archive; null: none")
+    reused: bool = Field(description="true: ?reuse=true and this is that existing model, nothing "
+                                     "was stored; false: a new model with a new archive (version 1)")
 
 
 class RigPublic(BaseModel):
     id: int
+    name: str | None
+    metadata: dict[str, Any] | None
     views: list[str]
     videos: int
     created_at: UtcDatetime
@@ -87,6 +207,8 @@ class RigPublic(BaseModel):
 class VideoPublic(BaseModel):
     id: int
     filename: str
+    name: str | None
+    metadata: dict[str, Any] | None
     frames: int = Field(description="frames that decode: what a job fits")
     announced_frames: int | None = Field(description="frames the container announces (0: it gives "
                                          "no count); more than frames for a truncated file")
@@ -124,11 +246,15 @@ class JobCreate(BaseModel):
     rig_id: DbId
     video_ids: list[DbId] = Field(min_length=1, max_length=16)
     options: JobOptions = Field(default_factory=JobOptions)
+    name: Name | None = None
+    metadata: Metadata | None = None
 
 
 class Trial(BaseModel):
     model_config = ConfigDict(extra="forbid")
     video_ids: list[DbId] = Field(min_length=1, max_length=16)
+    name: Name | None = None
+    metadata: Metadata | None = None
 
 
 class BatchCreate(BaseModel):
@@ -137,6 +263,8 @@ class BatchCreate(BaseModel):
     rig_id: DbId
     trials: list[Trial] = Field(min_length=1, max_length=1000)
     options: JobOptions = Field(default_factory=JobOptions)
+    name: Name | None = None
+    metadata: Metadata | None = None
 
 
 class Progress(BaseModel):
@@ -155,6 +283,8 @@ class JobPublic(BaseModel):
     rig_id: int
     batch_id: int | None
     trial: int | None
+    name: str | None = Field(description="the job's, or its batch trial's")
+    metadata: dict[str, Any] | None
     histogram_version_id: int
     options: dict[str, Any]
     progress: Progress
@@ -172,6 +302,8 @@ class JobPage(BaseModel):
 
 class BatchPublic(BaseModel):
     id: int
+    name: str | None
+    metadata: dict[str, Any] | None
     status: str = Field(description="running until every job is terminal; then succeeded if all "
                                     "succeeded, else failed (or canceled if any was)")
     statuses: dict[str, int]

@@ -28,21 +28,23 @@ from service.upload import TooLargeError
 logger = logging.getLogger(__name__)
 
 
-# A stored video this old without a row is an orphan; a younger one may be being probed.
+# A stored video or histogram file this old without a row is an orphan; a younger one may be
+# being probed or registered.
 ORPHAN_AGE_S = 3600
 
 
 @asynccontextmanager
 async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
-    """On start, delete the partial uploads of an API process that died mid-upload, and the
-    complete ones it stored but never registered."""
+    """On start, delete the partial uploads of an API process that died mid-upload, the
+    complete ones it stored but never registered, and the files of deleted uploads whose
+    deletion a crash interrupted."""
     storage = get_storage()
     storage.remove_abandoned()
     try:
         with read_session_factory()() as session:
-            crud.remove_orphan_videos(session, storage, ORPHAN_AGE_S)
+            crud.remove_orphans(session, storage, ORPHAN_AGE_S)
     except SQLAlchemyError:  # the database is down: serve anyway (requests will say so), sweep next start
-        logger.exception("orphan videos not swept: the database cannot be read")
+        logger.exception("orphan files not swept: the database cannot be read")
     yield
 
 

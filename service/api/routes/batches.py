@@ -10,7 +10,7 @@ from fastapi.responses import StreamingResponse
 from service import crud
 from service.api.deps import CurrentLab, PathId, SessionDep, SettingsDep, StorageDep
 from service.api.routes.jobs import enqueue, job_entries, job_public
-from service.archive import stream_zip
+from service.archive import stream_zip, trial_folder
 from service.models import TERMINAL, Batch, Job, JobStatus
 from service.schemas import BatchCreate, BatchPublic, Progress
 
@@ -27,8 +27,8 @@ def _public(batch: Batch, jobs: list[Job]) -> BatchPublic:
         status = JobStatus.CANCELED if statuses[JobStatus.CANCELED] else JobStatus.FAILED
     fields = Progress.model_fields
     total = Progress(**{f: sum(getattr(j, f) for j in jobs) for f in fields})
-    return BatchPublic(id=batch.id, status=status, statuses=dict(statuses), progress=total,
-                       jobs=[job_public(j) for j in jobs])
+    return BatchPublic(id=batch.id, name=batch.name, metadata=batch.meta, status=status,
+                       statuses=dict(statuses), progress=total, jobs=[job_public(j) for j in jobs])
 
 
 @router.post("", status_code=202, response_model=BatchPublic, summary="Submit one job per trial")
@@ -52,7 +52,7 @@ def archive(batch_id: PathId, session: SessionDep, storage: StorageDep, lab: Cur
     batch = crud.owned(session, Batch, batch_id, lab)
     entries = [
         entry for job in crud.batch_jobs(session, batch)
-        for entry in job_entries(session, storage, lab, job.id, folder=f"trial-{job.trial:03d}-job-{job.id}/")
+        for entry in job_entries(session, storage, lab, job.id, folder=trial_folder(job))
     ]
     return StreamingResponse(stream_zip(entries), media_type="application/zip",
                              headers={"Content-Disposition": f'attachment; filename="batch-{batch_id}.zip"'})

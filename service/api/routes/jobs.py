@@ -34,9 +34,9 @@ def job_public(job: Job) -> JobPublic:
     """A job as the API shows it: every field from the job row alone (a poll is one read)."""
     return JobPublic(
         id=job.id, status=job.status, model_id=job.model_id, rig_id=job.rig_id, batch_id=job.batch_id,
-        trial=job.trial, histogram_version_id=job.histogram_version_id, options=job.options,
-        progress=progress(job), error=job.error, created_at=job.created_at, started_at=job.started_at,
-        fitted_at=job.fitted_at, finished_at=job.finished_at,
+        trial=job.trial, name=job.name, metadata=job.meta, histogram_version_id=job.histogram_version_id,
+        options=job.options, progress=progress(job), error=job.error, created_at=job.created_at,
+        started_at=job.started_at, fitted_at=job.fitted_at, finished_at=job.finished_at,
     )
 
 

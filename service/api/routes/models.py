@@ -7,29 +7,62 @@ from fastapi.concurrency import run_in_threadpool
 
 from core.model import KinematicModel
 from service import crud, histstore
-from service.api.deps import CurrentLab, Cursor, Limit, PathId, SessionDep, StorageDep
+from service.api.deps import (
+    CONFLICT,
+    CurrentLab,
+    Cursor,
+    Limit,
+    MetadataQuery,
+    NameQuery,
+    PathId,
+    SessionDep,
+    StorageDep,
+)
 from service.models import Model
-from service.schemas import MAX_DB_INT, ModelPage, ModelPublic
+from service.schemas import (
+    MAX_DB_INT,
+    ExistingArchive,
+    ModelCreated,
+    ModelPage,
+    ModelPublic,
+    labels_from_query,
+)
 from service.upload import read_document
 
 router = APIRouter(prefix="/models", tags=["models"])
 
 DOCUMENT_LIMIT = 10 * 1024**2
+REUSE = ("true: if this lab has an identical model (same XML bytes), answer 200 with that model "
+         "instead of storing a new one with a fresh archive")
 XML = "application/xml"
 
 
 def _public(session: SessionDep, row: Model) -> ModelPublic:
     return ModelPublic(id=row.id, name=row.name, dofs=KinematicModel.from_xml(row.xml).dof_names,
-                       histogram_versions=crud.histogram_versions(session, row), created_at=row.created_at)
+                       histogram_versions=crud.histogram_versions(session, row), sha256=row.sha256,
+                       metadata=row.meta, created_at=row.created_at)
 
 
-@router.post("", status_code=201, response_model=ModelPublic,
+def _created(session: SessionDep, row: Model, existing: Model | None) -> ModelCreated:
+    archive = None if existing is None else ExistingArchive(
+        model_id=existing.id, histogram_versions=crud.histogram_versions(session, existing),
+        latest_version=crud.histogram_version(session, existing, None).version)
+    return ModelCreated(**_public(session, row).model_dump(), existing_model_id=existing and existing.id,
+                        existing=archive, reused=row is existing)
+
+
+@router.post("", status_code=201, response_model=ModelCreated,
              summary="Upload a model.xml (raw body or multipart field 'file')")
-async def create_model(request: Request, session: SessionDep, storage: StorageDep,
-                       lab: CurrentLab) -> ModelPublic:
+async def create_model(request: Request, response: Response, session: SessionDep, storage: StorageDep,
+                       lab: CurrentLab, name: NameQuery = None, metadata: MetadataQuery = None,
+                       reuse: bool = Query(default=False, description=REUSE)) -> ModelCreated:
+    checked_name, meta = labels_from_query(name, metadata)
     xml = await read_document(request, DOCUMENT_LIMIT)
-    row = await run_in_threadpool(crud.create_model, session, storage, lab, xml)
-    return await run_in_threadpool(_public, session, row)
+    row, existing = await run_in_threadpool(crud.store_model, session, storage, lab, xml,
+                                            name=checked_name, meta=meta, reuse=reuse)
+    if row is existing:
+        response.status_code = 200
+    return await run_in_threadpool(_created, session, row, existing)
 
 
 @router.get("", response_model=ModelPage, summary="The lab's models, newest first")
@@ -41,6 +74,12 @@ def list_models(session: SessionDep, lab: CurrentLab, cursor: Cursor = None, lim
 @router.get("/{model_id}", response_model=ModelPublic)
 def get_model(model_id: PathId, session: SessionDep, lab: CurrentLab) -> ModelPublic:
     return _public(session, crud.owned(session, Model, model_id, lab))
+
+
+@router.delete("/{model_id}", status_code=204, response_class=Response, responses=CONFLICT)
+def delete_model(model_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> Response:
+    crud.delete_upload(session, storage, lab, Model, model_id)
+    return Response(status_code=204)
 
 
 @router.get("/{model_id}/model.xml", response_class=Response)

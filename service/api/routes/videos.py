@@ -6,7 +6,7 @@ import base64
 from dataclasses import replace
 
 import cv2
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, Request, Response
 from fastapi.concurrency import run_in_threadpool
 
 from core.detect import DetectorParams
@@ -14,17 +14,28 @@ from core.preview import preview_frame
 from core.rig import Rig, RigError
 from core.video import VideoError, VideoSet
 from service import crud, limits
-from service.api.deps import CurrentLab, Cursor, Limit, PathId, SessionDep, SettingsDep, StorageDep
+from service.api.deps import (
+    CONFLICT,
+    CurrentLab,
+    Cursor,
+    Limit,
+    MetadataQuery,
+    NameQuery,
+    PathId,
+    SessionDep,
+    SettingsDep,
+    StorageDep,
+)
 from service.errors import InvalidError
 from service.models import RigRow, Video
-from service.schemas import DetectPreview, DetectPreviewCreate, VideoPage, VideoPublic
+from service.schemas import DetectPreview, DetectPreviewCreate, VideoPage, VideoPublic, labels_from_query
 from service.upload import MULTIPART_SLACK, check_length, declared_length, receive_video
 
 router = APIRouter(prefix="/videos", tags=["videos"])
 
 
 def _public(row: Video) -> VideoPublic:
-    return VideoPublic(id=row.id, filename=row.filename, frames=row.frames,
+    return VideoPublic(id=row.id, filename=row.filename, name=row.name, metadata=row.meta, frames=row.frames,
                        announced_frames=row.announced_frames, warning=crud.missing_frames(row), fps=row.fps,
                        width=row.width, height=row.height, size_bytes=row.size_bytes, sha256=row.sha256,
                        created_at=row.created_at)
@@ -34,7 +45,9 @@ def _public(row: Video) -> VideoPublic:
              summary="Upload a video (multipart field 'file'); 413 past MOCAP_MAX_UPLOAD_BYTES, "
              "429 past the lab's hourly upload limits")
 async def upload_video(request: Request, session: SessionDep, storage: StorageDep,
-                       settings: SettingsDep, lab: CurrentLab) -> VideoPublic:
+                       settings: SettingsDep, lab: CurrentLab, name: NameQuery = None,
+                       metadata: MetadataQuery = None) -> VideoPublic:
+    checked_name, meta = labels_from_query(name, metadata)
     # Refused before a byte is read when the lab is already over its hourly limits (the declared
     # length less the multipart overhead: never more than the file; checked exactly on registering).
     check_length(request, settings.max_upload_bytes + MULTIPART_SLACK)  # 413 before 429: never fits
@@ -44,7 +57,8 @@ async def upload_video(request: Request, session: SessionDep, storage: StorageDe
     session.rollback()
     got = await receive_video(request, storage, settings.max_upload_bytes)
     row = await run_in_threadpool(crud.register_video, session, storage, lab, settings, key=got.key,
-                                  filename=got.filename, size=got.size, sha256=got.sha256)
+                                  filename=got.filename, size=got.size, sha256=got.sha256,
+                                  name=checked_name, meta=meta)
     return _public(row)
 
 
@@ -57,6 +71,12 @@ def list_videos(session: SessionDep, lab: CurrentLab, cursor: Cursor = None, lim
 @router.get("/{video_id}", response_model=VideoPublic)
 def get_video(video_id: PathId, session: SessionDep, lab: CurrentLab) -> VideoPublic:
     return _public(crud.owned(session, Video, video_id, lab))
+
+
+@router.delete("/{video_id}", status_code=204, response_class=Response, responses=CONFLICT)
+def delete_video(video_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> Response:
+    crud.delete_upload(session, storage, lab, Video, video_id)
+    return Response(status_code=204)
 
 
 # ---- seeing the fit: detection preview (core.preview; docs/SEEING_THE_FIT.md) ----
