@@ -11,6 +11,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, 
 
 from core.detect import MAX_BLUR, MAX_MORPHOLOGY_ITERATIONS
 from core.video import MAX_FRAME_PIXELS
+from service import examples as ex
 from service.errors import InvalidError
 
 
@@ -30,9 +31,7 @@ DbId = Annotated[int, Field(ge=1, le=MAX_DB_INT)]
 class Problem(BaseModel):
     """Every error: a message naming what is wrong in the lab's terms (ids, filenames, fields)."""
 
-    model_config = ConfigDict(json_schema_extra={"examples": [
-        {"detail": "video 3 is used by job(s) 7, 9; an upload a job names (finished or not) cannot "
-                   "be deleted: its results and archive refer to it"}]})
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.PROBLEM))
     detail: str
 
 
@@ -91,13 +90,12 @@ def _bounded(metadata: dict[str, Any]) -> dict[str, Any]:
     return metadata
 
 
-METADATA_EXAMPLE = {"subject": "locust 7", "condition": "walking", "temperature_c": 24.5}
 Name = Annotated[str, Field(min_length=1, max_length=NAME_MAX_CHARS, examples=["walk-07"],
                             description="the lab's name for it: shown back, in report.json and in "
                                         "batch archive folder names"),
                  AfterValidator(_printable)]
 Metadata = Annotated[dict[str, Any], Field(
-    examples=[METADATA_EXAMPLE],
+    examples=[ex.METADATA],
     description=f"free JSON object, carried into report.json: at most {METADATA_MAX_BYTES} bytes as "
                 f"JSON, {METADATA_MAX_DEPTH} levels deep, keys of 1-{METADATA_MAX_KEY_CHARS} and "
                 f"strings of at most {METADATA_MAX_STRING_CHARS} characters"),
@@ -126,7 +124,7 @@ def labels_from_query(name: str | None, metadata: str | None) -> tuple[str | Non
 class DetectorOptions(BaseModel):
     """Marker detection (``core.detect.DetectorParams``)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.DETECTOR))
     threshold: Annotated[float, Field(ge=0, le=255)] | Literal["otsu"] = 100.0
     channel: Literal["grey", "red", "green", "blue"] = "grey"
     blur: int = Field(default=0, ge=0, le=MAX_BLUR)
@@ -143,7 +141,7 @@ class JobOptions(BaseModel):
     chunk_size : images per chunk task; None: the server's default.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.OPTIONS))
     deinterlace: bool = False
     field_order: Literal["even-first", "odd-first"] = "even-first"
     error_threshold_px: float = Field(
@@ -169,6 +167,7 @@ class JobOptions(BaseModel):
 
 
 class ModelPublic(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.MODEL))
     id: int
     name: str = Field(description="the lab's name for it (?name= on upload), else the XML's <model name>")
     dofs: list[str]
@@ -181,12 +180,14 @@ class ModelPublic(BaseModel):
 class ExistingArchive(BaseModel):
     """An identical model (same sha256) of the same lab and its histogram archive."""
 
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.EXISTING))
     model_id: int
     histogram_versions: int
     latest_version: int = Field(description="GET /v1/models/{model_id}/histograms.xml serves it")
 
 
 class ModelCreated(ModelPublic):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.MODEL_CREATED))
     existing_model_id: int | None = Field(
         description="an identical model this lab uploaded before (the one with the most histogram "
                     "versions): submit jobs with its id to go on with its archive; null: none")
@@ -196,6 +197,7 @@ class ModelCreated(ModelPublic):
 
 
 class RigPublic(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.RIG_PUBLIC))
     id: int
     name: str | None
     metadata: dict[str, Any] | None
@@ -205,6 +207,7 @@ class RigPublic(BaseModel):
 
 
 class VideoPublic(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.VIDEO))
     id: int
     filename: str
     name: str | None
@@ -226,22 +229,25 @@ NEXT_CURSOR = "pass as ?cursor= for the next page; null: last page"
 
 
 class ModelPage(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.page(ex.MODEL)))
     items: list[ModelPublic]
     next_cursor: int | None = Field(description=NEXT_CURSOR)
 
 
 class RigPage(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.page(ex.RIG_PUBLIC)))
     items: list[RigPublic]
     next_cursor: int | None = Field(description=NEXT_CURSOR)
 
 
 class VideoPage(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.page(ex.VIDEO)))
     items: list[VideoPublic]
     next_cursor: int | None = Field(description=NEXT_CURSOR)
 
 
 class JobCreate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.JOB_CREATE))
     model_id: DbId
     rig_id: DbId
     video_ids: list[DbId] = Field(min_length=1, max_length=16)
@@ -251,14 +257,14 @@ class JobCreate(BaseModel):
 
 
 class Trial(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.BATCH_CREATE['trials'][0]))
     video_ids: list[DbId] = Field(min_length=1, max_length=16)
     name: Name | None = None
     metadata: Metadata | None = None
 
 
 class BatchCreate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.BATCH_CREATE))
     model_id: DbId
     rig_id: DbId
     trials: list[Trial] = Field(min_length=1, max_length=1000)
@@ -268,6 +274,7 @@ class BatchCreate(BaseModel):
 
 
 class Progress(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.PROGRESS))
     images_total: int
     images_done: int
     images_over_threshold: int
@@ -277,6 +284,7 @@ class Progress(BaseModel):
 
 
 class JobPublic(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.JOB))
     id: int
     status: str
     model_id: int
@@ -296,11 +304,13 @@ class JobPublic(BaseModel):
 
 
 class JobPage(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.page(ex.JOB)))
     items: list[JobPublic]
     next_cursor: int | None = Field(description=NEXT_CURSOR)
 
 
 class BatchPublic(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.BATCH))
     id: int
     name: str | None
     metadata: dict[str, Any] | None
@@ -317,7 +327,7 @@ class BatchPublic(BaseModel):
 class DetectPreviewCreate(BaseModel):
     """One frame of an uploaded video through ``core.detect``, with a rig's views of that video."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.PREVIEW_CREATE))
     rig_id: DbId
     frame: int = Field(default=0, ge=0, le=MAX_DB_INT)
     video_index: int = Field(default=0, ge=0, le=255, description="which of the rig's videos this "
@@ -326,6 +336,7 @@ class DetectPreviewCreate(BaseModel):
 
 
 class DetectPreview(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.PREVIEW))
     video_id: int
     rig_id: int
     frame: int

@@ -18,6 +18,7 @@ from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import SQLAlchemyError
 
 from service import crud
+from service.api.deps import ERRORS
 from service.api.guard import RequestGuard
 from service.api.routes import apidocs, batches, dashboard, jobs, models, rigs, videos
 from service.db import read_session_factory
@@ -53,7 +54,7 @@ def create_app() -> FastAPI:
                   description="Model-based motion capture as a service: upload models, rigs and "
                               "videos, submit fitting jobs, download angles and histograms.")
     for router in (models.router, rigs.router, videos.router, jobs.router, batches.router):
-        app.include_router(router, prefix="/v1")
+        app.include_router(router, prefix="/v1", responses=ERRORS)
     # The lab dashboard at / and the API docs at /docs, /redoc, with every asset served from here.
     app.include_router(dashboard.router)
     app.include_router(apidocs.router)

@@ -36,6 +36,12 @@ NameQuery = Annotated[str | None, Query(description="the lab's name for the uplo
 MetadataQuery = Annotated[str | None, Query(
     description="free metadata: a JSON object (bounds: see the schemas' metadata)",
     examples=['{"subject": "locust 7", "condition": "walking"}'])]
+# Errors every /v1 operation may answer, all {"detail": "..."} (service/api/app.py).
+ERRORS: dict[int | str, dict[str, Any]] = {
+    401: {"model": Problem, "description": "no valid API key"},
+    404: {"model": Problem, "description": "no such id in this lab (another lab's ids look the same)"},
+    422: {"model": Problem, "description": "invalid input; the message names the field, id or file"},
+}
 # The 409 of deleting an upload a job uses.
 CONFLICT: dict[int | str, dict[str, Any]] = {
     409: {"model": Problem, "description": "a job uses it; the message names the jobs"}}

@@ -10,7 +10,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from core.calibration import import_rig
 from core.rig import MAX_VIEWS, Rig
-from service import crud
+from service import crud, examples
 from service.api.deps import (
     CONFLICT,
     CurrentLab,
@@ -25,7 +25,7 @@ from service.api.deps import (
 from service.errors import InvalidError
 from service.models import RigRow
 from service.schemas import RigPage, RigPublic, json_depth, labels_from_query
-from service.upload import read_document, read_documents
+from service.upload import document_body, read_document, read_documents
 
 router = APIRouter(prefix="/rigs", tags=["rigs"])
 
@@ -42,9 +42,13 @@ def _public(row: RigRow) -> RigPublic:
 
 
 @router.post("", status_code=201, response_model=RigPublic,
-             summary="Upload a rig.json (raw JSON body or multipart field 'file')")
+             summary="Upload a rig.json (raw JSON body or multipart field 'file')",
+             openapi_extra=document_body("application/json", {"type": "object"}, examples.RIG))
 async def create_rig(request: Request, session: SessionDep, lab: CurrentLab, name: NameQuery = None,
                      metadata: MetadataQuery = None) -> RigPublic:
+    """Store a camera rig (FORMATS §2) sent as the raw JSON body (or a multipart field ``file``);
+    ``?name=`` and ``?metadata=`` (a JSON object) label it. Example:
+    ``curl -H "$H" -H 'Content-Type: application/json' --data-binary @rig.json "$API/rigs?name=mirrors"``"""
     checked_name, meta = labels_from_query(name, metadata)
     raw = await read_document(request, DOCUMENT_LIMIT)
     try:
@@ -91,17 +95,23 @@ async def import_calibration(
 
 @router.get("", response_model=RigPage, summary="The lab's rigs, newest first")
 def list_rigs(session: SessionDep, lab: CurrentLab, cursor: Cursor = None, limit: Limit = 50) -> RigPage:
+    """The lab's rigs, newest first, ``limit`` per page; pass ``next_cursor`` as ``?cursor=`` for
+    the next page. Example: ``GET /v1/rigs?limit=50``"""
     rows, next_cursor = crud.list_owned(session, RigRow, lab, cursor=cursor, limit=limit)
     return RigPage(items=[_public(row) for row in rows], next_cursor=next_cursor)
 
 
 @router.get("/{rig_id}", response_model=RigPublic)
 def get_rig(rig_id: PathId, session: SessionDep, lab: CurrentLab) -> RigPublic:
+    """One rig of the lab: its views, how many videos it takes, name and metadata. Example:
+    ``GET /v1/rigs/1``"""
     return _public(crud.owned(session, RigRow, rig_id, lab))
 
 
 @router.delete("/{rig_id}", status_code=204, response_class=Response, responses=CONFLICT)
 def delete_rig(rig_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> Response:
+    """Delete the rig (204). 409, naming the jobs, while any job, finished or not, names it (a
+    finished job's archive carries its rig.json). Example: ``curl -X DELETE -H "$H" $API/rigs/1``"""
     crud.delete_upload(session, storage, lab, RigRow, rig_id)
     return Response(status_code=204)
 

@@ -29,7 +29,7 @@ from service.api.deps import (
 from service.errors import InvalidError
 from service.models import RigRow, Video
 from service.schemas import DetectPreview, DetectPreviewCreate, VideoPage, VideoPublic, labels_from_query
-from service.upload import MULTIPART_SLACK, check_length, declared_length, receive_video
+from service.upload import FILE_BODY, MULTIPART_SLACK, check_length, declared_length, receive_video
 
 router = APIRouter(prefix="/videos", tags=["videos"])
 
@@ -43,10 +43,14 @@ def _public(row: Video) -> VideoPublic:
 
 @router.post("", status_code=201, response_model=VideoPublic,
              summary="Upload a video (multipart field 'file'); 413 past MOCAP_MAX_UPLOAD_BYTES, "
-             "429 past the lab's hourly upload limits")
+             "429 past the lab's hourly upload limits", openapi_extra=FILE_BODY)
 async def upload_video(request: Request, session: SessionDep, storage: StorageDep,
                        settings: SettingsDep, lab: CurrentLab, name: NameQuery = None,
                        metadata: MetadataQuery = None) -> VideoPublic:
+    """Stream a trial video (multipart field ``file``) to storage; it is registered once fully
+    stored and decodable (422 naming the file otherwise). ``?name=`` and ``?metadata=`` (a JSON
+    object) label it. 413 past ``MOCAP_MAX_UPLOAD_BYTES``, 429 past the lab's hourly limits.
+    Example: ``curl -H "$H" -F file=@trial1_cam0.avi "$API/videos?name=walk-07"``"""
     checked_name, meta = labels_from_query(name, metadata)
     # Refused before a byte is read when the lab is already over its hourly limits (the declared
     # length less the multipart overhead: never more than the file; checked exactly on registering).
@@ -64,17 +68,23 @@ async def upload_video(request: Request, session: SessionDep, storage: StorageDe
 
 @router.get("", response_model=VideoPage, summary="The lab's videos, newest first")
 def list_videos(session: SessionDep, lab: CurrentLab, cursor: Cursor = None, limit: Limit = 50) -> VideoPage:
+    """The lab's videos, newest first, ``limit`` per page; pass ``next_cursor`` as ``?cursor=``
+    for the next page. Example: ``GET /v1/videos?limit=50``"""
     rows, next_cursor = crud.list_owned(session, Video, lab, cursor=cursor, limit=limit)
     return VideoPage(items=[_public(row) for row in rows], next_cursor=next_cursor)
 
 
 @router.get("/{video_id}", response_model=VideoPublic)
 def get_video(video_id: PathId, session: SessionDep, lab: CurrentLab) -> VideoPublic:
+    """One video of the lab: what the probe found (frames, fps, size), its upload name, name and
+    metadata. Example: ``GET /v1/videos/1``"""
     return _public(crud.owned(session, Video, video_id, lab))
 
 
 @router.delete("/{video_id}", status_code=204, response_class=Response, responses=CONFLICT)
 def delete_video(video_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> Response:
+    """Delete the video and its stored file (204). 409, naming the jobs, while any job, finished
+    or not, names it (its report names the video). Example: ``curl -X DELETE -H "$H" $API/videos/1``"""
     crud.delete_upload(session, storage, lab, Video, video_id)
     return Response(status_code=204)
 
@@ -87,6 +97,10 @@ def delete_video(video_id: PathId, session: SessionDep, storage: StorageDep, lab
              "an image of rois, mask and centroids (to choose options before a job)")
 def detect_preview(video_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab,
                    body: DetectPreviewCreate | None = None) -> DetectPreview:
+    """Run marker detection on one frame with the given detector options and the rig's views of
+    this video: counts and centroids per view, and a PNG of rois, mask and centroids, to choose
+    options before submitting a job. Example: ``POST /v1/videos/1/detect-preview`` with
+    ``{"rig_id": 1, "frame": 0}``"""
     video = crud.owned(session, Video, video_id, lab)  # another lab's video: 404 before the body's 422
     if body is None:
         raise InvalidError('a JSON body naming the rig is required: {"rig_id": ...}')
