@@ -78,9 +78,9 @@ def store_model(session: Session, storage: Storage, lab: Lab, xml: bytes, *, nam
 
 
 def identical_model(session: Session, lab: Lab, sha256: str) -> Model | None:
-    """The lab's model whose XML has this ``sha256`` and whose histogram
-    archive has the most versions (the most jobs folded in; the oldest on a tie); None if none.
-    Only ``lab``'s models are searched: another lab's identical model is never revealed."""
+    """The lab's model whose XML has this ``sha256`` and whose histogram archive has the most
+    versions (the most jobs folded in; the oldest on a tie); None if none. Only ``lab``'s models
+    are searched: another lab's identical model is never revealed."""
     versions = func.count(HistogramVersion.id)
     query = (select(Model).join(HistogramVersion, HistogramVersion.model_id == Model.id)
              .where(Model.lab_id == lab.id, Model.sha256 == sha256)

@@ -159,8 +159,9 @@ class Job(Base):
     trial: Mapped[int | None] = mapped_column(Integer)  # index in its batch
     name: Mapped[str | None] = mapped_column(String(200))  # the job's, or its trial's
     meta: Mapped[dict[str, Any] | None] = mapped_column("metadata", JSON)
-    model_id: Mapped[int] = mapped_column(ForeignKey("models.id"))
-    rig_id: Mapped[int] = mapped_column(ForeignKey("rigs.id"))
+    # Indexed: deleting an upload looks up the jobs that name it.
+    model_id: Mapped[int] = mapped_column(ForeignKey("models.id"), index=True)
+    rig_id: Mapped[int] = mapped_column(ForeignKey("rigs.id"), index=True)
     histogram_version_id: Mapped[int] = mapped_column(ForeignKey("histogram_versions.id"))
     options: Mapped[dict[str, Any]] = mapped_column(JSON)
     status: Mapped[str] = mapped_column(String(16), default=JobStatus.QUEUED)
@@ -187,7 +188,7 @@ class JobVideo(Base):
     __tablename__ = "job_videos"
     job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id"), primary_key=True)
     position: Mapped[int] = mapped_column(Integer, primary_key=True)
-    video_id: Mapped[int] = mapped_column(ForeignKey("videos.id"))
+    video_id: Mapped[int] = mapped_column(ForeignKey("videos.id"), index=True)
 
 
 class Chunk(Base):

@@ -1,4 +1,4 @@
-"""names and metadata on uploads, jobs and batches; models.sha256 for archive reuse
+"""names and metadata on uploads, jobs and batches; models.sha256 for archive reuse; indexes for deletes
 
 Revision ID: 0004
 Revises: 0003
@@ -34,6 +34,10 @@ def upgrade() -> None:
     with op.batch_alter_table('models', schema=None) as batch_op:
         batch_op.add_column(sa.Column('sha256', sa.String(length=64), nullable=True))
         batch_op.create_index('ix_models_lab_id_sha256', ['lab_id', 'sha256'], unique=False)
+    # Deleting an upload looks up the jobs that name it.
+    op.create_index('ix_jobs_model_id', 'jobs', ['model_id'], unique=False)
+    op.create_index('ix_jobs_rig_id', 'jobs', ['rig_id'], unique=False)
+    op.create_index('ix_job_videos_video_id', 'job_videos', ['video_id'], unique=False)
     models = sa.table('models', sa.column('id', sa.Integer), sa.column('xml', sa.Text),
                       sa.column('sha256', sa.String))
     connection = op.get_bind()
@@ -43,6 +47,9 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
+    op.drop_index('ix_job_videos_video_id', table_name='job_videos')
+    op.drop_index('ix_jobs_rig_id', table_name='jobs')
+    op.drop_index('ix_jobs_model_id', table_name='jobs')
     with op.batch_alter_table('models', schema=None) as batch_op:
         batch_op.drop_index('ix_models_lab_id_sha256')
         batch_op.drop_column('sha256')
