@@ -163,6 +163,10 @@ class Client:
         """A job (``status``, ``progress``, ``error``) or a batch (the same summed, and its ``jobs``)."""
         return self._send("GET", f"/{_plural(kind)}/{ident}")
 
+    def cancel(self, job_id: int) -> dict[str, Any]:
+        """Cancel a job (workers stop between images); the job as the API shows it."""
+        return self._send("POST", f"/jobs/{job_id}/cancel")
+
     def wait(self, kind: Kind, ident: int, *, timeout: float = 24 * 3600.0, max_interval: float = 5.0,
              on_poll: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
         """Poll until the job or batch is succeeded, failed or canceled; return its last status.

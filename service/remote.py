@@ -181,6 +181,7 @@ def _upload_trials(api: Client, trials: dict[str, list[Path]]) -> list[list[int]
     """Upload every trial's videos with one bar over all their bytes; the video ids per trial."""
     total = sum(p.stat().st_size for videos in trials.values() for p in videos)
     ids: list[list[int]] = []
+    warnings: list[str] = []  # printed below the bar, once it is gone
     with _bar(DownloadColumn()) as bar:
         task = bar.add_task("uploading", total=total)
         for name, videos in trials.items():
@@ -190,8 +191,9 @@ def _upload_trials(api: Client, trials: dict[str, list[Path]]) -> list[list[int]
                 stored = api.upload_video(video, progress=lambda n: bar.advance(task, n))
                 ids[-1].append(stored["id"])
                 if stored.get("warning"):
-                    print(f"  {name}/{video.name}: {stored['warning']}")
+                    warnings.append(f"  {name}/{video.name}: {stored['warning']}")
     print(f"uploaded {sum(map(len, ids))} video(s) of {len(ids)} trial(s), {total / 1e6:.1f} MB")
+    print(*warnings, sep="\n", end="\n" if warnings else "")
     return ids
 
 

@@ -29,13 +29,16 @@ OPTIONS = '{"marker_diameter_px": 4, "chunk_size": 20}'
 ONE_ERROR_LINE = re.compile(r"mocap: error: [^\n]+\n")
 
 
-def remote(*args: str, key: str | None, url: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    """``mocap remote ARGS --url URL`` with ``key`` in MOCAP_API_KEY (None: no key in the environment)."""
-    env = {k: v for k, v in os.environ.items() if k != "MOCAP_API_KEY"}
+def remote(*args: str, key: str | None, url: str, terminal: bool = False) -> subprocess.CompletedProcess:
+    """``mocap remote ARGS --url URL`` with ``key`` in MOCAP_API_KEY (None: no key in the environment);
+    ``terminal``: rich draws its bars as on a terminal (TTY_COMPATIBLE=1)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("MOCAP_API_KEY", "TTY_COMPATIBLE")}
     if key is not None:
         env["MOCAP_API_KEY"] = key
+    if terminal:
+        env["TTY_COMPATIBLE"] = "1"
     return subprocess.run([sys.executable, "-m", "service.cli", "remote", *args, "--url", url],
-                          env=env, capture_output=True, text=True, timeout=300, cwd=cwd)
+                          env=env, capture_output=True, text=True, timeout=900)
 
 
 def assert_one_error_line(done: subprocess.CompletedProcess, *words: str) -> None:
@@ -65,15 +68,18 @@ def trials(clip, tmp_path_factory) -> Path:
 def fitted(embedded, key, trials, tmp_path_factory) -> tuple[int, Path]:
     """``mocap remote upload`` → ``wait`` → ``download`` of the two trials: the batch id and the folder."""
     example = ("--model", str(EXAMPLE / "model.xml"), "--rig", str(EXAMPLE / "rig.json"))
-    uploaded = remote("upload", str(trials), *example, "--options", OPTIONS, key=key, url=embedded.url)
+    uploaded = remote("upload", str(trials), *example, "--options", OPTIONS, key=key, url=embedded.url,
+                      terminal=True)
     assert uploaded.returncode == 0, uploaded.stdout + uploaded.stderr
+    assert "uploading trial-b/video0.avi" in uploaded.stderr  # the bar, drawn on stderr
     assert re.search(r"uploaded 2 video\(s\) of 2 trial\(s\)", uploaded.stdout), uploaded.stdout
     assert re.search(r"trial-a: job \d+\n  trial-b: job \d+\n", uploaded.stdout), uploaded.stdout
     batch = int(re.search(r"batch (\d+) submitted: 2 trial\(s\)", uploaded.stdout)[1])
     # 600 s: a first run compiles the kernels (minutes of CPU, more on a shared machine)
     waited = remote("wait", "batch", str(batch), "--timeout", "600", "--interval", "0.5",
-                    key=key, url=embedded.url)
+                    key=key, url=embedded.url, terminal=True)
     assert waited.returncode == 0, waited.stdout + waited.stderr
+    assert f"batch {batch} running (images)" in waited.stderr  # the bar of fitted images
     assert f"batch {batch} succeeded: 80/80 images" in waited.stdout
     out = tmp_path_factory.mktemp("download")
     downloaded = remote("download", "batch", str(batch), "--out", str(out), key=key, url=embedded.url)
@@ -170,6 +176,20 @@ def test_no_remote_command_takes_the_key_itself():
         assert "--key-file" in options, name
         assert not any("key" in o and o != "--key-file" for o in options), (name, options)
         assert not any(p.envvar and "KEY" in str(p.envvar) for p in command.params), name
+
+
+def test_a_canceled_job_is_exit_1_from_wait_and_download(embedded, key, clip, tmp_path):
+    with Client(embedded.url, key) as api:
+        video = api.upload_video(clip.video)
+        model, rig = api.upload_model(EXAMPLE / "model.xml"), api.upload_rig(EXAMPLE / "rig.json")
+        job = api.submit_job(model["id"], rig["id"], [video["id"]])["id"]
+        assert api.cancel(job)["status"] == "canceled"
+    waited = remote("wait", "job", str(job), key=key, url=embedded.url)
+    assert waited.returncode == 1 and waited.stdout.startswith(f"job {job} canceled:"), waited.stdout
+    downloaded = remote("download", "job", str(job), "--out", str(tmp_path), key=key, url=embedded.url)
+    assert downloaded.returncode == 1, downloaded.stdout + downloaded.stderr
+    assert downloaded.stdout == f"no results: job {job} is canceled: canceled by the user\n"
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_the_client_reports_upload_progress_and_wait_times_out(embedded, key, clip):
