@@ -63,7 +63,8 @@ def load_key(key_file: Path | None = None) -> str:
         try:
             key = key_file.read_text(encoding="utf-8").strip()
         except (OSError, UnicodeDecodeError) as exc:
-            raise ClientError(f"cannot read the key file {key_file}: {exc}") from None
+            raise ClientError(f"cannot read the key file {key_file}: "
+                              f"{getattr(exc, 'strerror', None) or exc}") from None
         source = f"the key file {key_file}"
     else:
         key, source = os.environ.get(KEY_ENV, "").strip(), KEY_ENV

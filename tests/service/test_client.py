@@ -137,7 +137,8 @@ def test_status_and_wait_of_a_finished_batch_and_a_key_file(embedded, key, fitte
 
 
 @pytest.mark.parametrize("case", ["bad key", "no key", "unknown job", "unknown batch", "refused",
-                                  "broken model", "wrong video count", "key as an option"])
+                                  "broken model", "wrong video count", "options not JSON",
+                                  "key as an option"])
 def test_each_mistake_is_one_line_and_exit_2(embedded, key, trials, tmp_path, case):
     example = ["--model", str(EXAMPLE / "model.xml"), "--rig", str(EXAMPLE / "rig.json")]
     url, use_key, args = embedded.url, key, ["status", "job", "1"]
@@ -160,6 +161,8 @@ def test_each_mistake_is_one_line_and_exit_2(embedded, key, trials, tmp_path, ca
         shutil.copy(tmp_path / "trials/trial-a/video0.avi", tmp_path / "trials/trial-b/video1.avi")
         args = ["upload", str(tmp_path / "trials"), *example]
         expect = ["the rig needs 1 video(s) per trial", "trial-b has 2", "nothing was uploaded"]
+    elif case == "options not JSON":
+        args, expect = ["upload", str(trials), *example, "--options", "seed=1"], ["--options is not JSON"]
     else:
         args, expect = ["status", "job", "1", "--key", key], ["No such option: --key"]
     videos_before = _videos(embedded, key)
@@ -167,6 +170,18 @@ def test_each_mistake_is_one_line_and_exit_2(embedded, key, trials, tmp_path, ca
     assert_one_error_line(done, *expect)
     assert key not in done.stdout + done.stderr
     assert _videos(embedded, key) == videos_before  # a refused upload sends no video
+
+
+def test_a_batch_refused_after_the_upload_says_how_to_submit_the_uploaded_videos(embedded, key, trials):
+    example = ["--model", str(EXAMPLE / "model.xml"), "--rig", str(EXAMPLE / "rig.json")]
+    refused = remote("upload", str(trials), *example, "--options", '{"seeed": 1}', key=key, url=embedded.url)
+    assert_one_error_line(refused, "options.seeed: Extra inputs are not permitted")
+    again = re.search(r"submit them with mocap remote (submit .*) --options '\{…\}' \(HTTP 422\)",
+                      refused.stderr)
+    assert again, refused.stderr
+    submitted = remote(*again[1].split(), key=key, url=embedded.url)
+    assert submitted.returncode == 0, submitted.stderr
+    assert re.match(r"batch \d+ submitted: jobs \d+, \d+;", submitted.stdout), submitted.stdout
 
 
 def test_no_remote_command_takes_the_key_itself():
