@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -17,3 +18,16 @@ def test_the_client_imports_none_of_the_servers_packages():
     imported = set(json.loads(done.stdout))
     assert "httpx" in imported
     assert imported.isdisjoint(SERVER_PACKAGES), sorted(imported & set(SERVER_PACKAGES))
+
+
+def test_mocap_runs_without_httpx_and_remote_says_what_to_install():
+    """``mocap`` is the console script of a core-only install too: httpx is imported by the commands."""
+    blocked = "import sys; sys.modules['httpx'] = None; sys.argv = ['mocap', *sys.argv[1:]]; "
+    run = blocked + "from service.cli import run; run()"
+    listed = subprocess.run([sys.executable, "-c", run, "--help"], capture_output=True, text=True)
+    assert listed.returncode == 0 and "remote" in listed.stdout, listed.stderr
+    remote = subprocess.run([sys.executable, "-c", run, "remote", "status", "job", "1"],
+                            capture_output=True, text=True, env={**os.environ, "MOCAP_API_KEY": "k"})
+    assert remote.returncode == 2
+    assert remote.stderr == ("mocap: error: mocap remote needs httpx: "
+                             "python3 -m pip install 'mocap[client]'\n")
