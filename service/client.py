@@ -216,7 +216,7 @@ class Client:
                 continue
             path = out / (f"trial-{job['trial']:03d}-job-{job['id']}.zip" if kind == "batch"
                           else f"job-{job['id']}.zip")
-            fetched = not _complete_zip(path)
+            fetched = not archive_complete(path)
             if fetched:
                 self._fetch(f"/jobs/{job['id']}/archive.zip", path)
             (done.fetched if fetched else done.kept).append(path)
@@ -232,7 +232,7 @@ class Client:
         with self._stream("GET", route) as response, part.open("wb") as f:
             for block in response.iter_bytes(_BLOCK):
                 f.write(block)
-        if not _complete_zip(part):
+        if not archive_complete(part):
             raise ClientError(f"the archive from {route} arrived damaged; run the download again")
         part.replace(path)
 
@@ -305,7 +305,7 @@ def _detail(response: httpx.Response) -> str:
     return detail.replace("\n", " ")
 
 
-def _complete_zip(path: Path) -> bool:
+def archive_complete(path: Path) -> bool:
     """Whether ``path`` is a whole zip whose every member matches its CRC-32."""
     try:
         with zipfile.ZipFile(path) as archive:
