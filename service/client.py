@@ -255,8 +255,10 @@ class Client:
                 yield response
         except httpx.TimeoutException:
             raise ClientError(f"{self.url}{route}: no answer within {self._http.timeout.read:g} s") from None
-        except httpx.TransportError as exc:
+        except httpx.ConnectError as exc:
             raise ClientError(f"cannot reach {self.url}: {exc}") from None
+        except httpx.TransportError as exc:  # the connection broke: run the command again
+            raise ClientError(f"the connection to {self.url} broke during {method} {route}: {exc}") from None
 
 
 class _Counted:
