@@ -31,12 +31,11 @@ ONE_ERROR_LINE = re.compile(r"mocap: error: [^\n]+\n")
 
 def remote(*args: str, key: str | None, url: str, terminal: bool = False) -> subprocess.CompletedProcess:
     """``mocap remote ARGS --url URL`` with ``key`` in MOCAP_API_KEY (None: no key in the environment);
-    ``terminal``: rich draws its bars as on a terminal (TTY_COMPATIBLE=1)."""
-    env = {k: v for k, v in os.environ.items() if k not in ("MOCAP_API_KEY", "TTY_COMPATIBLE")}
+    ``terminal``: rich draws its bars as on a terminal (TTY_COMPATIBLE=1; 0 overrides a FORCE_COLOR)."""
+    env = {k: v for k, v in os.environ.items() if k != "MOCAP_API_KEY"}
+    env["TTY_COMPATIBLE"] = "1" if terminal else "0"
     if key is not None:
         env["MOCAP_API_KEY"] = key
-    if terminal:
-        env["TTY_COMPATIBLE"] = "1"
     return subprocess.run([sys.executable, "-m", "service.cli", "remote", *args, "--url", url],
                           env=env, capture_output=True, text=True, timeout=900)
 
