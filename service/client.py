@@ -169,22 +169,36 @@ class Client:
         return self._send("POST", f"/jobs/{job_id}/cancel")
 
     def wait(self, kind: Kind, ident: int, *, timeout: float = 24 * 3600.0, max_interval: float = 5.0,
+             unreachable_s: float = 120.0,
              on_poll: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
         """Poll until the job or batch is succeeded, failed or canceled; return its last status.
 
         Polls first after 0.2 s, then half as long again each time, at most every ``max_interval``
-        seconds; ``on_poll`` sees every status. Raises :class:`WaitTimeoutError` after ``timeout`` seconds.
+        seconds; ``on_poll`` sees every status. A service that cannot be reached is polled on (an
+        API restarting does not end a wait of hours) until it has been so for ``unreachable_s``
+        seconds; then that :class:`ClientError` is raised. Raises :class:`WaitTimeoutError` after
+        ``timeout`` seconds, an :class:`ApiError` at once.
         """
-        deadline, interval = time.monotonic() + timeout, MIN_POLL_S
+        deadline, interval, down_since = time.monotonic() + timeout, MIN_POLL_S, None
         while True:
-            state = self.status(kind, ident)
-            if on_poll is not None:
+            try:
+                state: dict[str, Any] | None = self.status(kind, ident)
+                down_since = None
+            except ApiError:
+                raise
+            except ClientError:
+                down_since = down_since or time.monotonic()
+                if time.monotonic() - down_since >= unreachable_s:
+                    raise
+                state = None
+            if state is not None and on_poll is not None:
                 on_poll(state)
-            if state["status"] in TERMINAL:
+            if state is not None and state["status"] in TERMINAL:
                 return state
             left = deadline - time.monotonic()
             if left <= 0:
-                raise WaitTimeoutError(f"{kind} {ident} is still {state['status']} after {timeout:g} s")
+                now = state["status"] if state is not None else "not known (the service is unreachable)"
+                raise WaitTimeoutError(f"{kind} {ident} is still {now} after {timeout:g} s")
             time.sleep(min(interval, left))
             interval = min(interval * 1.5, max(max_interval, MIN_POLL_S))
 

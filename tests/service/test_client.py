@@ -11,6 +11,7 @@ import re
 import shutil
 import subprocess
 import sys
+import time
 import zipfile
 from pathlib import Path
 
@@ -18,7 +19,7 @@ import httpx
 import numpy as np
 import pytest
 import typer.main
-from conftest import EXAMPLE, free_port
+from conftest import EXAMPLE, free_port, serve_embedded
 
 from core.results import read_angles_csv
 from service.cli import app
@@ -204,6 +205,33 @@ def test_a_canceled_job_is_exit_1_from_wait_and_download(embedded, key, clip, tm
     assert downloaded.returncode == 1, downloaded.stdout + downloaded.stderr
     assert downloaded.stdout == f"no results: job {job} is canceled: canceled by the user\n"
     assert list(tmp_path.iterdir()) == []
+
+
+def test_wait_outlasts_a_restart_of_the_service(clip, tmp_path):
+    """The API stopped and started again (now with a worker) while ``mocap remote wait`` polls: the
+    wait polls on through the outage and ends with the job's result."""
+    data, port = tmp_path / "data", free_port()
+    service = serve_embedded(data, port, workers=0)  # no worker yet: the job stays queued
+    try:
+        key = service.create_lab("restart").headers["Authorization"].removeprefix("Bearer ")
+        with Client(service.url, key) as api:
+            model, rig = api.upload_model(EXAMPLE / "model.xml"), api.upload_rig(EXAMPLE / "rig.json")
+            video = api.upload_video(clip.video)
+            job = api.submit_job(model["id"], rig["id"], [video["id"]], {"marker_diameter_px": 4})["id"]
+        env = {**os.environ, "MOCAP_API_KEY": key, "TTY_COMPATIBLE": "0"}
+        waiting = subprocess.Popen(
+            [sys.executable, "-m", "service.cli", "remote", "wait", "job", str(job), "--interval", "1",
+             "--url", service.url], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(3)
+        service.stop()
+        assert waiting.poll() is None  # polling a service that is down
+        time.sleep(2)
+        service = serve_embedded(data, port, workers=1)
+        out, err = waiting.communicate(timeout=600)
+    finally:
+        service.stop()
+    assert waiting.returncode == 0, out + err
+    assert out.startswith(f"job {job} succeeded: 40/40 images"), out
 
 
 def test_the_client_reports_upload_progress_and_wait_times_out(embedded, key, clip):
