@@ -194,6 +194,8 @@ def _check_counts(trials: dict[str, list[Path]], per_trial: int, folder: Path) -
 
 def _upload_trials(api: Client, trials: dict[str, list[Path]]) -> list[list[int]]:
     """Upload every trial's videos with one bar over all their bytes; the video ids per trial."""
+    from service.client import ApiError
+
     total = sum(p.stat().st_size for videos in trials.values() for p in videos)
     ids: list[list[int]] = []
     warnings: list[str] = []  # printed below the bar, once it is gone
@@ -203,7 +205,10 @@ def _upload_trials(api: Client, trials: dict[str, list[Path]]) -> list[list[int]
             ids.append([])
             for video in videos:
                 bar.update(task, description=f"uploading {name}/{video.name}")
-                stored = api.upload_video(video, progress=lambda n: bar.advance(task, n))
+                try:
+                    stored = api.upload_video(video, progress=lambda n: bar.advance(task, n))
+                except ApiError as exc:  # which of the folder's videos, in the user's terms
+                    raise ApiError(exc.status, f"{name}/{video.name}: {exc.detail}") from None
                 ids[-1].append(stored["id"])
                 if stored.get("warning"):
                     warnings.append(f"  {name}/{video.name}: {stored['warning']}")

@@ -137,7 +137,7 @@ def test_status_and_wait_of_a_finished_batch_and_a_key_file(embedded, key, fitte
 
 
 @pytest.mark.parametrize("case", ["bad key", "no key", "unknown job", "unknown batch", "refused",
-                                  "broken model", "wrong video count", "options not JSON",
+                                  "broken model", "not a video", "wrong video count", "options not JSON",
                                   "key as an option"])
 def test_each_mistake_is_one_line_and_exit_2(embedded, key, trials, tmp_path, case):
     example = ["--model", str(EXAMPLE / "model.xml"), "--rig", str(EXAMPLE / "rig.json")]
@@ -156,6 +156,11 @@ def test_each_mistake_is_one_line_and_exit_2(embedded, key, trials, tmp_path, ca
         (tmp_path / "model.xml").write_text("<model><segment name='femur'>")
         example[1] = str(tmp_path / "model.xml")
         args, expect = ["upload", str(trials), *example], ["(HTTP 422)"]
+    elif case == "not a video":
+        shutil.copytree(trials, tmp_path / "trials")
+        (tmp_path / "trials/0-first").mkdir()
+        (tmp_path / "trials/0-first/video0.avi").write_bytes(b"RIFF" + bytes(5000))  # sorts first
+        args, expect = ["upload", str(tmp_path / "trials"), *example], ["0-first/video0.avi: ", "(HTTP 422)"]
     elif case == "wrong video count":
         shutil.copytree(trials, tmp_path / "trials")
         shutil.copy(tmp_path / "trials/trial-a/video0.avi", tmp_path / "trials/trial-b/video1.avi")
