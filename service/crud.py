@@ -49,7 +49,8 @@ def owned(session: Session, kind: type[Owned], id_: int, lab: Lab) -> Owned:
     """The ``kind`` row ``id_`` if it belongs to ``lab``; otherwise :class:`NotFoundError`."""
     row = session.get(kind, id_)
     if row is None or row.lab_id != lab.id:
-        raise NotFoundError(f"{kind.__tablename__[:-1]} {id_} not found")
+        table = kind.__tablename__
+        raise NotFoundError(f"{table[:-2] if table.endswith('ches') else table[:-1]} {id_} not found")
     return row
 
 
