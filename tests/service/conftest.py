@@ -201,20 +201,30 @@ def faults(tmp_path_factory) -> Iterator[Deployment]:
         yield deployment
 
 
-@pytest.fixture(scope="session")
-def embedded(tmp_path_factory) -> Iterator[Deployment]:
-    data = tmp_path_factory.mktemp("embedded")
+def serve_embedded(data: Path, port: int, workers: int = 2) -> Deployment:
+    """``mocap serve`` on ``port`` with its data (SQLite, broker, files) in ``data``, once it answers;
+    started again on the same ``data`` it finds everything as it was (the caller stops it)."""
+    data.mkdir(parents=True, exist_ok=True)
     env = _base_env(data)
     for name in ("MOCAP_DATABASE_URL", "MOCAP_BROKER_URL", "MOCAP_QUEUE"):
         env.pop(name, None)
-    port = free_port()
     deployment = Deployment("embedded", f"http://127.0.0.1:{port}/v1", env,
                             f"sqlite:///{data / 'mocap.db'}")
     deployment.processes.append(subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", "2"],
-        env=env, stdout=(data / "serve.log").open("w"), stderr=subprocess.STDOUT))
+        [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", str(workers)],
+        env=env, stdout=(data / "serve.log").open("a"), stderr=subprocess.STDOUT))
     try:
         wait_healthy(deployment)
+    except RuntimeError:
+        deployment.stop()
+        raise
+    return deployment
+
+
+@pytest.fixture(scope="session")
+def embedded(tmp_path_factory) -> Iterator[Deployment]:
+    deployment = serve_embedded(tmp_path_factory.mktemp("embedded"), free_port())
+    try:
         yield deployment
     finally:
         deployment.stop()

@@ -31,7 +31,7 @@ def test_another_labs_key_gets_404_on_every_endpoint(redis_pg, owner_job, clip):
     values = {"model_id": ids["model_id"], "rig_id": ids["rig_id"], "video_id": ids["video_id"],
               "job_id": ids["job_id"], "batch_id": ids["batch_id"], "name": "plots/angles.svg"}
     operations = _paths_with_ids(redis_pg)
-    assert len(operations) == 16, operations  # 14 downloads and reads, cancel and detect-preview
+    assert len(operations) == 19, operations  # 14 downloads and reads, cancel, detect-preview, 3 deletes
     for method, template in operations:
         path = template.format(**values)
         if method == "GET":
