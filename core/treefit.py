@@ -37,12 +37,14 @@ if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
-__all__ = ["attempt_kernel", "fit_tree", "refine_whole", "two_sided_error"]
+__all__ = ["attempt_kernel", "fit_tree", "refine_whole", "shared_projections", "two_sided_error",
+           "warm_start"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
 CONFLICT_SWEEPS = 2
 JOINT_STEPS = 10  # LM steps of the joint refinement: the parts arrive refined
+WARM_STEPS = 10  # LM steps refining the previous image's posture of a part (a warm start)
 
 
 def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
@@ -63,28 +65,93 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
     )
 
 
+def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None,
+               model: KinematicModel, rig: Rig, params: FitParams, eps: float, off: np.ndarray,
+               unseen: np.ndarray = _kernels.NO_UNSEEN) -> tuple[np.ndarray, float] | None:
+    """The first of the warm starts ``warm`` (k, D) whose posture of the DOFs ``dofs`` (a
+    part posed by ``kin``), refined on detections ``points`` (N, 3) grouped at ``start``
+    (V + 1,) by :data:`WARM_STEPS` LM steps, reaches ``eps``, SA's own stop, so that SA
+    has nothing left to do: (posture (d,), objective in pixels); None when none does, and
+    without ``warm``.
+
+    ``unseen`` (V, m) bool marks projections next to another part's marker
+    (:func:`shared_projections`): they are left out of the refinement and of the test,
+    and ``eps`` (per projection) shrinks in proportion. Such a blob is two markers fused,
+    off each by pixels, which no posture of this part alone explains: left in, it keeps
+    a leg that fits everywhere else above ε (the joint refinement reads it as fused).
+
+    At 50-200 Hz a part has moved a few degrees since the previous image, inside the
+    basin LM descends; where it moved farther, or the previous posture lies in a minimum
+    this image no longer supports, the refined posture stays above ``eps``.
+    """
+    if warm is None:
+        return None
+    penalty, fuse = float(params.empty_view_penalty_px), float(params.fusion_px)
+    if unseen.size:
+        seen_views = np.diff(start) > 0
+        unseen = np.ascontiguousarray(unseen & seen_views[:, None])  # an empty view costs in full
+        eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(seen_views), 1)
+    charged = penalty * np.count_nonzero(unseen)
+    for row in warm:
+        q = np.ascontiguousarray(row[dofs])
+        if params.refine:
+            q = _kernels.refine(q, model.lower[dofs], model.upper[dofs], kin, rig.arrays, off,
+                                points, start, penalty, fuse, unseen, float(params.anneal.huber_px),
+                                WARM_STEPS, 1e-5, _kernels.NO_TARGETS)
+        value = float(_kernels.posture_error(q, kin, rig.arrays, off, points, start, penalty, fuse,
+                                             unseen)) - charged
+        if value < eps:
+            return q, value
+    return None
+
+
+def shared_projections(q: np.ndarray, model: KinematicModel, rig: Rig, tree: Tree,
+                       params: FitParams, off: np.ndarray) -> dict[str, np.ndarray]:
+    """Per part of ``tree`` (by name), (V, m) bool: where posture ``q`` (D,) projects one of
+    the part's markers within the fusion distance (at least :data:`CLAIM_PX`) of a marker
+    of another part, in pixels of that view."""
+    proj = rig.project(model.marker_positions(q)) + off[:, None, :]
+    near = np.linalg.norm(proj[:, :, None, :] - proj[:, None, :, :], axis=3) < max(
+        float(params.fusion_px), CLAIM_PX)
+    out = {}
+    for part in tree.parts:
+        others = np.ones(len(model.markers), dtype=bool)
+        others[part.markers] = False
+        out[part.name] = near[:, part.markers][:, :, others].any(axis=2)
+    return out
+
+
 def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
-             params: FitParams, stream: np.ndarray, draw_start: bool,
-             off: np.ndarray) -> tuple[np.ndarray, float, float, int]:
+             params: FitParams, stream: np.ndarray, draw_start: bool, off: np.ndarray,
+             warm: np.ndarray | None = None) -> tuple[np.ndarray, float, float, int]:
     """One attempt on one image, part by part: (dofs (D,), plain Eq. 5 error, objective, SA
-    iterations), as :func:`core.fit.fit_image` returns them."""
+    iterations), as :func:`core.fit.fit_image` returns them. Each part first tries its
+    posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
+    where none reaches the part's ε."""
     q = space.mean.copy()
     iterations = 0
     views_seen = int(np.count_nonzero(det.counts))
+    shared = {} if warm is None else shared_projections(warm[0], model, rig, tree, params, off)
 
-    def fit_part(part: Part, kin, points: np.ndarray, start: np.ndarray) -> None:
+    def fit_part(part: Part, kin, points: np.ndarray, start: np.ndarray,
+                 warm: np.ndarray | None = None) -> None:
         nonlocal iterations
         eps = params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
+        taken = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off,
+                           shared.get(part.name, _kernels.NO_UNSEEN))
+        if taken is not None:
+            q[part.dofs] = taken[0]
+            return
         q[part.dofs], _, _, its = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
                                                  params, eps, stream, draw_start, off)
         iterations += its
 
     if tree.trunk is not None:
-        fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start)
+        fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start, warm)
     rot, pos = _frames(q, model)
     reach = [_within_reach(det, rig, pos[b.base], b.reach, off) for b in tree.branches]
     for part, keep in zip(tree.branches, reach, strict=True):
-        fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep))
+        fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep), warm)
     in_reach = np.logical_or.reduce(reach)
     score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
     previous: list[int] = []
