@@ -47,7 +47,13 @@ from core.error import (
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
-from core.treefit import attempt_kernel, fit_tree, refine_whole, warm_start
+from core.treefit import (
+    attempt_kernel,
+    fit_tree,
+    refine_whole,
+    tree_flip_alternatives,
+    warm_start,
+)
 
 __all__ = [
     "ChunkResult",
@@ -409,7 +415,8 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     others = []
     tolerance = alternative_tolerance(params, det, len(model.markers))
     if tolerance > 0:
-        others = flip_alternatives(
+        flips = flip_alternatives if model.tree is None else tree_flip_alternatives
+        others = flips(
             fit, det, model=model, rig=rig, geometry=geometry, tolerance_px=tolerance,
             fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
             huber_px=params.anneal.huber_px, offsets=offsets,

@@ -23,22 +23,31 @@ refitting without the shared blob raises the error, and the first posture stays.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from core import _kernels
-from core.error import Detections
+from core.ambiguity import (
+    MAX_ALTERNATIVES,
+    MAX_FLIP_REFINES,
+    Candidate,
+    FlipGeometry,
+    flip_alternatives,
+    flip_masks,
+)
+from core.error import Detections, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
-from core.tree import Part, Tree, reach_points
+from core.tree import Part, Tree, _subtrees, reach_points
 
 if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
-__all__ = ["attempt_kernel", "fit_tree", "refine_whole", "shared_projections", "two_sided_error",
-           "warm_start"]
+__all__ = ["attempt_kernel", "fit_tree", "refine_whole", "shared_projections",
+           "tree_flip_alternatives", "two_sided_error", "warm_start"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
@@ -291,3 +300,71 @@ def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig
                                        start, penalty, fuse, float(a.huber_px))
     error = _kernels.posture_error(q, kin, views, off, points, start, penalty, 0.0, _kernels.NO_UNSEEN)
     return q, float(error), float(value)
+
+
+def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: KinematicModel,
+                           rig: Rig, geometry: FlipGeometry, tolerance_px: float, fusion_px: float,
+                           empty_view_penalty_px: float, huber_px: float,
+                           offsets: np.ndarray | None = None) -> list[Candidate]:
+    """``core.ambiguity.flip_alternatives`` for a tree, branch by branch: the same depth flips,
+    each branch's scored on that branch's markers alone, then the fit with the flipped
+    branch scored whole and kept within ``tolerance_px`` of it; the trunk's flips (which
+    carry the branches along) on the whole model. Up to ``MAX_ALTERNATIVES``, best first.
+
+    A flip below a branch joint moves that branch's markers only, so scoring it on the
+    whole model (27 markers in 6 views for the hexapod, 180 flips an image) repeats the
+    other branches' unchanged cost every time.
+    """
+    tree, off = model.tree, view_offsets(offsets, rig)
+    points, start, views = detections.kernel_points, detections.start, rig.arrays
+    penalty, fuse = float(empty_view_penalty_px), float(fusion_px)
+    trunk = replace(geometry, masks=geometry.masks[_trunk_masks(geometry, model, tree)])
+    found = flip_alternatives(fit, detections, model=model, rig=rig, geometry=trunk,
+                              tolerance_px=tolerance_px, fusion_px=fusion_px,
+                              empty_view_penalty_px=empty_view_penalty_px, huber_px=huber_px,
+                              offsets=offsets)
+    rot, pos = _frames(fit.dofs, model)
+    for part in tree.branches:
+        geo = _branch_geometry(part, geometry)
+        kin, q = part.at(rot[part.base], pos[part.base]), np.ascontiguousarray(fit.dofs[part.dofs])
+        out_q, out_objective = np.empty((MAX_ALTERNATIVES, len(q))), np.empty(MAX_ALTERNATIVES)
+        own = _kernels.posture_error(q, kin, views, off, points, start, penalty, fuse,
+                                     _kernels.NO_UNSEEN)
+        n = _kernels.flip_alternatives(
+            q, own, float(tolerance_px), model.lower[part.dofs], model.upper[part.dofs], kin, views,
+            off, points, start, penalty, fuse, float(huber_px), geo.flip_joints, geo.subtree_joints,
+            geo.subtree_markers, geo.depth, geo.perspective, geo.masks, MAX_FLIP_REFINES, out_q,
+            out_objective)
+        for k in range(n):
+            whole = fit.dofs.copy()
+            whole[part.dofs] = out_q[k]
+            objective = float(_kernels.posture_error(whole, model.arrays, views, off, points, start,
+                                                     penalty, fuse, _kernels.NO_UNSEEN, penalty))
+            if objective <= fit.objective + tolerance_px:
+                error = _kernels.posture_error(whole, model.arrays, views, off, points, start,
+                                               penalty, 0.0, _kernels.NO_UNSEEN)
+                found.append(Candidate(whole, float(error), objective))
+    return sorted(found, key=lambda c: c.objective)[:MAX_ALTERNATIVES]
+
+
+def _trunk_masks(geometry: FlipGeometry, model: KinematicModel, tree: Tree) -> np.ndarray:
+    """(K,) bool: the masks of ``geometry`` (the whole model's) that flip no branch joint, a
+    joint whose subtree holds markers of one branch only."""
+    in_branch = np.zeros(len(geometry.flip_joints), dtype=bool)
+    for part in tree.branches:
+        outside = np.ones(len(model.markers), dtype=bool)
+        outside[part.markers] = False
+        in_branch |= ~geometry.subtree_markers[:, outside].any(axis=1)
+    bits = int(np.sum(np.left_shift(1, np.flatnonzero(in_branch).astype(np.int64))))
+    return (geometry.masks & bits) == 0
+
+
+def _branch_geometry(part: Part, geometry: FlipGeometry) -> FlipGeometry:
+    """The depth-flip geometry of one branch alone (its arrays, base first), the views' depth
+    directions from the whole model's ``geometry``."""
+    kin = part.kin
+    flip = np.flatnonzero((kin.rot_dof >= 0).any(axis=1))
+    below = _subtrees(kin.parent)[flip]
+    return replace(geometry, flip_joints=flip.astype(np.int64), subtree_joints=below,
+                   subtree_markers=np.ascontiguousarray(below[:, kin.marker_joint]),
+                   masks=flip_masks(len(flip)))
