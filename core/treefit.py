@@ -166,17 +166,20 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     if tree.trunk is not None:
         fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start, warm)
     rot, pos = _frames(q, model)
-    reach = [_within_reach(det, rig, pos[b.base], b.reach, off) for b in tree.branches]
+    reach = _within_reach(det, rig, pos[[b.base for b in tree.branches]],
+                          np.array([b.reach for b in tree.branches]), off)
     for part, keep in zip(tree.branches, reach, strict=True):
         fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep), warm)
-    in_reach = np.logical_or.reduce(reach)
-    score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
+    in_reach = reach.any(axis=0)
+    score = np.inf  # the two-sided error, computed once there is a conflict to judge
     previous: list[int] = []
     for _ in range(CONFLICT_SWEEPS):
         conflicted = _conflicts(q, det, model, rig, tree, off)
         if not conflicted or conflicted == previous:
             break
         previous = conflicted
+        if score == np.inf:
+            score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
         for b in conflicted:
             part, saved = tree.branches[b], q.copy()
             keep = reach[b] & ~_claimed(q, det, model, rig, tree, off, exclude=b)
@@ -222,16 +225,19 @@ def _frames(q: np.ndarray, model: KinematicModel) -> tuple[np.ndarray, np.ndarra
     return rot, pos
 
 
-def _within_reach(det: Detections, rig: Rig, origin: np.ndarray, reach: float,
+def _within_reach(det: Detections, rig: Rig, origins: np.ndarray, reach: np.ndarray,
                   off: np.ndarray) -> np.ndarray:
-    """(N,) bool: the detections a branch hanging at ``origin`` can reach, those inside its
-    projected reach sphere (``core.tree.reach_points``) in their view."""
-    proj = rig.project(reach_points(origin, reach)) + off[:, None, :]
-    radius = np.linalg.norm(proj[:, 1:] - proj[:, :1], axis=2).max(axis=1)
-    keep = np.zeros(len(det.points), dtype=bool)
+    """(B, N) bool: the detections each of B branches hanging at ``origins`` (B, 3) with
+    reaches ``reach`` (B,) can reach, those inside its projected reach sphere
+    (``core.tree.reach_points``) in their view."""
+    spheres = np.concatenate([reach_points(o, r) for o, r in zip(origins, reach, strict=True)])
+    proj = (rig.project(spheres) + off[:, None, :]).reshape(len(rig.views), len(reach), -1, 2)
+    radius = np.linalg.norm(proj[:, :, 1:] - proj[:, :, :1], axis=3).max(axis=2)  # (V, B)
+    keep = np.zeros((len(reach), len(det.points)), dtype=bool)
     for v in range(det.n_views):
         a, b = det.start[v], det.start[v + 1]
-        keep[a:b] = np.linalg.norm(det.points[a:b] - proj[v, 0], axis=1) <= radius[v]
+        gap = np.linalg.norm(det.points[None, a:b] - proj[v, :, :1], axis=2)  # (B, n)
+        keep[:, a:b] = gap <= radius[v][:, None]
     return keep
 
 
@@ -247,15 +253,19 @@ def _claims(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tre
     """(B, N) bool: detections claimed (nearest, within :data:`CLAIM_PX`) by each branch's
     markers in their view."""
     proj = rig.project(model.marker_positions(q)) + off[:, None, :]
+    owner = np.full(len(model.markers), -1)
+    for k, part in enumerate(tree.branches):
+        owner[part.markers] = k
+    mine = owner >= 0
     out = np.zeros((len(tree.branches), len(det.points)), dtype=bool)
     for v in range(det.n_views):
         a, b = det.start[v], det.start[v + 1]
         if a == b:
             continue
-        for k, part in enumerate(tree.branches):
-            d = np.linalg.norm(proj[v][part.markers][:, None, :] - det.points[a:b][None], axis=2)
-            nearest = d.argmin(axis=1)
-            out[k, a + nearest[d.min(axis=1) <= CLAIM_PX]] = True
+        d = np.linalg.norm(proj[v][mine][:, None, :] - det.points[a:b][None], axis=2)
+        nearest = d.argmin(axis=1)
+        close = d[np.arange(len(d)), nearest] <= CLAIM_PX
+        out[owner[mine][close], a + nearest[close]] = True
     return out
 
 
