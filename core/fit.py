@@ -317,8 +317,9 @@ def fit_image(
                         warm)
     every = np.arange(len(model.dofs))
     points, start = detections.kernel_points, detections.start
-    if (taken := warm_start(every, model.arrays, points, start, warm, model, rig, params,
-                            params.anneal.eps, off)) is not None:
+    taken = warm_start(every, model.arrays, points, start, warm, model, rig, params,
+                       params.anneal.eps, off)
+    if taken is not None and taken[2]:
         error = _kernels.posture_error(taken[0], model.arrays, rig.arrays, off, points, start,
                                        float(params.empty_view_penalty_px), 0.0, _kernels.NO_UNSEEN)
         return taken[0], float(error), taken[1], 0

@@ -46,7 +46,7 @@ if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
-__all__ = ["attempt_kernel", "fit_tree", "refine_whole", "shared_projections",
+__all__ = ["attempt_kernel", "fit_tree", "part_objective", "refine_whole", "shared_projections",
            "tree_flip_alternatives", "two_sided_error", "warm_start"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
@@ -78,12 +78,12 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
 
 def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None,
                model: KinematicModel, rig: Rig, params: FitParams, eps: float, off: np.ndarray,
-               unseen: np.ndarray = _kernels.NO_UNSEEN) -> tuple[np.ndarray, float] | None:
-    """The first of the warm starts ``warm`` (k, D) whose posture of the DOFs ``dofs`` (a
-    part posed by ``kin``), refined on detections ``points`` (N, 3) grouped at ``start``
-    (V + 1,) by :data:`WARM_STEPS` LM steps, reaches :data:`WARM_EPS_FACTOR` times ``eps``
-    (SA's stop), so that SA has nothing left to do: (posture (d,), objective in pixels);
-    None when none does, and without ``warm``.
+               unseen: np.ndarray = _kernels.NO_UNSEEN) -> tuple[np.ndarray, float, bool] | None:
+    """The warm starts ``warm`` (k, D), each one's posture of the DOFs ``dofs`` (a part posed
+    by ``kin``) refined on detections ``points`` (N, 3) grouped at ``start`` (V + 1,) by
+    :data:`WARM_STEPS` LM steps: (posture (d,), objective in pixels, whether it reaches
+    :data:`WARM_EPS_FACTOR` times ``eps``, SA's stop) of the first that reaches it, else of
+    the lowest objective; None without ``warm``. One that reaches it leaves SA nothing to do.
 
     Why more than ε: where a warm start misses ε by a little, the part's minimum itself is
     above it (a ghost blob merged with a marker in one view, say), and SA only runs to its
@@ -92,10 +92,11 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     offered as an alternative either way (``core.ambiguity``).
 
     ``unseen`` (V, m) bool marks projections next to another part's marker
-    (:func:`shared_projections`): they are left out of the refinement and of the test,
-    and ``eps`` (per projection) shrinks in proportion. Such a blob is two markers fused,
-    off each by pixels, which no posture of this part alone explains: left in, it keeps
-    a leg that fits everywhere else above ε (the joint refinement reads it as fused).
+    (:func:`shared_projections`): they are left out of the refinement and of the objective
+    (:func:`part_objective`), and ``eps`` (per projection) shrinks in proportion. Such a
+    blob is two markers fused, off each by pixels, which no posture of this part alone
+    explains: left in, it keeps a leg that fits everywhere else above ε (the joint
+    refinement reads it as fused).
 
     At 50-200 Hz a part has moved a few degrees since the previous image, inside the
     basin LM descends; where it moved farther, or the previous posture lies in a minimum
@@ -103,23 +104,39 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     """
     if warm is None:
         return None
-    penalty, fuse = float(params.empty_view_penalty_px), float(params.fusion_px)
+    unseen = _in_seen_views(unseen, start)
     if unseen.size:
-        seen_views = np.diff(start) > 0
-        unseen = np.ascontiguousarray(unseen & seen_views[:, None])  # an empty view costs in full
-        eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(seen_views), 1)
-    charged = penalty * np.count_nonzero(unseen)
+        eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(np.diff(start)), 1)
+    best: tuple[np.ndarray, float, bool] | None = None
     for row in warm:
         q = np.ascontiguousarray(row[dofs])
         if params.refine:
             q = _kernels.refine(q, model.lower[dofs], model.upper[dofs], kin, rig.arrays, off,
-                                points, start, penalty, fuse, unseen, float(params.anneal.huber_px),
+                                points, start, float(params.empty_view_penalty_px),
+                                float(params.fusion_px), unseen, float(params.anneal.huber_px),
                                 WARM_STEPS, 1e-5, _kernels.NO_TARGETS)
-        value = float(_kernels.posture_error(q, kin, rig.arrays, off, points, start, penalty, fuse,
-                                             unseen)) - charged
+        value = part_objective(q, kin, points, start, unseen, rig, params, off)
         if value < WARM_EPS_FACTOR * eps:
-            return q, value
-    return None
+            return q, value, True
+        if best is None or value < best[1]:
+            best = (q, value, False)
+    return best
+
+
+def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, unseen: np.ndarray,
+                   rig: Rig, params: FitParams, off: np.ndarray) -> float:
+    """The objective (pixels) of a part's posture ``q`` (d,) posed by ``kin`` on detections
+    ``points`` grouped at ``start``, without the projections ``unseen`` (V, m) marks."""
+    penalty = float(params.empty_view_penalty_px)
+    unseen = _in_seen_views(unseen, start)
+    return float(_kernels.posture_error(q, kin, rig.arrays, off, points, start, penalty,
+                                        float(params.fusion_px), unseen)) - penalty * np.count_nonzero(unseen)
+
+
+def _in_seen_views(unseen: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """``unseen`` (V, m) bool limited to views with detections (an empty view is charged in
+    full whatever it marks)."""
+    return np.ascontiguousarray(unseen & (np.diff(start) > 0)[:, None]) if unseen.size else unseen
 
 
 def shared_projections(q: np.ndarray, model: KinematicModel, rig: Rig, tree: Tree,
@@ -144,7 +161,7 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     """One attempt on one image, part by part: (dofs (D,), plain Eq. 5 error, objective, SA
     iterations), as :func:`core.fit.fit_image` returns them. Each part first tries its
     posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
-    where none reaches the part's ε."""
+    where none reaches the part's ε, keeping the warm start where SA ends higher."""
     q = space.mean.copy()
     iterations = 0
     views_seen = int(np.count_nonzero(det.counts))
@@ -154,14 +171,17 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
                  warm: np.ndarray | None = None) -> None:
         nonlocal iterations
         eps = params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
-        taken = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off,
-                           shared.get(part.name, _kernels.NO_UNSEEN))
-        if taken is not None:
-            q[part.dofs] = taken[0]
+        unseen = shared.get(part.name, _kernels.NO_UNSEEN)
+        tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen)
+        if tried is not None and tried[2]:
+            q[part.dofs] = tried[0]
             return
         q[part.dofs], _, _, its = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
                                                  params, eps, stream, draw_start, off)
         iterations += its
+        if tried is not None and tried[1] < part_objective(q[part.dofs], kin, points, start, unseen,
+                                                           rig, params, off):
+            q[part.dofs] = tried[0]  # SA ended in a worse minimum than the warm start's
 
     if tree.trunk is not None:
         fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start, warm)
