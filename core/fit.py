@@ -1,9 +1,10 @@
 """Fitting images and sequences: SA + refinement per image, histograms adapted per frame.
 
-Every image is fitted independently (paper §4): its random stream depends only
-on ``(seed, sample, attempt)``, so any slice of a sequence can be fitted by any
-worker, in any order, and give the same postures as a single process fitting
-the same chunks.
+Every image is fitted on its own (paper §4): its random stream depends only on
+``(seed, sample, attempt)``, and within a chunk an image after the first starts
+from its predecessor's posture (a warm start, :func:`fit_chunk`), so any chunk of a
+sequence can be fitted by any worker, in any order, and give the same postures as a
+single process fitting the same chunks.
 
 The sequence flow, shared by ``mocap fit`` and the distributed workers (each step a
 public function, so that a worker calls the same code as a local run):
