@@ -23,6 +23,7 @@ from core.fit import (
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
+from core.treefit import shared_projections
 
 LOCUST = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 SEED = 1  # the locust's second chunk starts cold on the mirror with this seed (checked below)
@@ -110,3 +111,22 @@ def test_a_wrong_basin_carried_by_warm_starts_is_corrected_by_continuity():
         assert any(angle_errors(c.dofs, truth[k]).max() < 1.0 for c in alone[k].alternatives)
     chosen = np.array([f.dofs for f in fit_sequence(images, params=FitParams(), **kwargs).fits])
     assert angle_errors(chosen, truth).max() < 1.0
+
+
+
+def test_projections_next_to_another_legs_marker_are_left_out_of_its_warm_start():
+    """Two legs on one side; in view 1 a marker of each projects 7.9 px from the other,
+    within the fusion distance (10 px): those projections are flagged for both legs (a
+    blob the two make together, which neither explains alone), and only those."""
+    model = insect(legs=2, attach=[(6.0, 3.0), (-6.0, 3.0)])
+    rig = ring_rig(3)
+    q = movement(model, 37, seed=0)[36]
+    a, b = model.tree.branches
+    proj = rig.project(model.marker_positions(q))
+    gap = np.linalg.norm(proj[:, a.markers][:, :, None] - proj[:, b.markers][:, None], axis=3)
+    shared = shared_projections(q, model, rig, model.tree, FitParams(fusion_px=10.0),
+                                np.zeros((3, 2)))
+    np.testing.assert_array_equal(shared[a.name], (gap < 10.0).any(axis=2))
+    np.testing.assert_array_equal(shared[b.name], (gap < 10.0).any(axis=1))
+    assert shared[a.name][1, 1] and shared[b.name][1, 2]
+    assert 0 < shared[a.name].sum() < shared[a.name].size
