@@ -304,8 +304,8 @@ def fit_image(
     stream : the attempt's random state from :func:`image_stream`; advanced in place.
     offsets : (V, 2) per-view pixel offsets (root tracking), optional.
     warm : (k, D) warm starts, optional (:func:`_warm_starts`): refined on this image first,
-        the first that reaches ε replaces SA (per part of a tree;
-        ``core.treefit.warm_start``), taking 0 SA iterations.
+        the first that reaches twice ε replaces SA (per part of a tree, each with its own
+        ε; ``core.treefit.warm_start``), taking 0 SA iterations.
 
     Returns
     -------
@@ -400,8 +400,8 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     """fit_image, then its alternatives: (best candidate, the others, SA iterations).
 
     ``warm`` (:func:`_warm_starts`) holds warm starts (:func:`fit_image`): at 50-200 Hz
-    the previous image's posture is usually near the truth, and where it reaches ε SA is
-    skipped. Alternatives are the depth flips of the fit (``core.ambiguity``) and, where
+    the previous image's posture is usually near the truth, and where it reaches twice ε
+    SA is skipped. Alternatives are the depth flips of the fit (``core.ambiguity``) and, where
     SA ran and left its basin, the previous posture refined on this image, when it lands in a
     distinct minimum scoring within the tolerance: a fit that jumped into another
     minimum that explains the image as well (the paper's Fig. 9) gets the truth as its
