@@ -23,9 +23,9 @@ refitting without the shared blob raises the error, and the first posture stays.
 Within a chunk, each part first tries the previous image's posture (:func:`warm_start`):
 refined on the part's detections, it replaces the part's SA where it reaches twice the
 part's ε, and when every part came from a warm start the joint refinement takes
-:data:`WARM_JOINT_STEPS` steps. The hexapod (6 legs, 6 cameras) then runs SA on about 3
-images in 100, and an image costs ~7 ms of CPU instead of ~150 (docs/BENCH_SUBJECTS.md).
-Depth flips are searched branch by branch (:func:`tree_flip_alternatives`).
+:data:`WARM_JOINT_STEPS` steps: at 50-200 Hz most parts of most images skip SA (figures in
+docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
+(:func:`tree_flip_alternatives`).
 """
 
 from __future__ import annotations
@@ -217,7 +217,7 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
             else:
                 q[:] = saved
     # Parts that all came from warm starts arrive at ε on their own projections, refined:
-    # the joint steps (each ~1.7 ms for 42 DOFs) only read the blobs parts share as fused.
+    # the joint steps (each costing D evaluations) only read the blobs parts share as fused.
     steps = JOINT_STEPS if iterations else WARM_JOINT_STEPS
     return (*refine_whole(q, det, model, rig, params, off, steps), iterations)
 
