@@ -1,8 +1,8 @@
 """Fitting images and sequences: SA + refinement per image, histograms adapted per frame.
 
 Every image is fitted on its own (paper §4): its random stream depends only on
-``(seed, sample, attempt)``, and within a chunk an image after the first starts
-from its predecessor's posture (a warm start, :func:`fit_chunk`), so any chunk of a
+``(seed, sample, attempt)``, and within a chunk the parts of a tree-shaped model start
+from the predecessor's posture (a warm start, :func:`fit_chunk`), so any chunk of a
 sequence can be fitted by any worker, in any order, and give the same postures as a
 single process fitting the same chunks.
 
@@ -53,7 +53,6 @@ from core.treefit import (
     fit_tree,
     refine_whole,
     tree_flip_alternatives,
-    warm_start,
 )
 
 __all__ = [
@@ -303,9 +302,11 @@ def fit_image(
     ----------
     stream : the attempt's random state from :func:`image_stream`; advanced in place.
     offsets : (V, 2) per-view pixel offsets (root tracking), optional.
-    warm : (k, D) warm starts, optional (:func:`_warm_starts`): refined on this image first,
-        the first that reaches twice ε replaces SA (per part of a tree, each with its own
-        ε; ``core.treefit.warm_start``), taking 0 SA iterations.
+    warm : (k, D) warm starts, optional (:func:`_warm_starts`): for a tree, refined on this
+        image first per part, the first that reaches twice the part's ε replaces its SA
+        (``core.treefit.warm_start``). A single chain always runs SA: it costs about a
+        millisecond there, and a warm start that reaches ε in a wrong minimum would carry
+        that minimum on to the next images.
 
     Returns
     -------
@@ -316,17 +317,9 @@ def fit_image(
     if model.tree is not None:
         return fit_tree(detections, model, rig, model.tree, space, params, stream, draw_start, off,
                         warm)
-    every = np.arange(len(model.dofs))
-    points, start = detections.kernel_points, detections.start
-    taken = warm_start(every, model.arrays, points, start, warm, model, rig, params,
-                       params.anneal.eps, off)
-    if taken is not None and taken[2]:
-        error = _kernels.posture_error(taken[0], model.arrays, rig.arrays, off, points, start,
-                                       float(params.empty_view_penalty_px), 0.0, _kernels.NO_UNSEEN)
-        return taken[0], float(error), taken[1], 0
     dofs, error, objective, iterations = attempt_kernel(
-        every, model.arrays, points, start, model, rig, space, params, params.anneal.eps, stream,
-        draw_start, off,
+        np.arange(len(model.dofs)), model.arrays, detections.kernel_points, detections.start,
+        model, rig, space, params, params.anneal.eps, stream, draw_start, off,
     )
     return dofs, float(error), float(objective), int(iterations)
 

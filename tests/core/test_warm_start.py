@@ -26,7 +26,7 @@ from core.rig import Rig
 from core.treefit import shared_projections
 
 LOCUST = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
-SEED = 1  # the locust's second chunk starts cold on the mirror with this seed (checked below)
+SEED = 1  # with this seed the locust's side view lands on the mirror in 11 of 24 images (checked below)
 
 
 @pytest.fixture(scope="module")
@@ -89,12 +89,12 @@ def test_two_processes_give_what_one_gives_with_warm_starts(legs):
         assert got.iterations == want.iterations
 
 
-def test_a_wrong_basin_carried_by_warm_starts_is_corrected_by_continuity():
-    """The locust leg in its side view alone enters the range where the view cannot tell it
-    from its mirror (a Fig. 9-style flip). The second chunk starts cold inside that range
-    and lands on the mirror; its warm starts carry the mirror on, as the image supports it
-    as well. Every one of those images keeps the true posture as an alternative, and the
-    choice by continuity after the merge joins them to the first chunk's branch."""
+def test_a_single_chain_runs_sa_on_every_image_and_continuity_chooses_among_mirrors():
+    """The locust leg in its side view alone moves in the range where the view cannot tell it
+    from its mirror (a Fig. 9-style flip). A single chain takes no warm start: every image runs
+    SA, and lands on one side of the mirror or the other on its own; every image on the mirror
+    keeps the true posture as an alternative, and the choice by continuity after the merge
+    puts the whole sequence back on the true branch."""
     model = KinematicModel.from_xml(LOCUST / "model.xml")
     side = Rig((Rig.from_json(LOCUST / "rig.json").views[0],))
     t = np.linspace(0.0, 1.0, 24)
@@ -104,14 +104,13 @@ def test_a_wrong_basin_carried_by_warm_starts_is_corrected_by_continuity():
     kwargs = dict(model=model, rig=side, histograms=Histograms.uniform(model), seed=SEED,
                   chunk_size=12)
     alone = fit_sequence(images, params=FitParams(choose_by_continuity=False), **kwargs).fits
-    on_mirror = [k for k in range(12, 24) if angle_errors(alone[k].dofs, mirror[k]).max() < 1.0]
-    assert 12 in on_mirror and len(on_mirror) >= 6  # the wrong basin, carried by warm starts
-    assert sum(alone[k].iterations == 0 for k in on_mirror) >= 5
+    assert all(f.iterations > 0 for f in alone)
+    on_mirror = [k for k in range(24) if angle_errors(alone[k].dofs, mirror[k]).max() < 1.0]
+    assert len(on_mirror) >= 6
     for k in on_mirror:
         assert any(angle_errors(c.dofs, truth[k]).max() < 1.0 for c in alone[k].alternatives)
     chosen = np.array([f.dofs for f in fit_sequence(images, params=FitParams(), **kwargs).fits])
     assert angle_errors(chosen, truth).max() < 1.0
-
 
 
 def test_projections_next_to_another_legs_marker_are_left_out_of_its_warm_start():
