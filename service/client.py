@@ -154,11 +154,15 @@ class Client:
                                                  "video_ids": list(video_ids), "options": options or {}})
 
     def submit_batch(self, model_id: int, rig_id: int, trials: Sequence[Sequence[int]],
-                     options: dict[str, Any] | None = None) -> dict[str, Any]:
-        """Submit one job per trial (each a list of video ids) sharing model, rig and ``options``."""
+                     options: dict[str, Any] | None = None,
+                     names: Sequence[str] | None = None) -> dict[str, Any]:
+        """Submit one job per trial (each a list of video ids) sharing model, rig and ``options``;
+        ``names`` (one per trial, optional) name the jobs and the trials' folders in the archive."""
+        listed = [{"video_ids": list(ids)} for ids in trials]
+        for trial, name in zip(listed, names or (), strict=False):
+            trial["name"] = name
         return self._send("POST", "/batches", json={
-            "model_id": model_id, "rig_id": rig_id, "options": options or {},
-            "trials": [{"video_ids": list(ids)} for ids in trials]})
+            "model_id": model_id, "rig_id": rig_id, "options": options or {}, "trials": listed})
 
     def status(self, kind: Kind, ident: int) -> dict[str, Any]:
         """A job (``status``, ``progress``, ``error``) or a batch (the same summed, and its ``jobs``)."""

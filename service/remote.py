@@ -68,7 +68,8 @@ def upload(
               f"({len(stored_rig['views'])} views in {stored_rig['videos']} video(s) per trial)")
         _check_counts(trials, stored_rig["videos"], folder)
         video_ids = _upload_trials(api, trials)
-        batch = _submit_uploaded(api, stored_model["id"], stored_rig["id"], video_ids, job_options)
+        batch = _submit_uploaded(api, stored_model["id"], stored_rig["id"], video_ids, job_options,
+                                 names=[name[:200] for name in trials])
         for name, job in zip(trials, batch["jobs"], strict=True):
             print(f"  {name}: job {job['id']}")
         print(f"batch {batch['id']} submitted: {len(batch['jobs'])} trial(s); "
@@ -171,13 +172,13 @@ def trial_videos(folder: Path) -> dict[str, list[Path]]:
 
 
 def _submit_uploaded(api: Client, model_id: int, rig_id: int, video_ids: list[list[int]],
-                     options: dict[str, Any]) -> dict[str, Any]:
+                     options: dict[str, Any], names: list[str]) -> dict[str, Any]:
     """Submit the uploaded trials as a batch; if the server refuses it, the one error line also says
     how to submit the videos again without uploading them again."""
     from service.client import ApiError
 
     try:
-        return api.submit_batch(model_id, rig_id, video_ids, options)
+        return api.submit_batch(model_id, rig_id, video_ids, options, names)
     except ApiError as exc:
         again = " ".join(f"--trial {','.join(map(str, ids))}" for ids in video_ids)
         raise ApiError(exc.status, f"{exc.detail}; the videos are uploaded: once fixed, submit them with "
