@@ -429,8 +429,9 @@ def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | No
     the last posture itself; None at a chunk's first image and after an image without a
     posture, so that a chunk's fits depend on nothing before it.
 
+    >>> from core.examples import LOCUST
     >>> from core.model import KinematicModel
-    >>> model = KinematicModel.from_xml(open("examples/locust_hind_leg/model.xml").read())
+    >>> model = KinematicModel.from_xml(LOCUST / "model.xml")
     >>> fit = ImageFit(0, model.lower + 10.0, 0.1, 0.1, 1, Status.OK, 1, (4, 4))
     >>> _warm_starts([], model) is None, _warm_starts([fit], model).shape
     (True, (1, 5))

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from core.demo import EXAMPLE, FPS, MARKER_DIAMETER_PX
+from core.demo import FPS, MARKER_DIAMETER_PX
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.results import read_angles_csv
 from core.rig import Rig
@@ -57,8 +58,8 @@ def run_demo(samples: int, seed: int, workers: int) -> None:
 
 
 def _render(path: Path, samples: int, seed: int) -> tuple[np.ndarray, Path]:
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
+    rig = Rig.from_json(LOCUST / "rig.json")
     rng = np.random.default_rng(seed)
     truth = natural_movements(model, rig, samples, rng=rng, fps=FPS)
     write_video(path, render_frames(model, rig, truth, rng=rng, marker_diameter_px=MARKER_DIAMETER_PX),
@@ -100,8 +101,8 @@ def _wait_until_up(api: Client, server: subprocess.Popen, log: Path) -> None:
 
 def _fit_over_http(api: Client, video: Path, seed: int) -> bytes:
     """Upload, submit, poll to a terminal status, return angles.csv."""
-    model = api.upload_model(EXAMPLE / "model.xml")
-    rig = api.upload_rig(EXAMPLE / "rig.json")
+    model = api.upload_model(LOCUST / "model.xml")
+    rig = api.upload_rig(LOCUST / "rig.json")
     uploaded = api.upload_video(video)
     t0 = time.monotonic()
     job = api.submit_job(model["id"], rig["id"], [uploaded["id"]], {"seed": seed})

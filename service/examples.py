@@ -1,5 +1,5 @@
 """Examples of the API's JSON bodies for its OpenAPI description (``/docs``, ``/redoc``): one per
-schema, consistent with each other (the locust example of ``examples/locust_hind_leg``)."""
+schema, consistent with each other (the locust example of ``core/examples/locust_hind_leg``)."""
 
 from __future__ import annotations
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,6 +10,7 @@ from tree_subjects import angle_errors, detections, insect, movement, ring_rig
 
 from core.anneal import search_space
 from core.error import Detections
+from core.examples import LOCUST
 from core.fit import (
     FitParams,
     ImageFit,
@@ -25,7 +25,6 @@ from core.model import KinematicModel
 from core.rig import Rig
 from core.treefit import shared_projections
 
-LOCUST = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 SEED = 1  # with this seed the locust's side view lands on the mirror in 11 of 24 images (checked below)
 
 

@@ -29,12 +29,12 @@ import pytest
 from sqlalchemy import Engine, text
 from svc_helpers import submit, upload_inputs, wait_for
 
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.rig import Rig
 from core.synth import natural_movements, render_frames, write_video
 from service.db import make_engine
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 PG_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 REDIS_URL = "redis://127.0.0.1:6379/9"
 REDIS_FAULTS_URL = "redis://127.0.0.1:6379/10"  # FLUSHDB'd by the fault tests
@@ -256,8 +256,8 @@ class Clip:
 
 @pytest.fixture(scope="session")
 def clip(tmp_path_factory) -> Clip:
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
+    rig = Rig.from_json(LOCUST / "rig.json")
     rng = np.random.default_rng(CLIP_SEED)
     truth = natural_movements(model, rig, CLIP_IMAGES, rng=rng, n_sequences=2)
     video = tmp_path_factory.mktemp("clip") / "clip.avi"

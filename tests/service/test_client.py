@@ -19,8 +19,9 @@ import httpx
 import numpy as np
 import pytest
 import typer.main
-from conftest import EXAMPLE, free_port, serve_embedded
+from conftest import free_port, serve_embedded
 
+from core.examples import LOCUST
 from core.results import read_angles_csv
 from service.cli import app
 from service.client import ApiError, Client, WaitTimeoutError
@@ -67,7 +68,7 @@ def trials(clip, tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def fitted(embedded, key, trials, tmp_path_factory) -> tuple[int, Path]:
     """``mocap remote upload`` → ``wait`` → ``download`` of the two trials: the batch id and the folder."""
-    example = ("--model", str(EXAMPLE / "model.xml"), "--rig", str(EXAMPLE / "rig.json"))
+    example = ("--model", str(LOCUST / "model.xml"), "--rig", str(LOCUST / "rig.json"))
     uploaded = remote("upload", str(trials), *example, "--options", OPTIONS, key=key, url=embedded.url,
                       terminal=True)
     assert uploaded.returncode == 0, uploaded.stdout + uploaded.stderr
@@ -140,7 +141,7 @@ def test_status_and_wait_of_a_finished_batch_and_a_key_file(embedded, key, fitte
                                   "broken model", "not a video", "wrong video count", "options not JSON",
                                   "key as an option"])
 def test_each_mistake_is_one_line_and_exit_2(embedded, key, trials, tmp_path, case):
-    example = ["--model", str(EXAMPLE / "model.xml"), "--rig", str(EXAMPLE / "rig.json")]
+    example = ["--model", str(LOCUST / "model.xml"), "--rig", str(LOCUST / "rig.json")]
     url, use_key, args = embedded.url, key, ["status", "job", "1"]
     if case == "bad key":
         use_key, expect = "0" * 43, ["unknown API key (HTTP 401)"]
@@ -178,7 +179,7 @@ def test_each_mistake_is_one_line_and_exit_2(embedded, key, trials, tmp_path, ca
 
 
 def test_a_batch_refused_after_the_upload_says_how_to_submit_the_uploaded_videos(embedded, key, trials):
-    example = ["--model", str(EXAMPLE / "model.xml"), "--rig", str(EXAMPLE / "rig.json")]
+    example = ["--model", str(LOCUST / "model.xml"), "--rig", str(LOCUST / "rig.json")]
     refused = remote("upload", str(trials), *example, "--options", '{"seeed": 1}', key=key, url=embedded.url)
     assert_one_error_line(refused, "options.seeed: Extra inputs are not permitted")
     again = re.search(r"submit them with mocap remote (submit .*) --options '\{…\}' \(HTTP 422\)",
@@ -201,7 +202,7 @@ def test_no_remote_command_takes_the_key_itself():
 def test_a_canceled_job_is_exit_1_from_wait_and_download(embedded, key, clip, tmp_path):
     with Client(embedded.url, key) as api:
         video = api.upload_video(clip.video)
-        model, rig = api.upload_model(EXAMPLE / "model.xml"), api.upload_rig(EXAMPLE / "rig.json")
+        model, rig = api.upload_model(LOCUST / "model.xml"), api.upload_rig(LOCUST / "rig.json")
         job = api.submit_job(model["id"], rig["id"], [video["id"]])["id"]
         assert api.cancel(job)["status"] == "canceled"
     waited = remote("wait", "job", str(job), key=key, url=embedded.url)
@@ -220,7 +221,7 @@ def test_wait_outlasts_a_restart_of_the_service(clip, tmp_path):
     try:
         key = service.create_lab("restart").headers["Authorization"].removeprefix("Bearer ")
         with Client(service.url, key) as api:
-            model, rig = api.upload_model(EXAMPLE / "model.xml"), api.upload_rig(EXAMPLE / "rig.json")
+            model, rig = api.upload_model(LOCUST / "model.xml"), api.upload_rig(LOCUST / "rig.json")
             video = api.upload_video(clip.video)
             job = api.submit_job(model["id"], rig["id"], [video["id"]], {"marker_diameter_px": 4})["id"]
         env = {**os.environ, "MOCAP_API_KEY": key, "TTY_COMPATIBLE": "0"}
@@ -245,7 +246,7 @@ def test_the_client_reports_upload_progress_and_wait_times_out(embedded, key, cl
         video = api.upload_video(clip.video, progress=sent.append)
         assert sum(sent) == clip.video.stat().st_size and len(sent) > 1
         assert video["sha256"] == hashlib.sha256(clip.video.read_bytes()).hexdigest()
-        model, rig = api.upload_model(EXAMPLE / "model.xml"), api.upload_rig(EXAMPLE / "rig.json")
+        model, rig = api.upload_model(LOCUST / "model.xml"), api.upload_rig(LOCUST / "rig.json")
         job = api.submit_job(model["id"], rig["id"], [video["id"]], {"marker_diameter_px": 4})
         with pytest.raises(WaitTimeoutError, match=rf"job {job['id']} is still \w+ after 0 s"):
             api.wait("job", job["id"], timeout=0)

@@ -7,11 +7,12 @@ from __future__ import annotations
 import hashlib
 
 import pytest
-from svc_helpers import EXAMPLE
+
+from core.examples import LOCUST
 
 pytestmark = [pytest.mark.service]
 
-XML = (EXAMPLE / "model.xml").read_bytes()
+XML = (LOCUST / "model.xml").read_bytes()
 
 
 @pytest.fixture(params=["embedded", "redis_pg"])

@@ -11,7 +11,9 @@ from pathlib import PurePosixPath
 
 import pytest
 from sqlalchemy import text
-from svc_helpers import EXAMPLE, upload_inputs, wait_for
+from svc_helpers import upload_inputs, wait_for
+
+from core.examples import LOCUST
 
 pytestmark = [pytest.mark.service]
 
@@ -28,7 +30,7 @@ def deployment(request):
 def test_uploads_keep_their_name_and_metadata(deployment, clip):
     client = deployment.create_lab("labelled")
     labels = {"name": "cam0 walk", "metadata": json.dumps(META)}
-    rig = client.post("/rigs", content=(EXAMPLE / "rig.json").read_bytes(), params=labels,
+    rig = client.post("/rigs", content=(LOCUST / "rig.json").read_bytes(), params=labels,
                       headers={"Content-Type": "application/json"})
     with clip.video.open("rb") as f:
         video = client.post("/videos", files={"file": ("clip.avi", f)}, params=labels)
@@ -53,7 +55,7 @@ def test_uploads_keep_their_name_and_metadata(deployment, clip):
 def test_metadata_or_name_out_of_bounds_is_422_naming_it_and_nothing_is_stored(deployment, params, field,
                                                                                problem):
     client = deployment.create_lab("bounds")
-    response = client.post("/rigs", content=(EXAMPLE / "rig.json").read_bytes(), params=params,
+    response = client.post("/rigs", content=(LOCUST / "rig.json").read_bytes(), params=params,
                            headers={"Content-Type": "application/json"})
     assert response.status_code == 422
     detail = response.json()["detail"]
