@@ -19,10 +19,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from core import _kernels
-from core.ambiguity import MAX_FLIP_REFINES, PROFILE_STEPS, WITNESS_DOUBLINGS, flip_masks
+from core.ambiguity import MAX_FLIP_REFINES, flip_masks
 from core.fit import FitParams
 from core.model import KinematicModel
 from core.rig import Rig
+from core.undetermined import PROFILE_STEPS, WITNESS_DOUBLINGS
 
 __all__ = ["MAX_ATTEMPT_SECONDS", "MAX_WORKSPACE_BYTES", "FitCost", "FitCostError", "check_fit_cost",
            "estimate_fit_cost"]

@@ -1,4 +1,4 @@
-"""Images that do not determine a DOF get an alternative; determined ones do not (core.ambiguity).
+"""Images that do not determine a DOF get an alternative; determined ones do not (core.undetermined).
 
 With markers off the model by a pixel (sliding skin), the tolerance within which postures
 count as alike grows with the image's own residual, and a DOF that can move more than
@@ -8,27 +8,25 @@ count as alike grows with the image's own residual, and a DOF that can move more
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from core.ambiguity import (
-    UNDETERMINED_DEG,
-    Candidate,
-    angle_gaps,
-    confidence_chi2,
-    residual_tolerance,
-    undetermined_alternative,
-)
+from core.ambiguity import Candidate, angle_gaps
 from core.error import Detections, view_error
+from core.examples import EXAMPLES
 from core.fit import FitParams, alternative_tolerance, fit_sequence
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.refine import refine
 from core.rig import Rig
+from core.undetermined import (
+    UNDETERMINED_DEG,
+    confidence_chi2,
+    residual_tolerance,
+    undetermined_alternative,
+)
 
-EXAMPLES = Path(__file__).parents[2] / "examples"
 # The stick insect with its tibia almost straight (gamma near its 10 deg minimum): psi turns
 # the leg about the femur, on whose axis the femur marker sits, so only the tibia marker's
 # small sideways swing tells psi; a pixel of marker scatter hides tens of degrees of it.
