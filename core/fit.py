@@ -431,10 +431,13 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             others += _warm_alternatives(fit, others, warm, det, model, rig, params, tolerance,
                                          offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
-    if tolerance > 0 and len(ranked) == 1:
+    # An undetermined DOF is looked for only where the residual, not the fixed floor, sets
+    # the tolerance (markers off the model): on clean footage the flat directions are the
+    # depth flips', and the search costs a Jacobian of the whole model.
+    one_dof = alternative_tolerance(params, det, model, error, 1)
+    if len(ranked) == 1 and one_dof > alternative_tolerance(params, det, model, math.nan, 1):
         witness = undetermined_alternative(
-            fit, det, model=model, rig=rig, tolerance_px=alternative_tolerance(
-                params, det, model, error, 1),
+            fit, det, model=model, rig=rig, tolerance_px=one_dof,
             fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
             huber_px=params.anneal.huber_px, offsets=offsets,
         )
