@@ -32,6 +32,7 @@ __all__ = ["BranchStart", "branch_start"]
 BEAM = 4  # partial assignments kept after each marker
 IK_STEPS = 30
 MIN_ASSIGNED = 2  # fewer assigned markers cannot fix a branch's posture
+TIE_PX = 0.01  # final postures within this Eq. 5 error are told apart by their residual
 SKIP_FRACTION = 0.05  # leaving a marker unassigned costs (this × the branch's reach)², model units²
 
 
@@ -71,8 +72,8 @@ def branch_start(candidates: np.ndarray, *, part: Part, rotation: np.ndarray, or
                  q0: np.ndarray, model: KinematicModel, rig: Rig, points: np.ndarray,
                  start: np.ndarray, offsets: np.ndarray, empty_view_penalty_px: float,
                  ) -> BranchStart | None:
-    """Pose ``part`` onto ``candidates`` from ``q0``: the assignment whose posture has least
-    Eq. 5 error among the beam search's final ones.
+    """Pose ``part`` onto ``candidates`` from ``q0``: of the beam search's final assignments,
+    the one whose posture has least Eq. 5 error (within :data:`TIE_PX`, least residual).
 
     Parameters
     ----------
@@ -113,16 +114,17 @@ def branch_start(candidates: np.ndarray, *, part: Part, rotation: np.ndarray, or
                 grown.append(_solve(assigned, beam.q, kin, targets, lower, upper, rig, points,
                                     start, offsets, beam.skips))
         beams = sorted(grown, key=lambda b: b.cost)[:BEAM]
-    best = None
+    found = []
     for beam in beams:
         n = int(np.count_nonzero(beam.targets >= 0))
-        if n < MIN_ASSIGNED:
-            continue
-        error = float(_kernels.posture_error(beam.q, kin, rig.arrays, offsets, points, start,
-                                             float(empty_view_penalty_px), 0.0, _kernels.NO_UNSEEN))
-        if best is None or error < best.error:
-            best = BranchStart(beam.q, error, n)
-    return best
+        if n >= MIN_ASSIGNED:
+            error = float(_kernels.posture_error(beam.q, kin, rig.arrays, offsets, points, start,
+                                                 float(empty_view_penalty_px), 0.0, _kernels.NO_UNSEEN))
+            found.append((error, beam.cost, BranchStart(beam.q, error, n)))
+    if not found:
+        return None
+    least = min(e for e, _, _ in found)
+    return min((f for f in found if f[0] <= least + TIE_PX), key=lambda f: f[1])[2]
 
 
 def _markers(q: np.ndarray, kin: KinematicArrays) -> np.ndarray:

@@ -104,6 +104,8 @@ def triangulate(detections: Detections, *, rig: Rig, offsets: np.ndarray | None 
     if len(points) == 0:
         return Candidates.empty(V)
     support = _extend(points, support, detections, rig, off, tolerance_px)
+    if len(support) == 0:
+        return Candidates.empty(V)
     support = np.unique(support, axis=0)
     points, error = _refine(_initial(support, rays, blobs), support, detections, rig, off)
     keep = error <= tolerance_px
@@ -235,6 +237,8 @@ def _extend(points: np.ndarray, support: np.ndarray, det: Detections, rig: Rig, 
     order = np.argsort(error, kind="stable")
     order = order[error[order] <= tolerance_px][:MAX_CANDIDATES]
     points, support = points[order], support[order].copy()
+    if len(points) == 0:
+        return support
     proj = np.swapaxes(rig.project(points), 0, 1) + off[None]
     for v in range(det.n_views):
         a, b = det.start[v], min(det.start[v + 1], det.start[v] + MAX_BLOBS_PER_VIEW)

@@ -1,0 +1,187 @@
+"""Epipolar pairing, triangulation (core.triangulate) and branch starts (core.epipolar_start)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from core import _kernels
+from core.anneal import search_space
+from core.epipolar_start import branch_start
+from core.error import Detections, view_offsets
+from core.histogram import Histograms
+from core.rig import Rig
+from core.tree import decompose
+from core.triangulate import Candidates, triangulate
+from tests.core.tree_subjects import insect, movement, ring_rig
+
+ROOT = Path(__file__).resolve().parents[2]
+DISTORTION = [-0.12, 0.05, 0.001, -0.002, 0.01]
+
+
+def _distorted(cameras: int) -> Rig:
+    doc = ring_rig(cameras).to_dict()
+    for view in doc["views"]:
+        view["projection"]["dist"] = DISTORTION
+    return Rig.from_dict(doc)
+
+
+def _dlt(cameras: int) -> Rig:
+    """The ring's cameras as DLT matrices P = K [R | t]."""
+    rig = ring_rig(cameras)
+    a = rig.arrays
+    views = [{"name": v.name, "video": v.video,
+              "projection": {"type": "matrix", "P": (a.K[i] @ a.P[i]).tolist()}}
+             for i, v in enumerate(rig.views)]
+    return Rig.from_dict({"views": views})
+
+
+def _mirror() -> Rig:
+    return Rig.from_json(ROOT / "examples/locust_hind_leg/rig.json")
+
+
+RIGS = {"pinhole 2 views, distortion": lambda: _distorted(2),
+        "pinhole 3 views, distortion": lambda: _distorted(3),
+        "DLT 3 views": lambda: _dlt(3),
+        "mirror (affine, one video)": _mirror}
+
+
+def _points(rig_name: str, n: int = 8) -> np.ndarray:
+    """(n, 3) world points inside every view; on the mirror rig, at distinct x (its two views
+    share u = 3x + 240, so points of one x would pair with each other)."""
+    rng = np.random.default_rng(7)
+    if rig_name.startswith("mirror"):
+        return np.column_stack([np.linspace(-30, 30, n), rng.uniform(-20, 20, n), rng.uniform(-20, 20, n)])
+    return rng.uniform(-15, 15, (n, 3))
+
+
+def _detections(rig: Rig, points: np.ndarray, ghosts: int = 0, seed: int = 0) -> Detections:
+    rng = np.random.default_rng(seed)
+    views = []
+    for p in rig.project(points):
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        views.append(rng.permutation(np.vstack([p, rng.uniform(lo, hi, (ghosts, 2))])))
+    return Detections.from_views(views)
+
+
+def _nearest(truth: np.ndarray, found: Candidates) -> np.ndarray:
+    """(n,) distance of each true point to its nearest candidate (inf without candidates)."""
+    if len(found) == 0:
+        return np.full(len(truth), np.inf)
+    return np.linalg.norm(truth[:, None] - found.points[None], axis=2).min(axis=1)
+
+
+@pytest.mark.parametrize("name", RIGS)
+def test_every_true_point_is_recovered_exactly(name):
+    rig = RIGS[name]()
+    truth = _points(name)
+    found = triangulate(_detections(rig, truth), rig=rig)
+    assert _nearest(truth, found).max() < 1e-6
+    assert np.all(found.n_views >= 2)
+
+
+def test_a_point_seen_by_three_views_is_one_candidate_supported_by_all():
+    rig = _distorted(3)
+    truth = _points("pinhole")
+    det = _detections(rig, truth)
+    found = triangulate(det, rig=rig)
+    proj = rig.project(truth)
+    for k, x in enumerate(truth):
+        near = np.linalg.norm(found.points - x, axis=1) < 1e-6
+        assert near.sum() == 1
+        blobs = found.support[near][0]
+        assert np.allclose(det.points[blobs], proj[:, k])
+        assert found.error_px[near][0] < 1e-6
+
+
+@pytest.mark.parametrize("name", RIGS)
+def test_true_points_remain_among_candidates_with_ghosts(name):
+    rig = RIGS[name]()
+    truth = _points(name)
+    found = triangulate(_detections(rig, truth, ghosts=3, seed=1), rig=rig)
+    assert _nearest(truth, found).max() < 1e-6
+
+
+def test_offsets_are_taken_off_the_detections():
+    rig = _distorted(2)
+    truth = _points("pinhole")
+    off = np.array([[5.0, -3.0], [-2.0, 7.0]])
+    det = Detections.from_views(list(rig.project(truth) + off[:, None, :]))
+    assert _nearest(truth, triangulate(det, rig=rig, offsets=off)).max() < 1e-6
+
+
+def test_a_point_seen_by_one_view_only_yields_nothing():
+    rig = _distorted(3)
+    det = Detections.from_views([rig.project(_points("pinhole")[:1])[0], np.zeros((0, 2)), np.zeros((0, 2))])
+    assert len(triangulate(det, rig=rig)) == 0
+
+
+def test_a_point_missing_from_all_views_but_one_is_not_proposed():
+    rig = _distorted(3)
+    truth = _points("pinhole")
+    proj = rig.project(truth)
+    det = Detections.from_views([proj[0], proj[1][1:], proj[2][1:]])  # point 0: view 0 only
+    found = triangulate(det, rig=rig)
+    assert _nearest(truth[:1], found)[0] > 1e-3
+    assert _nearest(truth[1:], found).max() < 1e-6
+
+
+@pytest.mark.parametrize("det", [
+    Detections.from_views([np.zeros((0, 2))] * 3),  # nothing detected
+    Detections.from_views([np.zeros((0, 2)), np.ones((2, 2)), np.zeros((0, 2))]),  # one view
+    Detections.from_views([np.ones((2, 2))] * 2),  # views do not match the rig's
+    Detections.from_views([np.full((1, 2), 1e15), np.full((1, 2), -1e15), np.full((1, 2), 1e15)]),
+    Detections.from_views([np.full((3, 2), 100.0)] * 3),  # one pixel, thrice, in every view
+], ids=["empty", "one view", "wrong view count", "far outside", "repeated blob"])
+def test_malformed_or_empty_input_gives_no_candidates_not_an_error(det):
+    found = triangulate(det, rig=_distorted(3))
+    assert isinstance(found, Candidates)
+    assert found.points.shape[1] == 3 and found.support.shape[1] == 3
+    assert np.all(np.isfinite(found.points)) and np.all(found.error_px <= 2.0)
+    if det.n_views != 3 or np.count_nonzero(det.counts) < 2:
+        assert len(found) == 0
+
+
+# ---- branch starts ----------------------------------------------------------------------------
+
+
+def _base(model, q, part):
+    J = len(model.joints)
+    rot, pos = np.empty((J, 3, 3)), np.empty((J, 3))
+    _kernels.forward_kinematics(q, model.arrays, rot, pos)
+    return rot[part.base], pos[part.base]
+
+
+@pytest.mark.parametrize("sample", range(0, 40, 8))
+def test_branch_start_from_exact_candidates_lands_on_the_true_posture(sample):
+    model, rig = insect(legs=2), _distorted(3)
+    tree = decompose(model)
+    space = search_space(model, Histograms.uniform(model))
+    q = movement(model, 40, seed=3)[sample]
+    det = _detections(rig, model.marker_positions(q), ghosts=2, seed=sample)
+    found = triangulate(det, rig=rig)
+    for part in tree.branches:
+        rotation, origin = _base(model, q, part)
+        start = branch_start(found.points, part=part, rotation=rotation, origin=origin,
+                             q0=space.mean[part.dofs], model=model, rig=rig,
+                             points=det.kernel_points, start=det.start,
+                             offsets=view_offsets(None, rig), empty_view_penalty_px=5.0)
+        assert start is not None
+        assert np.abs(start.dofs - q[part.dofs]).max() < 0.1
+        assert start.error < 1e-3 and start.assigned == len(part.markers)
+
+
+def test_branch_start_without_candidates_in_reach_is_none():
+    model, rig = insect(legs=2), _distorted(3)
+    part = decompose(model).branches[0]
+    q = movement(model, 1)[0]
+    rotation, origin = _base(model, q, part)
+    det = _detections(rig, model.marker_positions(q))
+    far = origin + np.array([[1e3, 0, 0], [0, 1e3, 0]])
+    for candidates in (np.zeros((0, 3)), far):
+        assert branch_start(candidates, part=part, rotation=rotation, origin=origin,
+                            q0=model.lower[part.dofs], model=model, rig=rig,
+                            points=det.kernel_points, start=det.start,
+                            offsets=view_offsets(None, rig), empty_view_penalty_px=5.0) is None
