@@ -164,7 +164,7 @@ def test_branch_start_from_exact_candidates_lands_on_the_true_posture(sample):
     found = triangulate(det, rig=rig)
     for part in tree.branches:
         rotation, origin = _base(model, q, part)
-        start = branch_start(found.points, part=part, rotation=rotation, origin=origin,
+        start = branch_start(found, part=part, rotation=rotation, origin=origin,
                              q0=space.mean[part.dofs], model=model, rig=rig,
                              points=det.kernel_points, start=det.start,
                              offsets=view_offsets(None, rig), empty_view_penalty_px=5.0)
@@ -179,8 +179,9 @@ def test_branch_start_without_candidates_in_reach_is_none():
     q = movement(model, 1)[0]
     rotation, origin = _base(model, q, part)
     det = _detections(rig, model.marker_positions(q))
-    far = origin + np.array([[1e3, 0, 0], [0, 1e3, 0]])
-    for candidates in (np.zeros((0, 3)), far):
+    far = Candidates(origin + np.array([[1e3, 0, 0], [0, 1e3, 0]]), np.zeros(2),
+                     np.array([[0, 1, -1], [0, 1, -1]]))
+    for candidates in (Candidates.empty(3), far):
         assert branch_start(candidates, part=part, rotation=rotation, origin=origin,
                             q0=model.lower[part.dofs], model=model, rig=rig,
                             points=det.kernel_points, start=det.start,
