@@ -42,6 +42,7 @@ MAX_RAY_PAIRS = 2**16  # blob pairs tested per image: 15 view pairs of 60 blobs 
 MAX_CANDIDATES = 2048
 PAIR_PX = 2.0  # a pair (and a further view) is consistent within this reprojection distance
 GAUSS_NEWTON_STEPS = 5
+_CHUNK = 256  # candidates compared at once when merging
 _PARALLEL = 1e-9  # 1 - cos² of the angle between two rays below which they do not meet
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
 
@@ -100,12 +101,10 @@ def triangulate(detections: Detections, *, rig: Rig, offsets: np.ndarray | None 
     blobs = [np.arange(detections.start[v], detections.start[v + 1])[:MAX_BLOBS_PER_VIEW]
              for v in range(V)]
     rays = [_back_project(rig, v, detections.points[b] - off[v]) for v, b in enumerate(blobs)]
-    points, support = _pair(rays, blobs, V)
+    points, support, error = _pair(rays, blobs, detections, rig, off, tolerance_px)
     if len(points) == 0:
         return Candidates.empty(V)
-    support = _extend(points, support, detections, rig, off, tolerance_px)
-    if len(support) == 0:
-        return Candidates.empty(V)
+    support = _extend(points, support, error, detections, rig, off, tolerance_px)
     support = np.unique(support, axis=0)
     points, error = _refine(_initial(support, rays, blobs), support, detections, rig, off)
     keep = error <= tolerance_px
@@ -139,11 +138,14 @@ def _back_project(rig: Rig, v: int, pixels: np.ndarray) -> tuple[np.ndarray, np.
     return np.tile(centre, (n, 1)), direction
 
 
-def _pair(rays: list[tuple[np.ndarray, np.ndarray]], blobs: list[np.ndarray],
-          V: int) -> tuple[np.ndarray, np.ndarray]:
-    """Midpoints (P, 3) of every blob pair of every two views (within :data:`MAX_RAY_PAIRS`)
-    and their support (P, V): the two blobs, -1 elsewhere. Parallel rays are left out."""
-    points, support, budget = [], [], MAX_RAY_PAIRS
+def _pair(rays: list[tuple[np.ndarray, np.ndarray]], blobs: list[np.ndarray], det: Detections,
+          rig: Rig, off: np.ndarray, tolerance_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The consistent blob pairs of every two views (within :data:`MAX_RAY_PAIRS` tested):
+    midpoints (P, 3) of their rays, support (P, V) (the two blobs, -1 elsewhere) and error
+    (P,), the larger distance in pixels of the midpoint's projections to the two blobs, at
+    most ``tolerance_px``. Parallel rays are left out."""
+    V = len(blobs)
+    points, support, error, budget = [], [], [], MAX_RAY_PAIRS
     for a in range(V):
         for b in range(a + 1, V):
             na, nb = len(blobs[a]), len(blobs[b])
@@ -152,13 +154,19 @@ def _pair(rays: list[tuple[np.ndarray, np.ndarray]], blobs: list[np.ndarray],
             budget -= na * nb
             ia, ib = np.repeat(np.arange(na), nb), np.tile(np.arange(nb), na)
             mid, ok = _closest(rays[a][0][ia], rays[a][1][ia], rays[b][0][ib], rays[b][1][ib])
+            both = [a, b]
+            proj = _kernels.project_many(mid[None], *(x[both] for x in rig.arrays))[0] + off[both, None]
+            far = np.maximum(np.linalg.norm(proj[0] - det.points[blobs[a][ia]], axis=1),
+                             np.linalg.norm(proj[1] - det.points[blobs[b][ib]], axis=1))
+            ok &= far <= tolerance_px
             s = np.full((int(ok.sum()), V), -1, dtype=np.int64)
             s[:, a], s[:, b] = blobs[a][ia[ok]], blobs[b][ib[ok]]
             points.append(mid[ok])
             support.append(s)
+            error.append(far[ok])
     if not points:
-        return np.zeros((0, 3)), np.zeros((0, V), dtype=np.int64)
-    return np.concatenate(points), np.concatenate(support)
+        return np.zeros((0, 3)), np.zeros((0, V), dtype=np.int64), np.zeros(0)
+    return np.concatenate(points), np.concatenate(support), np.concatenate(error)
 
 
 def _closest(o1: np.ndarray, d1: np.ndarray, o2: np.ndarray,
@@ -228,17 +236,13 @@ def _refine(points: np.ndarray, support: np.ndarray, det: Detections, rig: Rig,
     return x, np.sqrt(cost / n_seen)
 
 
-def _extend(points: np.ndarray, support: np.ndarray, det: Detections, rig: Rig, off: np.ndarray,
-            tolerance_px: float) -> np.ndarray:
-    """Support (K, V) of the consistent pairs (midpoint within ``tolerance_px`` of both blobs;
-    the :data:`MAX_CANDIDATES` of least error), with, in every other view, the nearest blob
-    within ``tolerance_px`` of the midpoint's projection."""
-    error = np.linalg.norm(_residuals(points, support, det, rig, off), axis=2).max(axis=1)
-    order = np.argsort(error, kind="stable")
-    order = order[error[order] <= tolerance_px][:MAX_CANDIDATES]
+def _extend(points: np.ndarray, support: np.ndarray, error: np.ndarray, det: Detections, rig: Rig,
+            off: np.ndarray, tolerance_px: float) -> np.ndarray:
+    """Support (K, V) of the :data:`MAX_CANDIDATES` consistent pairs of least ``error`` (K,)
+    with, in every other view, the nearest blob within ``tolerance_px`` of the midpoint's
+    projection."""
+    order = np.argsort(error, kind="stable")[:MAX_CANDIDATES]
     points, support = points[order], support[order].copy()
-    if len(points) == 0:
-        return support
     proj = np.swapaxes(rig.project(points), 0, 1) + off[None]
     for v in range(det.n_views):
         a, b = det.start[v], min(det.start[v + 1], det.start[v] + MAX_BLOBS_PER_VIEW)
@@ -253,13 +257,12 @@ def _extend(points: np.ndarray, support: np.ndarray, det: Detections, rig: Rig, 
 
 def _not_contained(support: np.ndarray) -> np.ndarray:
     """(K,) bool: candidates whose supporting blobs are not all among another candidate's
-    (a pair that a candidate of more views already explains is merged into it)."""
-    keep = np.ones(len(support), dtype=bool)
+    (a pair that a candidate of more views already explains is merged into it). Compared
+    :data:`_CHUNK` candidates at a time against all: memory ``_CHUNK × K × V``."""
     n = np.count_nonzero(support >= 0, axis=1)
-    for k in np.flatnonzero(n < support.shape[1]):
-        seen = support[k] >= 0
-        v = int(np.argmax(seen))
-        others = np.flatnonzero((support[:, v] == support[k, v]) & (n > n[k]))
-        if len(others) and np.any(np.all(support[others][:, seen] == support[k, seen], axis=1)):
-            keep[k] = False
+    keep = np.ones(len(support), dtype=bool)
+    for lo in range(0, len(support), _CHUNK):
+        rows = support[lo:lo + _CHUNK]
+        agree = ((rows[:, None] == support[None]) | (rows[:, None] < 0)).all(axis=2)
+        keep[lo:lo + _CHUNK] = ~(agree & (n[None] > n[lo:lo + _CHUNK, None])).any(axis=1)
     return keep
