@@ -38,7 +38,7 @@ from core.triangulate import Candidates
 
 __all__ = ["BranchStart", "branch_start"]
 
-BEAM = 4  # partial assignments kept after each marker
+BEAM = 8  # partial assignments kept after each marker
 IK_STEPS = 10
 MIN_ASSIGNED = 2  # fewer assigned markers cannot fix a branch's posture
 TIE_PX = 0.01  # final postures within this Eq. 5 error are told apart by their residual
