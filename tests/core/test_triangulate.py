@@ -14,7 +14,7 @@ from core.error import Detections, view_offsets
 from core.histogram import Histograms
 from core.rig import Rig
 from core.tree import decompose
-from core.triangulate import Candidates, triangulate
+from core.triangulate import MAX_BLOBS_PER_VIEW, MAX_CANDIDATES, Candidates, triangulate
 from tests.core.tree_subjects import insect, movement, ring_rig
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -186,3 +186,15 @@ def test_branch_start_without_candidates_in_reach_is_none():
                             q0=model.lower[part.dofs], model=model, rig=rig,
                             points=det.kernel_points, start=det.start,
                             offsets=view_offsets(None, rig), empty_view_penalty_px=5.0) is None
+
+
+def test_cost_is_bounded_with_many_blobs():
+    rig = _distorted(3)
+    rng = np.random.default_rng(2)
+    det = Detections.from_views([rng.uniform(0, 480, (2000, 2)) for _ in range(3)])
+    found = triangulate(det, rig=rig)
+    assert len(found) <= MAX_CANDIDATES
+    assert len(found) > 0
+    for v in range(3):  # only each view's first MAX_BLOBS_PER_VIEW blobs take part
+        used = found.support[:, v][found.support[:, v] >= 0]
+        assert np.all((used >= det.start[v]) & (used < det.start[v] + MAX_BLOBS_PER_VIEW))
