@@ -67,13 +67,13 @@ class BranchStart:
 class _Beam:
     """A partial assignment: ``targets`` (M,) candidate index per marker, -1 unassigned or
     not yet reached; posture ``q`` (d,) solved onto it; ``residual``: squared distances of the
-    assigned markers to their targets, and ``skips``: the charge of the markers left out
-    (model units²)."""
+    assigned markers to their targets, and ``skips``: the charge of the markers left out and
+    the doubts about the candidates assigned (:func:`_doubt`), model units²."""
 
     targets: np.ndarray
     q: np.ndarray
     residual: float
-    skips: float  # and doubts about the candidates assigned (:func:`_doubt`)
+    skips: float
 
     @property
     def cost(self) -> float:
@@ -103,8 +103,8 @@ def branch_start(candidates: Candidates, *, part: Part, rotation: np.ndarray, or
     Returns
     -------
     BranchStart, or None when fewer than :data:`MIN_ASSIGNED` candidates lie within reach.
-    Cost: about ``M × BEAM × K_reach`` inverse kinematics of the branch (M markers,
-    ``K_reach`` candidates within reach).
+    Cost: at most ``M × BEAM × TRIES`` inverse kinematics of the branch (M markers), each
+    :data:`IK_STEPS` Levenberg-Marquardt steps at most.
     """
     near = np.linalg.norm(candidates.points - origin, axis=1) <= REACH_MARGIN * part.reach
     targets = np.ascontiguousarray(candidates.points[near])
