@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -11,13 +9,13 @@ from core import _kernels
 from core.anneal import search_space
 from core.epipolar_start import branch_start
 from core.error import Detections, view_offsets
+from core.examples import EXAMPLES
 from core.histogram import Histograms
 from core.rig import Rig
 from core.tree import decompose
 from core.triangulate import MAX_BLOBS_PER_VIEW, MAX_CANDIDATES, Candidates, triangulate
 from tests.core.tree_subjects import insect, movement, ring_rig
 
-ROOT = Path(__file__).resolve().parents[2]
 DISTORTION = [-0.12, 0.05, 0.001, -0.002, 0.01]
 
 
@@ -39,7 +37,7 @@ def _dlt(cameras: int) -> Rig:
 
 
 def _mirror() -> Rig:
-    return Rig.from_json(ROOT / "examples/locust_hind_leg/rig.json")
+    return Rig.from_json(EXAMPLES / "locust_hind_leg" / "rig.json")
 
 
 RIGS = {"pinhole 2 views, distortion": lambda: _distorted(2),
