@@ -25,7 +25,10 @@ refined on the part's detections, it replaces the part's SA where it reaches twi
 part's ε, and when every part came from a warm start the joint refinement takes
 :data:`WARM_JOINT_STEPS` steps: at 50-200 Hz most parts of most images skip SA (figures in
 docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
-(:func:`tree_flip_alternatives`).
+(:func:`tree_flip_alternatives`). A branch that SA leaves above its ε (with two or more
+views) tries one more start, triangulated from the blobs (:func:`epipolar_start`,
+``core.triangulate``), refined like a warm start and kept where it ends lower: with two
+cameras SA sometimes ends a leg in a wrong minimum that the blobs' 3D positions rule out.
 """
 
 from __future__ import annotations
@@ -44,17 +47,19 @@ from core.ambiguity import (
     flip_alternatives,
     flip_masks,
 )
+from core.epipolar_start import branch_start
 from core.error import Detections, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
 from core.tree import Part, Tree, _subtrees, reach_points
+from core.triangulate import Candidates, triangulate
 
 if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
-__all__ = ["attempt_kernel", "fit_tree", "part_objective", "refine_whole", "shared_projections",
-           "tree_flip_alternatives", "two_sided_error", "warm_start"]
+__all__ = ["attempt_kernel", "epipolar_start", "fit_tree", "part_objective", "refine_whole",
+           "shared_projections", "tree_flip_alternatives", "two_sided_error", "warm_start"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
@@ -168,11 +173,14 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     """One attempt on one image, part by part: (dofs (D,), plain Eq. 5 error, objective, SA
     iterations), as :func:`core.fit.fit_image` returns them. Each part first tries its
     posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
-    where none reaches twice the part's ε, keeping the warm start where SA ends higher."""
+    where none reaches twice the part's ε, keeping the warm start where SA ends higher.
+    A branch that SA leaves above its ε tries its triangulated start too
+    (:func:`epipolar_start`), kept where it ends lower."""
     q = space.mean.copy()
     iterations = 0
     views_seen = int(np.count_nonzero(det.counts))
     shared = {} if warm is None else shared_projections(warm[0], model, rig, tree, params, off)
+    candidates: list[Candidates] = []  # triangulated once, when a branch first needs them
 
     def fit_part(part: Part, kin, points: np.ndarray, start: np.ndarray,
                  warm: np.ndarray | None = None) -> None:
@@ -186,9 +194,16 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
         q[part.dofs], _, _, its = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
                                                  params, eps, stream, draw_start, off)
         iterations += its
-        if tried is not None and tried[1] < part_objective(q[part.dofs], kin, points, start, unseen,
-                                                           rig, params, off):
-            q[part.dofs] = tried[0]  # SA ended in a worse minimum than the warm start's
+        value = part_objective(q[part.dofs], kin, points, start, unseen, rig, params, off)
+        if tried is not None and tried[1] < value:
+            q[part.dofs], value = tried[0], tried[1]  # SA ended in a worse minimum than the warm start's
+        if value >= eps and part.base >= 0:  # a branch: its base frame is the fitted trunk's
+            if not candidates:
+                candidates.append(triangulate(det, rig=rig, offsets=off))
+            proposed = epipolar_start(part, rot[part.base], pos[part.base], candidates[0], points,
+                                      start, model, rig, space, params, eps, off, unseen)
+            if proposed is not None and proposed[1] < value:
+                q[part.dofs] = proposed[0]
 
     if tree.trunk is not None:
         fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start, warm)
@@ -220,6 +235,27 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     # the joint steps (each costing D evaluations) only read the blobs parts share as fused.
     steps = JOINT_STEPS if iterations else WARM_JOINT_STEPS
     return (*refine_whole(q, det, model, rig, params, off, steps), iterations)
+
+
+def epipolar_start(part: Part, rotation: np.ndarray, origin: np.ndarray, candidates: Candidates,
+                   points: np.ndarray, start: np.ndarray, model: KinematicModel, rig: Rig,
+                   space: SearchSpace, params: FitParams, eps: float, off: np.ndarray,
+                   unseen: np.ndarray) -> tuple[np.ndarray, float, bool] | None:
+    """A branch posed onto the image's triangulated ``candidates``
+    (``core.epipolar_start.branch_start``, from the histogram mean, its base at ``rotation``
+    (3, 3) and ``origin`` (3,)), then refined like a warm start (:func:`warm_start`) on the
+    detections ``points`` grouped at ``start``: (posture (d,), objective, reaches 2 ε), or
+    None when too few candidates lie within the branch's reach."""
+    proposed = branch_start(candidates, part=part, rotation=rotation, origin=origin,
+                            q0=space.mean[part.dofs], model=model, rig=rig, points=points,
+                            start=start, offsets=off,
+                            empty_view_penalty_px=float(params.empty_view_penalty_px))
+    if proposed is None:
+        return None
+    row = space.mean.copy()
+    row[part.dofs] = proposed.dofs
+    return warm_start(part.dofs, part.at(rotation, origin), points, start, row[None], model, rig,
+                      params, eps, off, unseen)
 
 
 def two_sided_error(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
