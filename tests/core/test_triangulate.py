@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from core import _kernels
-from core.anneal import search_space
+from core.anneal import AnnealParams, search_space
 from core.epipolar_start import branch_start
 from core.error import Detections, view_offsets
 from core.examples import EXAMPLES
+from core.fit import FitParams, fit_sequence
 from core.histogram import Histograms
 from core.rig import Rig
 from core.tree import decompose
@@ -196,3 +197,19 @@ def test_cost_is_bounded_with_many_blobs():
     for v in range(3):  # only each view's first MAX_BLOBS_PER_VIEW blobs take part
         used = found.support[:, v][found.support[:, v] >= 0]
         assert np.all((used >= det.start[v]) & (used < det.start[v] + MAX_BLOBS_PER_VIEW))
+
+
+# ---- in the fit ---------------------------------------------------------------------------------
+
+
+def test_the_fit_takes_a_triangulated_start_where_sa_ends_above_eps():
+    """SA cut to 30 iterations, one attempt, no restarts, every image cold (chunks of one):
+    SA alone leaves legs tens of degrees off; the triangulated starts put every leg right."""
+    model, rig = insect(legs=2), _distorted(3)
+    truth = movement(model, 6, seed=5)
+    det = [_detections(rig, model.marker_positions(q), ghosts=2, seed=k) for k, q in enumerate(truth)]
+    params = FitParams(anneal=AnnealParams().with_iterations(30), max_attempts=1, restarts=0)
+    result = fit_sequence(det, model=model, rig=rig, histograms=Histograms.uniform(model),
+                          params=params, seed=0, chunk_size=1)
+    fitted = np.array([f.dofs for f in result.fits])
+    assert np.abs((fitted - truth + 180.0) % 360.0 - 180.0).max() < 0.5
