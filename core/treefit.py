@@ -185,7 +185,7 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     def fit_part(part: Part, kin, points: np.ndarray, start: np.ndarray,
                  warm: np.ndarray | None = None) -> None:
         nonlocal iterations
-        eps = params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
+        eps = _part_eps(part, params, views_seen)
         unseen = shared.get(part.name, _kernels.NO_UNSEEN)
         tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen)
         if tried is not None and tried[2]:
@@ -231,10 +231,48 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
                 score = new
             else:
                 q[:] = saved
+    if views_seen == 2:  # two views: a wrong leg can explain every blob it projects onto
+        if not candidates:
+            candidates.append(triangulate(det, rig=rig, offsets=off))
+        _two_view_starts(q, det, model, rig, tree, space, params, off, rot, pos, reach,
+                         candidates[0], shared)
     # Parts that all came from warm starts arrive at ε on their own projections, refined:
     # the joint steps (each costing D evaluations) only read the blobs parts share as fused.
     steps = JOINT_STEPS if iterations else WARM_JOINT_STEPS
     return (*refine_whole(q, det, model, rig, params, off, steps), iterations)
+
+
+def _part_eps(part: Part, params: FitParams, views_seen: int) -> float:
+    """SA's stop ε for a part (pixels): ``AnnealParams.eps`` per :data:`EPS_PROJECTIONS` of its
+    marker projections into the views with detections."""
+    return params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
+
+
+def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
+                     space: SearchSpace, params: FitParams, off: np.ndarray, rot: np.ndarray,
+                     pos: np.ndarray, reach: np.ndarray, candidates: Candidates,
+                     shared: dict[str, np.ndarray]) -> None:
+    """Each branch's triangulated start (:func:`epipolar_start`) replaces its posture in ``q``
+    (D,) (changed in place) where that lowers the two-sided error over the blobs in reach.
+
+    With two views every pair of blobs on corresponding epipolar lines is a 3D point, so a
+    leg posed on another leg's blobs or on ghosts can explain all it projects onto, below
+    ε, and only the blobs it leaves unexplained (the two-sided error) tell it from the
+    right one."""
+    in_reach = reach.any(axis=0)
+    cap = params.empty_view_penalty_px
+    score = two_sided_error(q, det, model, rig, off, in_reach, cap)
+    for part, keep in zip(tree.branches, reach, strict=True):
+        points, start = _subset(det, keep)
+        proposed = epipolar_start(part, rot[part.base], pos[part.base], candidates, points, start,
+                                  model, rig, space, params, _part_eps(part, params, 2), off,
+                                  shared.get(part.name, _kernels.NO_UNSEEN))
+        if proposed is None:
+            continue
+        trial = q.copy()
+        trial[part.dofs] = proposed[0]
+        if (new := two_sided_error(trial, det, model, rig, off, in_reach, cap)) < score:
+            q[:], score = trial, new
 
 
 def epipolar_start(part: Part, rotation: np.ndarray, origin: np.ndarray, candidates: Candidates,
