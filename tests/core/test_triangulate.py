@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core import _kernels
+from core import _kernels, treefit
 from core.anneal import AnnealParams, search_space
 from core.epipolar_start import branch_start
 from core.error import Detections, view_offsets
@@ -213,3 +213,27 @@ def test_the_fit_takes_a_triangulated_start_where_sa_ends_above_eps():
                           params=params, seed=0, chunk_size=1)
     fitted = np.array([f.dofs for f in result.fits])
     assert np.abs((fitted - truth + 180.0) % 360.0 - 180.0).max() < 0.5
+
+
+def test_with_two_views_a_leg_on_the_wrong_blobs_is_replaced_by_its_triangulated_start():
+    """Leg 0 posed as in another image: the two-sided error (its own blobs unexplained) lets the
+    triangulated start replace it; the right leg 1 stays right."""
+    model, rig = insect(legs=2), _distorted(2)
+    truth = movement(model, 20, seed=4)
+    q_true, tree = truth[0], model.tree
+    det = _detections(rig, model.marker_positions(q_true), ghosts=2, seed=3)
+    wrong = q_true.copy()
+    leg0, leg1 = tree.branches
+    wrong[leg0.dofs] = truth[10][leg0.dofs]
+    assert np.abs(wrong - q_true).max() > 10.0
+    params = FitParams()
+    space = search_space(model, Histograms.uniform(model))
+    off = view_offsets(None, rig)
+    rot, pos = treefit._frames(wrong, model)
+    reach = treefit._within_reach(det, rig, pos[[b.base for b in tree.branches]],
+                                  np.array([b.reach for b in tree.branches]), off)
+    q = wrong.copy()
+    treefit._two_view_starts(q, det, model, rig, tree, space, params, off, rot, pos, reach,
+                             triangulate(det, rig=rig), {})
+    assert np.abs(q[leg0.dofs] - q_true[leg0.dofs]).max() < 0.1
+    assert np.abs(q[leg1.dofs] - q_true[leg1.dofs]).max() < 1e-6
