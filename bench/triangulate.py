@@ -10,12 +10,9 @@ docs/BENCH_SUBJECTS.md). Prints, per camera count: how many true markers have a 
 candidates per image, the share of leg starts with every DOF within 5° of the truth, the
 share whose Eq. 5 error is below the leg's SA stop ε (and how many of those are wrong), and
 the CPU time per image of triangulation and of the starts. With ``--fit``, also fits the
-images (``core.fit.fit_sequence``, ``mocap fit``'s defaults), counts the legs the fit gets
-wrong (a DOF > 5° off) that the start gets right, and tries the starts the way an integration
-into ``core.treefit`` would, with its public parts only: each leg's start, posed from the
-*fitted* thorax, replaces the fitted leg where that lowers the two-sided error
-(``core.treefit.two_sided_error``), then the whole posture is refined jointly
-(``core.treefit.refine_whole``) and kept if its two-sided error is still lower.
+images (``core.fit.fit_sequence``, ``mocap fit``'s defaults, which try these starts itself:
+``core.treefit``) and counts the legs the fit gets wrong (a DOF > 5° off) that the start
+gets right.
 """
 
 from __future__ import annotations
@@ -34,11 +31,11 @@ from bench.subjects import load
 from core import _kernels
 from core.anneal import search_space
 from core.epipolar_start import branch_start
-from core.error import Detections, fusion_distance, view_offsets
+from core.error import view_offsets
 from core.fit import FitParams
 from core.histogram import Histograms
 from core.tree import decompose
-from core.treefit import EPS_PROJECTIONS, refine_whole, two_sided_error
+from core.treefit import EPS_PROJECTIONS
 from core.triangulate import triangulate
 
 FOUND_FRACTION = 0.02  # a true marker is found when a candidate lies within this × the leg's reach
@@ -109,42 +106,6 @@ def measure(cameras: int, args: argparse.Namespace) -> None:
               f"legs the fit gets wrong and the start right: "
               f"{int(np.sum(~fit_ok & start_ok))} of {int(np.sum(~fit_ok))}; "
               f"fit CPU per image {1e3 * timing['cpu'] / args.images:.0f} ms")
-        params = FitParams(fusion_px=fusion_distance(timing["diameter"]))
-        t0 = time.process_time()
-        tried = np.array([_try_starts(q, det, model, rig, tree, space, params)
-                          for q, det in zip(fitted, data.detections, strict=True)])
-        cpu = time.process_time() - t0
-        tried_ok = _legs_within(model, tree, tried, data.truth)
-        print(f"  fit + starts tried by refinement: legs within 5 deg {100 * tried_ok.mean():.1f} %, "
-              f"images {100 * tried_ok.all(axis=1).mean():.1f} %; legs made right "
-              f"{int(np.sum(~fit_ok & tried_ok))}, made wrong {int(np.sum(fit_ok & ~tried_ok))}; "
-              f"extra CPU per image {1e3 * cpu / args.images:.1f} ms")
-
-
-def _try_starts(q: np.ndarray, det: Detections, model, rig, tree, space, params: FitParams) -> np.ndarray:
-    """The fitted posture ``q`` (D,) with each leg's start tried in turn (kept where it lowers
-    the two-sided error), then refined jointly if any was kept."""
-    off = view_offsets(None, rig)
-    every, cap = np.ones(len(det.points), dtype=bool), params.empty_view_penalty_px
-    score = best = two_sided_error(q, det, model, rig, off, every, cap)
-    rot, pos = np.empty((len(model.joints), 3, 3)), np.empty((len(model.joints), 3))
-    _kernels.forward_kinematics(q, model.arrays, rot, pos)
-    cand = triangulate(det, rig=rig)
-    out = q.copy()
-    for b in tree.branches:
-        start = branch_start(cand, part=b, rotation=rot[b.base], origin=pos[b.base],
-                             q0=space.mean[b.dofs], model=model, rig=rig, points=det.kernel_points,
-                             start=det.start, offsets=off, empty_view_penalty_px=cap)
-        if start is None:
-            continue
-        trial = out.copy()
-        trial[b.dofs] = start.dofs
-        if (e := two_sided_error(trial, det, model, rig, off, every, cap)) < score:
-            out, score = trial, e
-    if score >= best:
-        return q
-    refined = refine_whole(out, det, model, rig, params, off)[0]
-    return refined if two_sided_error(refined, det, model, rig, off, every, cap) < best else q
 
 
 def _legs_within(model, tree, postures: np.ndarray, truth: np.ndarray) -> np.ndarray:
