@@ -27,8 +27,9 @@ part's ε, and when every part came from a warm start the joint refinement takes
 docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
 (:func:`tree_flip_alternatives`). A branch that SA leaves above its ε (with two or more
 views) tries one more start, triangulated from the blobs (:func:`epipolar_start`,
-``core.triangulate``), refined like a warm start and kept where it ends lower: with two
-cameras SA sometimes ends a leg in a wrong minimum that the blobs' 3D positions rule out.
+``core.triangulate``), refined like a warm start and kept where it ends lower. With two
+views every branch tries it, kept where it lowers the two-sided error
+(:func:`_two_view_starts`): there a leg on the wrong blobs can explain all it projects onto.
 """
 
 from __future__ import annotations
@@ -175,7 +176,8 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
     where none reaches twice the part's ε, keeping the warm start where SA ends higher.
     A branch that SA leaves above its ε tries its triangulated start too
-    (:func:`epipolar_start`), kept where it ends lower."""
+    (:func:`epipolar_start`), kept where it ends lower; with two views, every branch does
+    (:func:`_two_view_starts`)."""
     q = space.mean.copy()
     iterations = 0
     views_seen = int(np.count_nonzero(det.counts))
