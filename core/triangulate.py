@@ -4,9 +4,10 @@ With two or more calibrated views, a blob of one view and a blob of another can 
 one marker only if their back-projected rays (nearly) meet: the point closest to both rays,
 projected back into the two views, lands on the two blobs. Every such pair gives a candidate
 3D point; a candidate is then extended to every other view with a blob where it projects, the
-pairs that found the same blobs are merged, and each candidate is triangulated by
-Gauss-Newton on its reprojection error in pixels through :meth:`core.rig.Rig.project`, so
-affine (mirror, orthographic), pinhole (with distortion) and DLT views are handled alike.
+pairs that found the same blobs are merged, and each candidate is triangulated: the point
+nearest to all its rays (linear least squares), then :data:`GAUSS_NEWTON_STEPS` Gauss-Newton
+steps on its reprojection error in pixels through :meth:`core.rig.Rig.project`, so affine
+(mirror, orthographic), pinhole (with distortion) and DLT views are handled alike.
 
 Ghost blobs and fused markers make spurious candidates, and a marker seen by one view makes
 none. That is acceptable: candidates only propose where markers may be (starts for the
