@@ -25,7 +25,11 @@ refined on the part's detections, it replaces the part's SA where it reaches twi
 part's ε, and when every part came from a warm start the joint refinement takes
 :data:`WARM_JOINT_STEPS` steps: at 50-200 Hz most parts of most images skip SA (figures in
 docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
-(:func:`tree_flip_alternatives`).
+(:func:`tree_flip_alternatives`). A branch that SA leaves above its ε (with two or more
+views) tries one more start, triangulated from the blobs (:func:`epipolar_start`,
+``core.triangulate``), refined like a warm start and kept where it ends lower. With two
+views every branch tries it, kept where it lowers the two-sided error
+(:func:`_two_view_starts`): there a leg on the wrong blobs can explain all it projects onto.
 """
 
 from __future__ import annotations
@@ -44,17 +48,19 @@ from core.ambiguity import (
     flip_alternatives,
     flip_masks,
 )
+from core.epipolar_start import branch_start
 from core.error import Detections, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
 from core.tree import Part, Tree, _subtrees, reach_points
+from core.triangulate import Candidates, triangulate
 
 if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
-__all__ = ["attempt_kernel", "fit_tree", "part_objective", "refine_whole", "shared_projections",
-           "tree_flip_alternatives", "two_sided_error", "warm_start"]
+__all__ = ["attempt_kernel", "epipolar_start", "fit_tree", "part_objective", "refine_whole",
+           "shared_projections", "tree_flip_alternatives", "two_sided_error", "warm_start"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
@@ -168,16 +174,20 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     """One attempt on one image, part by part: (dofs (D,), plain Eq. 5 error, objective, SA
     iterations), as :func:`core.fit.fit_image` returns them. Each part first tries its
     posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
-    where none reaches twice the part's ε, keeping the warm start where SA ends higher."""
+    where none reaches twice the part's ε, keeping the warm start where SA ends higher.
+    A branch that SA leaves above its ε tries its triangulated start too
+    (:func:`epipolar_start`), kept where it ends lower; with two views, every branch does
+    (:func:`_two_view_starts`)."""
     q = space.mean.copy()
     iterations = 0
     views_seen = int(np.count_nonzero(det.counts))
     shared = {} if warm is None else shared_projections(warm[0], model, rig, tree, params, off)
+    candidates: list[Candidates] = []  # triangulated once, when a branch first needs them
 
     def fit_part(part: Part, kin, points: np.ndarray, start: np.ndarray,
                  warm: np.ndarray | None = None) -> None:
         nonlocal iterations
-        eps = params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
+        eps = _part_eps(part, params, views_seen)
         unseen = shared.get(part.name, _kernels.NO_UNSEEN)
         tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen)
         if tried is not None and tried[2]:
@@ -186,9 +196,16 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
         q[part.dofs], _, _, its = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
                                                  params, eps, stream, draw_start, off)
         iterations += its
-        if tried is not None and tried[1] < part_objective(q[part.dofs], kin, points, start, unseen,
-                                                           rig, params, off):
-            q[part.dofs] = tried[0]  # SA ended in a worse minimum than the warm start's
+        value = part_objective(q[part.dofs], kin, points, start, unseen, rig, params, off)
+        if tried is not None and tried[1] < value:
+            q[part.dofs], value = tried[0], tried[1]  # SA ended in a worse minimum than the warm start's
+        if value >= eps and part.base >= 0:  # a branch: its base frame is the fitted trunk's
+            if not candidates:
+                candidates.append(triangulate(det, rig=rig, offsets=off))
+            proposed = epipolar_start(part, rot[part.base], pos[part.base], candidates[0], points,
+                                      start, model, rig, space, params, eps, off, unseen)
+            if proposed is not None and proposed[1] < value:
+                q[part.dofs] = proposed[0]
 
     if tree.trunk is not None:
         fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start, warm)
@@ -216,10 +233,69 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
                 score = new
             else:
                 q[:] = saved
+    if views_seen == 2:  # two views: a wrong leg can explain every blob it projects onto
+        if not candidates:
+            candidates.append(triangulate(det, rig=rig, offsets=off))
+        _two_view_starts(q, det, model, rig, tree, space, params, off, rot, pos, reach,
+                         candidates[0], shared)
     # Parts that all came from warm starts arrive at ε on their own projections, refined:
     # the joint steps (each costing D evaluations) only read the blobs parts share as fused.
     steps = JOINT_STEPS if iterations else WARM_JOINT_STEPS
     return (*refine_whole(q, det, model, rig, params, off, steps), iterations)
+
+
+def _part_eps(part: Part, params: FitParams, views_seen: int) -> float:
+    """SA's stop ε for a part (pixels): ``AnnealParams.eps`` per :data:`EPS_PROJECTIONS` of its
+    marker projections into the views with detections."""
+    return params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
+
+
+def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
+                     space: SearchSpace, params: FitParams, off: np.ndarray, rot: np.ndarray,
+                     pos: np.ndarray, reach: np.ndarray, candidates: Candidates,
+                     shared: dict[str, np.ndarray]) -> None:
+    """Each branch's triangulated start (:func:`epipolar_start`) replaces its posture in ``q``
+    (D,) (changed in place) where that lowers the two-sided error over the blobs in reach.
+
+    With two views every pair of blobs on corresponding epipolar lines is a 3D point, so a
+    leg posed on another leg's blobs or on ghosts can explain all it projects onto, below
+    ε, and only the blobs it leaves unexplained (the two-sided error) tell it from the
+    right one."""
+    in_reach = reach.any(axis=0)
+    cap = params.empty_view_penalty_px
+    score = two_sided_error(q, det, model, rig, off, in_reach, cap)
+    for part, keep in zip(tree.branches, reach, strict=True):
+        points, start = _subset(det, keep)
+        proposed = epipolar_start(part, rot[part.base], pos[part.base], candidates, points, start,
+                                  model, rig, space, params, _part_eps(part, params, 2), off,
+                                  shared.get(part.name, _kernels.NO_UNSEEN))
+        if proposed is None:
+            continue
+        trial = q.copy()
+        trial[part.dofs] = proposed[0]
+        if (new := two_sided_error(trial, det, model, rig, off, in_reach, cap)) < score:
+            q[:], score = trial, new
+
+
+def epipolar_start(part: Part, rotation: np.ndarray, origin: np.ndarray, candidates: Candidates,
+                   points: np.ndarray, start: np.ndarray, model: KinematicModel, rig: Rig,
+                   space: SearchSpace, params: FitParams, eps: float, off: np.ndarray,
+                   unseen: np.ndarray) -> tuple[np.ndarray, float, bool] | None:
+    """A branch posed onto the image's triangulated ``candidates``
+    (``core.epipolar_start.branch_start``, from the histogram mean, its base at ``rotation``
+    (3, 3) and ``origin`` (3,)), then refined like a warm start (:func:`warm_start`) on the
+    detections ``points`` grouped at ``start``: (posture (d,), objective, reaches 2 ε), or
+    None when too few candidates lie within the branch's reach."""
+    proposed = branch_start(candidates, part=part, rotation=rotation, origin=origin,
+                            q0=space.mean[part.dofs], model=model, rig=rig, points=points,
+                            start=start, offsets=off,
+                            empty_view_penalty_px=float(params.empty_view_penalty_px))
+    if proposed is None:
+        return None
+    row = space.mean.copy()
+    row[part.dofs] = proposed.dofs
+    return warm_start(part.dofs, part.at(rotation, origin), points, start, row[None], model, rig,
+                      params, eps, off, unseen)
 
 
 def two_sided_error(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,

@@ -1,0 +1,206 @@
+"""A start for one branch from triangulated candidates: inverse kinematics onto them.
+
+``core.triangulate`` proposes 3D points where markers may be, without labels. A branch
+(``core.tree.Part``) whose base frame is known (the trunk is fitted) is posed onto them by a
+beam search over assignments, proximal markers first: each of the branch's markers, in order
+of its distance from the base at the start posture, is given in turn each free candidate
+that the branch's geometry allows (or none, at a cost), the branch's DOFs are solved by
+inverse kinematics onto the markers assigned so far (``core._kernels.refine`` in target mode: bounded
+Levenberg-Marquardt), and the :data:`BEAM` assignments of least residual go on to the next
+marker. A proximal marker moves with few DOFs, so its candidates are few and its residual
+tells them apart; each later marker is then sought from a posture that already places it
+nearly right. Nearest-candidate assignment from one posture (ICP) lands in the wrong basin
+for most legs: a distal marker's nearest candidate is usually another marker's.
+
+The geometry prunes before any inverse kinematics: over :data:`SAMPLES` postures spread
+through the DOF ranges, every marker's distance from the base origin and from every other
+marker of the branch spans an interval (a point on a rigid segment: a single length); a
+candidate is tried for a marker only if its distances to the base and to the candidates
+already assigned fall in those intervals, widened by :data:`SLACK_FRACTION` of the reach,
+and only the :data:`TRIES` best supported of them, nearest the marker's place at the beam's
+posture first.
+
+The result is a start for the search, never its result: it is only as good as the
+candidates, and its Eq. 5 error says whether it explains the images.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from core import _kernels
+from core.model import KinematicArrays, KinematicModel
+from core.rig import Rig
+from core.tree import REACH_MARGIN, Part
+from core.triangulate import Candidates
+
+__all__ = ["BranchStart", "branch_start"]
+
+BEAM = 8  # partial assignments kept after each marker
+IK_STEPS = 10
+MIN_ASSIGNED = 2  # fewer assigned markers cannot fix a branch's posture
+TIE_PX = 0.01  # final postures within this Eq. 5 error are told apart by their residual
+SKIP_FRACTION = 0.05  # leaving a marker unassigned costs (this × the branch's reach)², model units²
+SAMPLES = 512  # postures whose marker distances bound the candidates' (low-discrepancy)
+SLACK_FRACTION = 0.02  # of the branch's reach: widens the sampled distance intervals
+TRIES = 6  # candidates tried per marker and beam
+
+
+@dataclass(frozen=True)
+class BranchStart:
+    """A branch posture proposed from candidates.
+
+    dofs : ndarray of shape (d,), float64, the branch's DOFs (``Part.dofs`` order; degrees,
+        model units), inside their ranges.
+    error : Eq. 5 of the branch's markers at ``dofs`` against the detections given, pixels.
+    assigned : how many of the branch's markers were posed onto a candidate.
+    """
+
+    dofs: np.ndarray
+    error: float
+    assigned: int
+
+
+@dataclass(frozen=True)
+class _Beam:
+    """A partial assignment: ``targets`` (M,) candidate index per marker, -1 unassigned or
+    not yet reached; posture ``q`` (d,) solved onto it; ``residual``: squared distances of the
+    assigned markers to their targets, and ``skips``: the charge of the markers left out and
+    the doubts about the candidates assigned (:func:`_doubt`), model units²."""
+
+    targets: np.ndarray
+    q: np.ndarray
+    residual: float
+    skips: float
+
+    @property
+    def cost(self) -> float:
+        return self.residual + self.skips
+
+
+def branch_start(candidates: Candidates, *, part: Part, rotation: np.ndarray, origin: np.ndarray,
+                 q0: np.ndarray, model: KinematicModel, rig: Rig, points: np.ndarray,
+                 start: np.ndarray, offsets: np.ndarray, empty_view_penalty_px: float,
+                 ) -> BranchStart | None:
+    """Pose ``part`` onto ``candidates`` from ``q0``: of the beam search's final assignments,
+    the one whose posture has least Eq. 5 error (within :data:`TIE_PX`, least residual).
+
+    Parameters
+    ----------
+    candidates : the image's ``core.triangulate.Candidates``; those beyond the branch's reach
+        (``REACH_MARGIN`` × ``part.reach`` from ``origin``) are ignored. Assigning one that
+        fewer views support than the best supported costs up to a skip (:func:`_doubt`).
+    part : a branch of ``core.tree.decompose(model)``.
+    rotation, origin : ndarray of shape (3, 3) and (3,): the world frame of the part's base
+        joint (model units), from the fitted trunk.
+    q0 : ndarray of shape (d,), float64: the part's DOFs to start from (the histogram mean).
+    points, start : the detections as the kernels take them (``Detections.kernel_points``
+        (N, 3) and view starts (V + 1,)), for the Eq. 5 error.
+    offsets : ndarray of shape (V, 2), float64, pixels added to every projection of a view.
+
+    Returns
+    -------
+    BranchStart, or None when fewer than :data:`MIN_ASSIGNED` candidates lie within reach.
+    Cost: at most ``M × BEAM × TRIES`` inverse kinematics of the branch (M markers), each
+    :data:`IK_STEPS` Levenberg-Marquardt steps at most.
+    """
+    near = np.linalg.norm(candidates.points - origin, axis=1) <= REACH_MARGIN * part.reach
+    targets = np.ascontiguousarray(candidates.points[near])
+    if len(targets) < MIN_ASSIGNED:
+        return None
+    kin = part.at(rotation, origin)
+    lower, upper = model.lower[part.dofs], model.upper[part.dofs]
+    q = np.clip(q0, lower, upper)
+    order = np.argsort(np.linalg.norm(_markers(q, kin) - origin, axis=1), kind="stable")
+    skip = (SKIP_FRACTION * part.reach) ** 2
+    doubt = skip * _doubt(candidates.n_views[near])
+    low, high = _distance_bounds(kin, lower, upper, SLACK_FRACTION * part.reach)
+    from_base = np.linalg.norm(targets - origin, axis=1)
+    beams = [_Beam(np.full(len(order), -1, dtype=np.int64), q, 0.0, 0.0)]
+    for m in order:
+        grown = []
+        for beam in beams:
+            grown.append(_Beam(beam.targets, beam.q, beam.residual, beam.skips + skip))
+            for k in _allowed(m, beam, targets, doubt, from_base, low, high, kin):
+                assigned = beam.targets.copy()
+                assigned[m] = k
+                grown.append(_solve(assigned, beam.q, kin, targets, lower, upper, rig, points,
+                                    start, offsets, beam.skips + doubt[k]))
+        beams = sorted(grown, key=lambda b: b.cost)[:BEAM]
+    found = []
+    for beam in beams:
+        n = int(np.count_nonzero(beam.targets >= 0))
+        if n >= MIN_ASSIGNED:
+            error = float(_kernels.posture_error(beam.q, kin, rig.arrays, offsets, points, start,
+                                                 float(empty_view_penalty_px), 0.0, _kernels.NO_UNSEEN))
+            found.append((error, beam.cost, BranchStart(beam.q, error, n)))
+    if not found:
+        return None
+    least = min(e for e, _, _ in found)
+    return min((f for f in found if f[0] <= least + TIE_PX), key=lambda f: f[1])[2]
+
+
+def _markers(q: np.ndarray, kin: KinematicArrays) -> np.ndarray:
+    """(M, 3) world marker positions of the part posed at ``q``."""
+    return _kernels.marker_positions_many(q[None], kin)[0]
+
+
+def _doubt(n_views: np.ndarray) -> np.ndarray:
+    """(K,) in [0, 1): the share of views that could support a candidate and do not, taking the
+    best supported candidate's views as those that see the branch. A ghost pairs with a blob
+    of one other view by chance; a marker is seen by every view that sees the branch.
+
+    >>> _doubt(np.array([6, 2, 3]))
+    array([0.        , 0.66666667, 0.5       ])
+    """
+    return 1.0 - n_views / n_views.max()
+
+
+def _distance_bounds(kin: KinematicArrays, lower: np.ndarray, upper: np.ndarray,
+                     slack: float) -> tuple[np.ndarray, np.ndarray]:
+    """(M + 1, M + 1) least and greatest distance (model units) between markers, the base
+    origin last, over :data:`SAMPLES` postures of the R_d low-discrepancy sequence through the
+    DOF ranges, widened by ``slack``."""
+    d = len(lower)
+    phi = 2.0
+    for _ in range(32):  # the generalised golden ratio: phi^(d + 1) = phi + 1
+        phi = (1.0 + phi) ** (1.0 / (d + 1))
+    alpha = phi ** -np.arange(1.0, d + 1)
+    unit = (0.5 + np.arange(1, SAMPLES + 1)[:, None] * alpha) % 1.0
+    world = _kernels.marker_positions_many(lower + unit * (upper - lower), kin)
+    base = np.broadcast_to(kin.offset[0], (SAMPLES, 1, 3))
+    world = np.concatenate([world, base], axis=1)
+    dist = np.linalg.norm(world[:, :, None] - world[:, None], axis=3)
+    return dist.min(axis=0) - slack, dist.max(axis=0) + slack
+
+
+def _allowed(m: int, beam: _Beam, targets: np.ndarray, doubt: np.ndarray, from_base: np.ndarray,
+             low: np.ndarray, high: np.ndarray, kin: KinematicArrays) -> np.ndarray:
+    """Candidates (indices) marker ``m`` may take in ``beam``: free, at distances from the base
+    and from the beam's assigned candidates within the sampled intervals; the :data:`TRIES`
+    best supported (least ``doubt``), nearest the marker's place at the beam's posture first."""
+    ok = (from_base >= low[m, -1]) & (from_base <= high[m, -1])
+    ok[beam.targets[beam.targets >= 0]] = False
+    for j in np.flatnonzero(beam.targets >= 0):
+        d = np.linalg.norm(targets - targets[beam.targets[j]], axis=1)
+        ok &= (d >= low[m, j]) & (d <= high[m, j])
+    index = np.flatnonzero(ok)
+    place = _markers(beam.q, kin)[m]
+    rank = np.lexsort((np.linalg.norm(targets[index] - place, axis=1), doubt[index]))
+    return index[rank[:TRIES]]
+
+
+def _solve(assigned: np.ndarray, q: np.ndarray, kin: KinematicArrays, targets: np.ndarray,
+           lower: np.ndarray, upper: np.ndarray, rig: Rig, points: np.ndarray, start: np.ndarray,
+           offsets: np.ndarray, skips: float) -> _Beam:
+    """Inverse kinematics from ``q`` of the markers ``assigned`` (M,) onto their targets."""
+    posed = assigned >= 0
+    sub = kin._replace(marker_joint=kin.marker_joint[posed],
+                       marker_pos=np.ascontiguousarray(kin.marker_pos[posed]))
+    solved = _kernels.refine(q, lower, upper, sub, rig.arrays, offsets, points, start, 0.0, 0.0,
+                             _kernels.NO_UNSEEN, np.inf, IK_STEPS, 1e-5,
+                             np.ascontiguousarray(targets[assigned[posed]]))
+    d = _markers(solved, kin)[posed] - targets[assigned[posed]]
+    return _Beam(assigned, solved, float(np.sum(d * d)), skips)

@@ -1,0 +1,239 @@
+"""Epipolar pairing, triangulation (core.triangulate) and branch starts (core.epipolar_start)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core import _kernels, treefit
+from core.anneal import AnnealParams, search_space
+from core.epipolar_start import branch_start
+from core.error import Detections, view_offsets
+from core.examples import EXAMPLES
+from core.fit import FitParams, fit_sequence
+from core.histogram import Histograms
+from core.rig import Rig
+from core.tree import decompose
+from core.triangulate import MAX_BLOBS_PER_VIEW, MAX_CANDIDATES, Candidates, triangulate
+from tests.core.tree_subjects import insect, movement, ring_rig
+
+DISTORTION = [-0.12, 0.05, 0.001, -0.002, 0.01]
+
+
+def _distorted(cameras: int) -> Rig:
+    doc = ring_rig(cameras).to_dict()
+    for view in doc["views"]:
+        view["projection"]["dist"] = DISTORTION
+    return Rig.from_dict(doc)
+
+
+def _dlt(cameras: int) -> Rig:
+    """The ring's cameras as DLT matrices P = K [R | t]."""
+    rig = ring_rig(cameras)
+    a = rig.arrays
+    views = [{"name": v.name, "video": v.video,
+              "projection": {"type": "matrix", "P": (a.K[i] @ a.P[i]).tolist()}}
+             for i, v in enumerate(rig.views)]
+    return Rig.from_dict({"views": views})
+
+
+def _mirror() -> Rig:
+    return Rig.from_json(EXAMPLES / "locust_hind_leg" / "rig.json")
+
+
+RIGS = {"pinhole 2 views, distortion": lambda: _distorted(2),
+        "pinhole 3 views, distortion": lambda: _distorted(3),
+        "DLT 3 views": lambda: _dlt(3),
+        "mirror (affine, one video)": _mirror}
+
+
+def _points(rig_name: str, n: int = 8) -> np.ndarray:
+    """(n, 3) world points inside every view; on the mirror rig, at distinct x (its two views
+    share u = 3x + 240, so points of one x would pair with each other)."""
+    rng = np.random.default_rng(7)
+    if rig_name.startswith("mirror"):
+        return np.column_stack([np.linspace(-30, 30, n), rng.uniform(-20, 20, n), rng.uniform(-20, 20, n)])
+    return rng.uniform(-15, 15, (n, 3))
+
+
+def _detections(rig: Rig, points: np.ndarray, ghosts: int = 0, seed: int = 0) -> Detections:
+    rng = np.random.default_rng(seed)
+    views = []
+    for p in rig.project(points):
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        views.append(rng.permutation(np.vstack([p, rng.uniform(lo, hi, (ghosts, 2))])))
+    return Detections.from_views(views)
+
+
+def _nearest(truth: np.ndarray, found: Candidates) -> np.ndarray:
+    """(n,) distance of each true point to its nearest candidate (inf without candidates)."""
+    if len(found) == 0:
+        return np.full(len(truth), np.inf)
+    return np.linalg.norm(truth[:, None] - found.points[None], axis=2).min(axis=1)
+
+
+@pytest.mark.parametrize("name", RIGS)
+def test_every_true_point_is_recovered_exactly(name):
+    rig = RIGS[name]()
+    truth = _points(name)
+    found = triangulate(_detections(rig, truth), rig=rig)
+    assert _nearest(truth, found).max() < 1e-6
+    assert np.all(found.n_views >= 2)
+
+
+def test_a_point_seen_by_three_views_is_one_candidate_supported_by_all():
+    rig = _distorted(3)
+    truth = _points("pinhole")
+    det = _detections(rig, truth)
+    found = triangulate(det, rig=rig)
+    proj = rig.project(truth)
+    for k, x in enumerate(truth):
+        near = np.linalg.norm(found.points - x, axis=1) < 1e-6
+        assert near.sum() == 1
+        blobs = found.support[near][0]
+        assert np.allclose(det.points[blobs], proj[:, k])
+        assert found.error_px[near][0] < 1e-6
+
+
+@pytest.mark.parametrize("name", RIGS)
+def test_true_points_remain_among_candidates_with_ghosts(name):
+    rig = RIGS[name]()
+    truth = _points(name)
+    found = triangulate(_detections(rig, truth, ghosts=3, seed=1), rig=rig)
+    assert _nearest(truth, found).max() < 1e-6
+
+
+def test_offsets_are_taken_off_the_detections():
+    rig = _distorted(2)
+    truth = _points("pinhole")
+    off = np.array([[5.0, -3.0], [-2.0, 7.0]])
+    det = Detections.from_views(list(rig.project(truth) + off[:, None, :]))
+    assert _nearest(truth, triangulate(det, rig=rig, offsets=off)).max() < 1e-6
+
+
+def test_a_point_seen_by_one_view_only_yields_nothing():
+    rig = _distorted(3)
+    det = Detections.from_views([rig.project(_points("pinhole")[:1])[0], np.zeros((0, 2)), np.zeros((0, 2))])
+    assert len(triangulate(det, rig=rig)) == 0
+
+
+def test_a_point_missing_from_all_views_but_one_is_not_proposed():
+    rig = _distorted(3)
+    truth = _points("pinhole")
+    proj = rig.project(truth)
+    det = Detections.from_views([proj[0], proj[1][1:], proj[2][1:]])  # point 0: view 0 only
+    found = triangulate(det, rig=rig)
+    assert _nearest(truth[:1], found)[0] > 1e-3
+    assert _nearest(truth[1:], found).max() < 1e-6
+
+
+@pytest.mark.parametrize("det", [
+    Detections.from_views([np.zeros((0, 2))] * 3),  # nothing detected
+    Detections.from_views([np.zeros((0, 2)), np.ones((2, 2)), np.zeros((0, 2))]),  # one view
+    Detections.from_views([np.ones((2, 2))] * 2),  # views do not match the rig's
+    Detections.from_views([np.full((1, 2), 1e15), np.full((1, 2), -1e15), np.full((1, 2), 1e15)]),
+    Detections.from_views([np.full((3, 2), 100.0)] * 3),  # one pixel, thrice, in every view
+], ids=["empty", "one view", "wrong view count", "far outside", "repeated blob"])
+def test_malformed_or_empty_input_gives_no_candidates_not_an_error(det):
+    found = triangulate(det, rig=_distorted(3))
+    assert isinstance(found, Candidates)
+    assert found.points.shape[1] == 3 and found.support.shape[1] == 3
+    assert np.all(np.isfinite(found.points)) and np.all(found.error_px <= 2.0)
+    if det.n_views != 3 or np.count_nonzero(det.counts) < 2:
+        assert len(found) == 0
+
+
+# ---- branch starts ----------------------------------------------------------------------------
+
+
+def _base(model, q, part):
+    J = len(model.joints)
+    rot, pos = np.empty((J, 3, 3)), np.empty((J, 3))
+    _kernels.forward_kinematics(q, model.arrays, rot, pos)
+    return rot[part.base], pos[part.base]
+
+
+@pytest.mark.parametrize("sample", range(0, 40, 8))
+def test_branch_start_from_exact_candidates_lands_on_the_true_posture(sample):
+    model, rig = insect(legs=2), _distorted(3)
+    tree = decompose(model)
+    space = search_space(model, Histograms.uniform(model))
+    q = movement(model, 40, seed=3)[sample]
+    det = _detections(rig, model.marker_positions(q), ghosts=2, seed=sample)
+    found = triangulate(det, rig=rig)
+    for part in tree.branches:
+        rotation, origin = _base(model, q, part)
+        start = branch_start(found, part=part, rotation=rotation, origin=origin,
+                             q0=space.mean[part.dofs], model=model, rig=rig,
+                             points=det.kernel_points, start=det.start,
+                             offsets=view_offsets(None, rig), empty_view_penalty_px=5.0)
+        assert start is not None
+        assert np.abs(start.dofs - q[part.dofs]).max() < 0.1
+        assert start.error < 1e-3 and start.assigned == len(part.markers)
+
+
+def test_branch_start_without_candidates_in_reach_is_none():
+    model, rig = insect(legs=2), _distorted(3)
+    part = decompose(model).branches[0]
+    q = movement(model, 1)[0]
+    rotation, origin = _base(model, q, part)
+    det = _detections(rig, model.marker_positions(q))
+    far = Candidates(origin + np.array([[1e3, 0, 0], [0, 1e3, 0]]), np.zeros(2),
+                     np.array([[0, 1, -1], [0, 1, -1]]))
+    for candidates in (Candidates.empty(3), far):
+        assert branch_start(candidates, part=part, rotation=rotation, origin=origin,
+                            q0=model.lower[part.dofs], model=model, rig=rig,
+                            points=det.kernel_points, start=det.start,
+                            offsets=view_offsets(None, rig), empty_view_penalty_px=5.0) is None
+
+
+def test_cost_is_bounded_with_many_blobs():
+    rig = _distorted(3)
+    rng = np.random.default_rng(2)
+    det = Detections.from_views([rng.uniform(0, 480, (2000, 2)) for _ in range(3)])
+    found = triangulate(det, rig=rig)
+    assert len(found) <= MAX_CANDIDATES
+    assert len(found) > 0
+    for v in range(3):  # only each view's first MAX_BLOBS_PER_VIEW blobs take part
+        used = found.support[:, v][found.support[:, v] >= 0]
+        assert np.all((used >= det.start[v]) & (used < det.start[v] + MAX_BLOBS_PER_VIEW))
+
+
+# ---- in the fit ---------------------------------------------------------------------------------
+
+
+def test_the_fit_takes_a_triangulated_start_where_sa_ends_above_eps():
+    """SA cut to 30 iterations, one attempt, no restarts, every image cold (chunks of one):
+    SA alone leaves legs tens of degrees off; the triangulated starts put every leg right."""
+    model, rig = insect(legs=2), _distorted(3)
+    truth = movement(model, 6, seed=5)
+    det = [_detections(rig, model.marker_positions(q), ghosts=2, seed=k) for k, q in enumerate(truth)]
+    params = FitParams(anneal=AnnealParams().with_iterations(30), max_attempts=1, restarts=0)
+    result = fit_sequence(det, model=model, rig=rig, histograms=Histograms.uniform(model),
+                          params=params, seed=0, chunk_size=1)
+    fitted = np.array([f.dofs for f in result.fits])
+    assert np.abs((fitted - truth + 180.0) % 360.0 - 180.0).max() < 0.5
+
+
+def test_with_two_views_a_leg_on_the_wrong_blobs_is_replaced_by_its_triangulated_start():
+    """Leg 0 posed as in another image: the two-sided error (its own blobs unexplained) lets the
+    triangulated start replace it; the right leg 1 stays right."""
+    model, rig = insect(legs=2), _distorted(2)
+    truth = movement(model, 20, seed=4)
+    q_true, tree = truth[0], model.tree
+    det = _detections(rig, model.marker_positions(q_true), ghosts=2, seed=3)
+    wrong = q_true.copy()
+    leg0, leg1 = tree.branches
+    wrong[leg0.dofs] = truth[10][leg0.dofs]
+    assert np.abs(wrong - q_true).max() > 10.0
+    params = FitParams()
+    space = search_space(model, Histograms.uniform(model))
+    off = view_offsets(None, rig)
+    rot, pos = treefit._frames(wrong, model)
+    reach = treefit._within_reach(det, rig, pos[[b.base for b in tree.branches]],
+                                  np.array([b.reach for b in tree.branches]), off)
+    q = wrong.copy()
+    treefit._two_view_starts(q, det, model, rig, tree, space, params, off, rot, pos, reach,
+                             triangulate(det, rig=rig), {})
+    assert np.abs(q[leg0.dofs] - q_true[leg0.dofs]).max() < 0.1
+    assert np.abs(q[leg1.dofs] - q_true[leg1.dofs]).max() < 1e-6
