@@ -13,7 +13,9 @@ Two steps deal with it, neither of which gives up fitting every image alone:
    flips of every subtree below a joint with DOFs are tried; those the model can
    reach within its ranges and that score within a tolerance of the fit are the
    image's alternatives, and the best-scoring of all becomes the fit.
-2. :func:`choose_postures` (per sequence, after re-analysis): among each image's
+2. ``core.undetermined`` (per image without a distinct minimum): a posture far from the
+   fit in a DOF the image does not determine, within the image's own tolerance.
+3. :func:`choose_candidates` (per sequence, after re-analysis): among each image's
    candidates, one per image is chosen to minimise, over the sequence, how much
    worse than the image's best candidate it scores plus how far the posture
    moves from one image to the next (a Viterbi pass). This is the paper's
@@ -36,8 +38,8 @@ from core.error import Detections, view_offsets
 from core.model import KinematicModel, _topological_order
 from core.rig import Rig
 
-__all__ = ["MAX_FLIP_REFINES", "Candidate", "FlipGeometry", "choose_candidates", "flip_alternatives",
-           "flip_masks"]
+__all__ = ["MAX_FLIP_REFINES", "Candidate", "FlipGeometry", "angle_gaps", "choose_candidates",
+           "flip_alternatives", "flip_masks"]
 
 MAX_ALTERNATIVES = 8
 # Flips refined per image at most. A flip that passes the screen (it images within the
@@ -176,6 +178,12 @@ def flip_alternatives(
 def _plain_error(q, detections, model, rig, offsets, penalty) -> float:
     return float(_kernels.posture_error(q, model.arrays, rig.arrays, offsets, detections.kernel_points,
                                         detections.start, float(penalty), 0.0, _kernels.NO_UNSEEN))
+
+
+def angle_gaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Absolute differences of two postures, degrees the shorter way round (meaningful for
+    rotational DOFs only)."""
+    return np.abs((a - b + 180.0) % 360.0 - 180.0)
 
 
 def choose_candidates(candidates: Sequence[Sequence[Candidate]]) -> list[int]:

@@ -23,6 +23,7 @@ from core.ambiguity import MAX_FLIP_REFINES, flip_masks
 from core.fit import FitParams
 from core.model import KinematicModel
 from core.rig import Rig
+from core.undetermined import PROFILE_STEPS, WITNESS_DOUBLINGS
 
 __all__ = ["MAX_ATTEMPT_SECONDS", "MAX_WORKSPACE_BYTES", "FitCost", "FitCostError", "check_fit_cost",
            "estimate_fit_cost"]
@@ -96,6 +97,11 @@ def estimate_fit_cost(model: KinematicModel, rig: Rig, params: FitParams, *, ima
         flip_joints = len({d.joint for d in model.dofs if d.rotational})
         screens = V * len(flip_masks(flip_joints))
         image += screens * evaluation + min(screens, MAX_FLIP_REFINES) * _FLIP_STEPS * lm_step
+        # An undetermined DOF's witness: a Jacobian, then at most every step of every
+        # rotational DOF both ways, each two evaluations and a refinement with the DOF held.
+        steps = 2 * sum(d.rotational for d in model.dofs) * (WITNESS_DOUBLINGS + 1)
+        image += ((D + 1) * evaluation + _SOLVE_S * D**3
+                  + steps * (2 * evaluation + PROFILE_STEPS * lm_step))
     workspace = 8 * (V * M * 2 * (D + 2) + 3 * D * D)
     return FitCost(evaluation, lm_step, image, images * params.max_attempts * image, workspace)
 

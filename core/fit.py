@@ -36,7 +36,13 @@ from functools import partial
 import numpy as np
 
 from core import _kernels
-from core.ambiguity import Candidate, FlipGeometry, choose_candidates, flip_alternatives
+from core.ambiguity import (
+    Candidate,
+    FlipGeometry,
+    angle_gaps,
+    choose_candidates,
+    flip_alternatives,
+)
 from core.anneal import AnnealParams, SearchSpace, search_space
 from core.error import (
     DEFAULT_EMPTY_VIEW_PENALTY_PX,
@@ -54,6 +60,7 @@ from core.treefit import (
     refine_whole,
     tree_flip_alternatives,
 )
+from core.undetermined import residual_tolerance, undetermined_alternative
 
 __all__ = [
     "ChunkResult",
@@ -102,7 +109,8 @@ class FitParams:
         image's posture refined) scoring within this of an image's fit are kept as its
         alternatives, and the best-scoring one becomes the fit (``core.ambiguity``); per
         8 compared marker projections (the paper's 4 markers × 2 views), scaled up to an
-        image's own (:func:`alternative_tolerance`); 0 turns the search off.
+        image's own, and widened where the image's residual cannot tell postures apart
+        (:func:`alternative_tolerance`); 0 turns the search off.
     choose_by_continuity : at the end of a sequence, choose each image's posture
         among its alternatives by continuity with its neighbours (``core.ambiguity``).
     outlier_factor : an image whose objective is more than this times the sequence's
@@ -192,8 +200,9 @@ class ImageFit:
         the posture and its best alternative (FORMATS §3 ``alternative_deg``); NaN when the
         image has none.
 
-        Alternatives are postures whose objective is within
-        ``FitParams.alternative_tolerance_px`` of the fit (``core.ambiguity``).
+        Alternatives are postures whose objective is within :func:`alternative_tolerance`
+        of the fit: other minima, or a posture at least ``core.undetermined.UNDETERMINED_DEG``
+        away in a DOF the image does not determine (``core.undetermined``).
 
         >>> alt = Candidate(np.array([10.0, 350.0]), 0.1, 0.1)
         >>> fit = ImageFit(0, np.array([30.0, 5.0]), 0.1, 0.1, 1, Status.OK, 1, (4,), (alt,))
@@ -203,7 +212,7 @@ class ImageFit:
         if not self.alternatives or not rotational.any():
             return math.nan
         best = min(self.alternatives, key=lambda c: c.objective)
-        return float(_angle_gaps(best.dofs, self.dofs)[rotational].max())
+        return float(angle_gaps(best.dofs, self.dofs)[rotational].max())
 
     def to_record(self) -> dict:
         """The fit as JSON-safe values (None for NaN), for a database row or a message.
@@ -401,6 +410,8 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     alternative, and the choice by continuity can take it. A warm-started fit keeps its
     depth flips as alternatives, so a previous posture in a wrong minimum that this
     image still supports can be corrected by that choice too.
+    Without any other minimum, a posture at least ``core.undetermined.UNDETERMINED_DEG``
+    away in a DOF the image does not determine (``core.undetermined``) is the alternative.
     """
     dofs, error, objective, its = fit_image(
         det, model=model, rig=rig, space=space, params=params, stream=stream,
@@ -408,7 +419,7 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     )
     fit = Candidate(dofs, error, objective)
     others = []
-    tolerance = alternative_tolerance(params, det, len(model.markers))
+    tolerance = alternative_tolerance(params, det, model, error, len(model.dofs))
     if tolerance > 0:
         flips = flip_alternatives if model.tree is None else tree_flip_alternatives
         others = flips(
@@ -420,6 +431,17 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             others += _warm_alternatives(fit, others, warm, det, model, rig, params, tolerance,
                                          offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
+    # An undetermined DOF is looked for only where the residual, not the fixed floor, sets
+    # the tolerance (markers off the model): on clean footage the flat directions are the
+    # depth flips', and the search costs a Jacobian of the whole model.
+    one_dof = alternative_tolerance(params, det, model, error, 1)
+    if len(ranked) == 1 and one_dof > alternative_tolerance(params, det, model, math.nan, 1):
+        witness = undetermined_alternative(
+            fit, det, model=model, rig=rig, tolerance_px=one_dof,
+            fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
+            huber_px=params.anneal.huber_px, offsets=offsets,
+        )
+        ranked += [witness] if witness is not None else []
     return ranked[0], tuple(ranked[1:]), its
 
 
@@ -446,16 +468,22 @@ def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | No
     return np.vstack([np.clip(2.0 * last - before, model.lower, model.upper), last])
 
 
-def alternative_tolerance(params: FitParams, det: Detections, n_markers: int) -> float:
-    """Pixels of objective within which another minimum is an alternative of an image's fit:
-    ``params.alternative_tolerance_px`` per 8 compared marker projections, never less.
-
-    >>> det = Detections.from_views([np.zeros((3, 2))] * 6)
-    >>> alternative_tolerance(FitParams(), det, 4), alternative_tolerance(FitParams(), det, 20)
-    (1.5, 7.5)
+def alternative_tolerance(params: FitParams, det: Detections, model: KinematicModel,
+                          error: float, tested_dofs: int) -> float:
+    """Pixels of objective within which another posture is an alternative of an image's fit
+    of plain Eq. 5 error ``error``: ``params.alternative_tolerance_px`` per 8 compared
+    marker projections (never less), or what the image's own residual cannot tell apart
+    for postures differing in ``tested_dofs`` DOFs (``core.undetermined.residual_tolerance``:
+    ``len(model.dofs)`` for another minimum, 1 for one DOF's interval), whichever is
+    larger; 0 when ``params.alternative_tolerance_px`` is 0 (the search is off). Clean
+    footage (0.05 px a projection) keeps the fixed tolerance; sliding skin markers (1 px)
+    widen it.
     """
-    compared = _compared(tuple(det.counts.tolist()), n_markers)
-    return params.alternative_tolerance_px * max(1.0, compared / 8.0)
+    if params.alternative_tolerance_px == 0:
+        return 0.0
+    compared = _compared(tuple(det.counts.tolist()), len(model.markers))
+    return max(params.alternative_tolerance_px * max(1.0, compared / 8.0),
+               residual_tolerance(error, compared, len(model.dofs), tested_dofs))
 
 
 def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray, det: Detections,
@@ -500,13 +528,7 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
 
 def _apart(a: np.ndarray, b: np.ndarray, rotational: np.ndarray) -> bool:
     """Whether postures ``a`` and ``b`` differ by more than :data:`DISTINCT_DEG` in some angle."""
-    return bool(_angle_gaps(a, b)[rotational].max(initial=0.0) > DISTINCT_DEG)
-
-
-def _angle_gaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Absolute differences of two postures, degrees the shorter way round (meaningful for
-    rotational DOFs only)."""
-    return np.abs((a - b + 180.0) % 360.0 - 180.0)
+    return bool(angle_gaps(a, b)[rotational].max(initial=0.0) > DISTINCT_DEG)
 
 
 def reanalyse_image(

@@ -1,0 +1,172 @@
+"""Images that do not determine a DOF: the tolerance an image's residual sets, and a witness.
+
+With sliding skin markers the true posture is not the minimum of Eq. 5, and a short chain
+seen in two views has flat directions (rotation about a segment's long axis, depth): an
+image may have a single minimum and still not place a DOF within
+:data:`UNDETERMINED_DEG`. :func:`residual_tolerance` says how much objective an image's
+own residual cannot tell apart; :func:`undetermined_alternative` finds a posture at least
+:data:`UNDETERMINED_DEG` away in some DOF within it, which ``core.fit`` gives the image as
+its alternative (``alternative_deg``, ``core.ambiguity`` for the other alternatives).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from core import _kernels
+from core.ambiguity import Candidate, _plain_error, angle_gaps
+from core.error import Detections, view_offsets
+from core.model import KinematicModel
+from core.rig import Rig
+from core.treefit import _frames
+
+__all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "confidence_chi2",
+           "residual_tolerance", "undetermined_alternative"]
+
+# An image does not determine a DOF when a posture this far from its fit in that DOF (degrees,
+# the issue's "more than 10 degrees off the truth") explains it within its tolerance.
+UNDETERMINED_DEG = 10.0
+CONFIDENCE = 0.99  # postures inside the image's 99 % confidence region are not told apart
+_Z_CONFIDENCE = 2.3263  # the standard normal quantile at CONFIDENCE
+WITNESS_DOUBLINGS = 3  # a witness is pushed to 2, 4, 8 × UNDETERMINED_DEG while it stays within
+PROFILE_STEPS = 10  # LM steps of a witness refined with its DOF held
+_SCREEN = 4.0  # DOFs whose linearised rise is above this many tolerances are not tried
+_NEAR = 2.0  # a straight step at most this many tolerances beyond the limit is refined
+def confidence_chi2(k: int) -> float:
+    """χ² of ``k`` degrees of freedom at :data:`CONFIDENCE` (Wilson–Hilferty: within 1 % of
+    the exact quantile for every k).
+
+    >>> round(confidence_chi2(1), 2), round(confidence_chi2(6), 2)
+    (6.59, 16.84)
+    """
+    c = 2.0 / (9.0 * k)
+    return k * (1.0 - c + _Z_CONFIDENCE * math.sqrt(c)) ** 3
+
+
+def residual_tolerance(error_px: float, compared: int, n_dofs: int, tested_dofs: int) -> float:
+    """Pixels of Eq. 5 within which an image cannot tell postures apart, from its own residual.
+
+    ``error_px`` is the fit's plain Eq. 5 error over ``compared`` marker projections, for a
+    model of ``n_dofs`` DOFs; ``tested_dofs`` is how many DOFs the postures compared may
+    differ in: 1 for one DOF's confidence interval, ``n_dofs`` for another minimum anywhere.
+    A fit's mean distance ē per projection estimates the per-coordinate scatter σ of the
+    markers about the model (slid skin, noise): σ² = ē² · 2/π (a 2-D distance of
+    per-coordinate σ has mean σ√(π/2)), times 2n / (2n − D) because the fit absorbs D of
+    the 2n coordinates. A posture at the edge of the confidence region raises Σ‖r‖² by
+    χ²(tested) · σ² (:func:`confidence_chi2`), so Eq. 5 (Σ‖r‖, distances near ē) by about
+    χ² · σ² / (2ē) = χ² · ē · 2n / ((2n − D) π). An image fitted at 1 px a projection
+    cannot tell apart postures a few pixels apart; one fitted at 0.05 px can. NaN or no
+    projections: 0.
+
+    >>> round(residual_tolerance(8.0, 8, 6, 1), 2), round(residual_tolerance(8.0, 8, 6, 6), 2)
+    (3.35, 8.58)
+    """
+    if compared <= 0 or not math.isfinite(error_px):
+        return 0.0
+    coords = 2 * compared
+    return (confidence_chi2(tested_dofs) * (error_px / compared) * coords
+            / (max(coords - n_dofs, 1) * math.pi))
+
+
+def undetermined_alternative(
+    fit: Candidate,
+    detections: Detections,
+    *,
+    model: KinematicModel,
+    rig: Rig,
+    tolerance_px: float,
+    fusion_px: float,
+    empty_view_penalty_px: float,
+    huber_px: float,
+    offsets: np.ndarray | None = None,
+) -> Candidate | None:
+    """A posture at least :data:`UNDETERMINED_DEG` from ``fit`` in some rotational DOF whose
+    objective is within ``tolerance_px`` of the fit's, or None: the witness that the image
+    does not determine that DOF.
+
+    Each rotational DOF d is moved along its profile, the linearised best way to move d
+    with every other DOF following (column d of (JᵀJ)⁻¹, J the Jacobian of the
+    projections), by ±:data:`UNDETERMINED_DEG`, then 2, 4, 8 times as far while the
+    objective (as the fit's: fusion, a lost marker per view) stays within the tolerance;
+    a step that leaves it by less than :data:`_NEAR` tolerances is refined with d held
+    (towards the profile's minimum, nonlinear).
+    DOFs whose linearised rise at the first step is above :data:`_SCREEN` tolerances are
+    not tried (most DOFs of a clean image: the search costs a Jacobian and a few errors).
+    Of the postures within the tolerance, the one farthest from the fit.
+    """
+    q = fit.dofs
+    rot = model.rotational
+    compared = int(np.count_nonzero(detections.counts)) * len(model.markers)
+    if not rot.any() or not math.isfinite(fit.error) or tolerance_px <= 0 or compared == 0:
+        return None
+    off = view_offsets(offsets, rig)
+    kin, views, points, start = model.arrays, rig.arrays, detections.kernel_points, detections.start
+    penalty = float(empty_view_penalty_px)
+
+    def objective(p: np.ndarray) -> float:
+        return float(_kernels.posture_error(p, kin, views, off, points, start, penalty,
+                                            float(fusion_px), _kernels.NO_UNSEEN, penalty))
+
+    def pinned(p: np.ndarray, d: int) -> np.ndarray:
+        """``p`` refined with DOF d held: the whole model, or for a tree (``core.tree``) d's
+        part alone, the rest where ``p`` puts it (a leg's DOFs, not all 42)."""
+        dofs, part_kin = np.arange(len(p)), kin
+        if model.tree is not None:
+            part = next(x for x in model.tree.parts if d in x.dofs)
+            rotation, origin = _frames(p, model)
+            dofs, part_kin = part.dofs, part.at(rotation[part.base], origin[part.base])
+        lower, upper = model.lower[dofs].copy(), model.upper[dofs].copy()
+        lower[dofs == d] = upper[dofs == d] = p[d]
+        out = p.copy()
+        out[dofs] = _kernels.refine(p[dofs].copy(), lower, upper, part_kin, views, off, points,
+                                    start, penalty, float(fusion_px), _kernels.NO_UNSEEN,
+                                    float(huber_px), PROFILE_STEPS, 1e-5, _kernels.NO_TARGETS)
+        return out
+
+    profiles, moves = _profiles(q, model, rig, detections)
+    mean = max(fit.error / compared, 1e-12)
+    # Linearised rise of Eq. 5 at the first step: a projection moved by m from a residual
+    # of about ē rises by ~m²/(2ē) while m << ē, by ~m when m >> ē.
+    step_moves = UNDETERMINED_DEG * moves
+    rise = np.minimum(step_moves, step_moves**2 / (2 * mean)).sum(axis=1)
+    screened = rise <= _SCREEN * tolerance_px
+    limit = objective(q) + tolerance_px
+    best, best_gap = None, UNDETERMINED_DEG
+    for d in np.flatnonzero(rot & screened):
+        for sign in (1.0, -1.0):
+            for k in range(WITNESS_DOUBLINGS + 1):
+                step = sign * UNDETERMINED_DEG * 2**k
+                p = np.clip(q + step * profiles[d], model.lower, model.upper)
+                if limit < objective(p) <= limit + _NEAR * tolerance_px:
+                    p = pinned(p, int(d))
+                gap = float(angle_gaps(p, q)[rot].max())
+                if objective(p) > limit or gap < abs(step) * (1 - 1e-9):  # worse, or at a bound
+                    break
+                if gap >= best_gap:
+                    best, best_gap = p, gap
+    if best is None:
+        return None
+    return Candidate(best, _plain_error(best, detections, model, rig, off, penalty), objective(best))
+
+
+def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig,
+              detections: Detections) -> tuple[np.ndarray, np.ndarray]:
+    """Profile directions (D, D), row d the change of every DOF per unit change of DOF d,
+    and (D, P) how far each of the P compared marker projections moves along each, pixels
+    per unit, from the Jacobian J of the projections in the views with detections (forward
+    differences; linearised least squares: column d of (JᵀJ)⁻¹)."""
+    D = len(q)
+    h = 1e-3
+    postures = np.repeat(q[None], D + 1, axis=0)
+    postures[1:] += np.eye(D) * h
+    proj = rig.project(model.marker_positions(postures))  # (D + 1, V, M, 2)
+    seen = np.asarray(detections.counts) > 0
+    J = ((proj[1:] - proj[:1])[:, seen] / h).reshape(D, -1).T  # (2P, D)
+    A = J.T @ J
+    A += np.eye(D) * (1e-9 * max(float(np.trace(A)) / D, 1e-12))  # a DOF no marker moves
+    C = np.linalg.inv(A)
+    profiles = (C / np.diag(C)[None, :]).T
+    moves = np.linalg.norm((J @ profiles.T).T.reshape(D, -1, 2), axis=2)
+    return profiles, moves
