@@ -59,7 +59,8 @@ from core.model import KinematicModel
 from core.pipeline import FitJob, FitOutcome, build_report, finish, fit_range, plan
 from core.pipeline import reanalyse as reanalyse_step
 from core.results import read_angles_csv, write_angles_csv
-from service import artifacts, histstore
+from service import artifacts, broker, histstore
+from service.broker import FIT_CHUNK, REANALYSE_IMAGE
 from service.crud import add_histogram_version, histogram_version, missing_frames
 from service.db import session_scope
 from service.fitjob import build_fit_job
@@ -83,7 +84,6 @@ from service.redact import redact, video_names
 from service.schemas import JobOptions
 from service.settings import get_settings
 from service.storage import Storage, get_storage
-from worker.celery_app import FIT_CHUNK, REANALYSE_IMAGE, app
 
 logger = logging.getLogger(__name__)
 
@@ -120,11 +120,6 @@ def _load(session: Session, job_id: int) -> _Loaded:
     return _Loaded(job, fit, prior.copy())
 
 
-def enqueue(name: str, *args: int) -> None:
-    """Send a task (ids only) to the settings' queue."""
-    app.send_task(name, args=list(args))
-
-
 # ---- 1. plan ----------------------------------------------------------------------------------
 def plan_job(job_id: int) -> None:
     """Count images, create chunk rows and queue them (only for a job still queued).
@@ -152,7 +147,7 @@ def plan_job(job_id: int) -> None:
         ids = [c.id for c in chunks]
     logger.info("job %s: %d images in %d chunks", job_id, steps.images, len(ids))
     for chunk_id in ids:
-        enqueue(FIT_CHUNK, chunk_id)
+        broker.enqueue(FIT_CHUNK, chunk_id)
 
 
 # ---- 2. chunks --------------------------------------------------------------------------------
@@ -310,7 +305,7 @@ def _after_chunks(job_id: int) -> None:
         return
     logger.info("job %s: all chunks done, %d images to re-analyse", job_id, len(pending))
     for sample in pending:
-        enqueue(REANALYSE_IMAGE, job_id, sample, 2)
+        broker.enqueue(REANALYSE_IMAGE, job_id, sample, 2)
     if not pending:
         _finish(job_id)
 
@@ -347,7 +342,7 @@ def reanalyse(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
         left = session.execute(update(Job).where(Job.id == job_id).values(**values)
                                .returning(Job.reanalyses_pending)).scalar_one()
     if again:
-        enqueue(REANALYSE_IMAGE, job_id, sample, attempt + 1)
+        broker.enqueue(REANALYSE_IMAGE, job_id, sample, attempt + 1)
     elif left == 0:
         _finish(job_id)
 

@@ -20,8 +20,9 @@ from core.histogram import HistogramError
 from core.model import ModelError
 from core.rig import RigError
 from core.video import VideoError
+from service.broker import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, RESUME_JOB
 from worker import orchestration
-from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, RESUME_JOB, app
+from worker.celery_app import app
 
 logger = logging.getLogger(__name__)
 
