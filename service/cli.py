@@ -53,7 +53,7 @@ def _celery_command(concurrency: int) -> list[str]:
             f"--concurrency={concurrency}", "--loglevel=INFO", "--without-mingle", "--without-gossip"]
 
 
-def _start_workers(concurrency: int, nice: int) -> subprocess.Popen:
+def _start_workers(concurrency: int, nice: int) -> subprocess.Popen[bytes]:
     """``celery worker`` with ``concurrency`` processes at CPU priority ``nice`` (0 normal, 19 lowest)."""
     return subprocess.Popen(_celery_command(concurrency),
                             preexec_fn=(lambda: os.nice(nice)) if nice else None)

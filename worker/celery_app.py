@@ -21,7 +21,7 @@ app = celery_app()
 app.conf.include = ["worker.tasks", "worker.reaper"]
 
 
-@signals.worker_init.connect
+@signals.worker_init.connect  # type: ignore[untyped-decorator]  # Celery has no types
 def compile_before_forking(**_: Any) -> None:
     """Compile (or load) the kernels in the worker's main process, before its pool forks."""
     from core.warmup import compile_kernels  # flower imports this module too: not there

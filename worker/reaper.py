@@ -38,11 +38,10 @@ from typing import Any
 
 from celery.signals import worker_process_init, worker_ready
 from sqlalchemy import func, or_, select, update
-from sqlalchemy.orm import Session
 
 from service import broker
 from service.broker import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, RESUME_JOB
-from service.db import get_engine, session_scope
+from service.db import get_engine, rows_changed, session_scope
 from service.models import Chunk, ChunkStatus, Job, JobStatus, utcnow
 from service.settings import get_settings
 from worker.orchestration import pending_reanalyses
@@ -117,7 +116,7 @@ def _requeue_chunks(condition: tuple[Any, ...], now: datetime) -> list[int]:
         ids = session.scalars(select(Chunk.id).where(*condition)).all()
     for chunk_id in ids:
         with session_scope() as session:
-            won = _won(session, update(Chunk).where(Chunk.id == chunk_id, *condition)
+            won = rows_changed(session, update(Chunk).where(Chunk.id == chunk_id, *condition)
                        .values(status=ChunkStatus.QUEUED, queued_at=now))
         if won:
             broker.enqueue(FIT_CHUNK, chunk_id)
@@ -169,13 +168,9 @@ def _won_jobs(condition: tuple[Any, ...], now: datetime) -> list[int]:
     won = []
     for job_id in ids:
         with session_scope() as session:
-            if _won(session, update(Job).where(Job.id == job_id, *condition).values(progress_at=now)):
+            if rows_changed(session, update(Job).where(Job.id == job_id, *condition).values(progress_at=now)):
                 won.append(job_id)
     return won
-
-
-def _won(session: Session, statement: Any) -> bool:
-    return bool(session.execute(statement).rowcount)  # type: ignore[attr-defined]
 
 
 def start_reaper(interval_s: float | None = None) -> threading.Thread:
@@ -196,13 +191,13 @@ def start_reaper(interval_s: float | None = None) -> threading.Thread:
     return thread
 
 
-@worker_ready.connect
+@worker_ready.connect  # type: ignore[untyped-decorator]  # Celery has no types
 def _start_in_worker(**_: Any) -> None:
     """In the Celery main process (which forks the pool, and fits nothing itself)."""
     start_reaper()
 
 
-@worker_process_init.connect
+@worker_process_init.connect  # type: ignore[untyped-decorator]  # Celery has no types
 def _fresh_connections(**_: Any) -> None:
     """A forked pool process must not share the main process's pooled database connections
     (the reaper's): SQLAlchemy's advice, drop them without closing the parent's sockets."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 from fastapi import APIRouter, Response
 from fastapi.responses import FileResponse, StreamingResponse
@@ -18,7 +18,7 @@ from service.archive import stream_zip
 from service.errors import NotFoundError, QueueUnavailableError
 from service.models import Job, JobStatus, Lab, Model, RigRow
 from service.schemas import JobCreate, JobPage, JobPublic, Progress
-from service.storage import Storage
+from service.storage import LocalStorage, Storage
 
 logger = logging.getLogger(__name__)
 
@@ -112,7 +112,7 @@ def cancel(job_id: PathId, session: SessionDep, lab: CurrentLab) -> JobPublic:
     return job_public(crud.cancel_job(session, lab, job_id))
 
 
-def _result(name: str):  # type: ignore[no-untyped-def]
+def _result(name: str) -> Callable[[int, Session, LocalStorage, Lab], FileResponse]:
     def download(job_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> FileResponse:
         key = crud.result_key(session, lab, job_id, name)
         return FileResponse(storage.path(key), media_type=RESULTS[name], filename=f"job-{job_id}-{name}")
