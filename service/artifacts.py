@@ -16,6 +16,7 @@ import re
 import shutil
 import tempfile
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 from core.fit import SequenceResult
@@ -62,8 +63,8 @@ def render(storage: Storage, job_id: int, fit: FitJob, start: Histograms, result
                        if p.is_file() and NAME.match(p.relative_to(folder).as_posix()))
         for name in names:
             with (folder / name).open("rb") as f:
-                storage.put(f"jobs/{job_id}/{name}", iter(lambda f=f: f.read(1 << 20), b""))
-    index = {"files": names, "error": "; ".join(errors) or None}
+                storage.put(f"jobs/{job_id}/{name}", iter(partial(f.read, 1 << 20), b""))
+    index: dict[str, object] = {"files": names, "error": "; ".join(errors) or None}
     storage.put(f"jobs/{job_id}/{INDEX}", [(json.dumps(index, indent=2) + "\n").encode()])
     return index
 

@@ -6,6 +6,13 @@ This is the console script: it registers the commands below on ``core.cli.app``
 and runs it. Service code is imported inside the commands, so ``mocap fit``,
 ``synth`` and ``demo`` work where the service's dependencies are not installed;
 ``core`` never imports this package.
+
+It is the composition root, the one module of ``service`` that may import ``worker``
+(``serve`` and ``reap`` run the reaper, ``worker.reaper``): ``worker`` depends on
+``service`` (database, models, settings, storage, ``service.broker``'s queue), never the
+reverse; no module of the packages imports this one, so the dependency stays one-way
+(``tests/service/test_service_cli.py`` checks it). ``mocap worker`` names the worker's
+Celery app only as a command line (``celery -A worker.celery_app``).
 """
 
 from __future__ import annotations
@@ -46,7 +53,7 @@ def _celery_command(concurrency: int) -> list[str]:
             f"--concurrency={concurrency}", "--loglevel=INFO", "--without-mingle", "--without-gossip"]
 
 
-def _start_workers(concurrency: int, nice: int) -> subprocess.Popen:
+def _start_workers(concurrency: int, nice: int) -> subprocess.Popen[bytes]:
     """``celery worker`` with ``concurrency`` processes at CPU priority ``nice`` (0 normal, 19 lowest)."""
     return subprocess.Popen(_celery_command(concurrency),
                             preexec_fn=(lambda: os.nice(nice)) if nice else None)

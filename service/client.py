@@ -158,7 +158,7 @@ class Client:
                      names: Sequence[str] | None = None) -> dict[str, Any]:
         """Submit one job per trial (each a list of video ids) sharing model, rig and ``options``;
         ``names`` (one per trial, optional) name the jobs and the trials' folders in the archive."""
-        listed = [{"video_ids": list(ids)} for ids in trials]
+        listed: list[dict[str, Any]] = [{"video_ids": list(ids)} for ids in trials]
         for trial, name in zip(listed, names or (), strict=False):
             trial["name"] = name
         return self._send("POST", "/batches", json={
@@ -255,7 +255,8 @@ class Client:
         part.replace(path)
 
     def _send(self, method: str, route: str, **kwargs: Any) -> dict[str, Any]:
-        return self._request(method, route, **kwargs).json()
+        body: dict[str, Any] = self._request(method, route, **kwargs).json()
+        return body
 
     def _request(self, method: str, route: str, **kwargs: Any) -> httpx.Response:
         with self._stream(method, route, **kwargs) as response:

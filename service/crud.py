@@ -19,6 +19,7 @@ from core.model import KinematicModel
 from core.rig import Rig
 from core.video import VideoError, check_synchronised, probe
 from service import histstore, limits
+from service.db import rows_changed
 from service.errors import ConflictError, InvalidError, NotFoundError
 from service.fitjob import detector_params, fit_params, marker_diameter
 from service.models import (
@@ -43,6 +44,7 @@ from service.storage import LocalStorage, Storage
 logger = logging.getLogger(__name__)
 
 Owned = TypeVar("Owned", Model, RigRow, Video, Job, Batch)
+Upload = TypeVar("Upload", Model, RigRow, Video)
 
 
 def owned(session: Session, kind: type[Owned], id_: int, lab: Lab) -> Owned:
@@ -182,7 +184,7 @@ def _remove_unnamed(session: Session, storage: LocalStorage, folder: str, column
                     older_than_s: float) -> int:
     """Delete the files of ``folder`` whose key no row has in ``column``."""
     stored = dict(storage.files(folder, older_than_s))
-    keys, known = list(stored), set()
+    keys, known = list(stored), set[str]()
     for start in range(0, len(keys), 500):  # bound values per statement (SQLite: 32,766)
         batch = keys[start:start + 500]
         known.update(session.scalars(select(column).where(column.in_(batch))))
@@ -200,7 +202,7 @@ def _remove_unnamed(session: Session, storage: LocalStorage, folder: str, column
 USERS_SHOWN = 20
 
 
-def delete_upload(session: Session, storage: Storage, lab: Lab, kind: type[Model | RigRow | Video],
+def delete_upload(session: Session, storage: Storage, lab: Lab, kind: type[Upload],
                   id_: int) -> None:
     """Delete the lab's model, rig or video, unless a job uses it (409 naming the jobs).
 
@@ -301,9 +303,8 @@ def cancel_job(session: Session, lab: Lab, job_id: int) -> Job:
     """Mark a job canceled unless it has ended, and its chunks no worker has started with it;
     running chunks see it between images."""
     job = owned(session, Job, job_id, lab)
-    canceled = session.execute(update(Job).where(Job.id == job.id, Job.status.not_in(list(TERMINAL)))
-                               .values(status=JobStatus.CANCELED, error="canceled by the user"))
-    if canceled.rowcount:  # type: ignore[attr-defined]
+    if rows_changed(session, update(Job).where(Job.id == job.id, Job.status.not_in(list(TERMINAL)))
+                    .values(status=JobStatus.CANCELED, error="canceled by the user")):
         session.execute(update(Chunk).where(Chunk.job_id == job.id, Chunk.status == ChunkStatus.QUEUED)
                         .values(status=ChunkStatus.CANCELED))
     session.commit()
@@ -337,7 +338,7 @@ def list_owned(session: Session, kind: type[Owned], lab: Lab, *, cursor: int | N
     return page(session, select(kind).where(kind.lab_id == lab.id), kind, cursor=cursor, limit=limit)
 
 
-def page(session: Session, query: Select[tuple[Owned]], kind: type[Owned], *, cursor: int | None,
+def page(session: Session, query: Select[Owned], kind: type[Owned], *, cursor: int | None,
          limit: int) -> tuple[list[Owned], int | None]:
     """One page of ``query``'s rows by descending id: the rows with id < ``cursor`` (all for None),
     at most ``limit``, and the cursor of the next page (None: this is the last)."""

@@ -16,13 +16,15 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from core.demo import FPS, MARKER_DIAMETER_PX
 from core.examples import LOCUST
 from core.model import KinematicModel
-from core.results import read_angles_csv
+from core.results import AnglesTable, read_angles_csv
 from core.rig import Rig
 from core.synth import natural_movements, render_frames, write_video
 from service.client import Client, ClientError
@@ -57,7 +59,7 @@ def run_demo(samples: int, seed: int, workers: int) -> None:
         _print_accuracy(read_angles_csv(root / "angles.csv"), truth)
 
 
-def _render(path: Path, samples: int, seed: int) -> tuple[np.ndarray, Path]:
+def _render(path: Path, samples: int, seed: int) -> tuple[NDArray[np.float64], Path]:
     model = KinematicModel.from_xml(LOCUST / "model.xml")
     rig = Rig.from_json(LOCUST / "rig.json")
     rng = np.random.default_rng(seed)
@@ -85,7 +87,7 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _wait_until_up(api: Client, server: subprocess.Popen, log: Path) -> None:
+def _wait_until_up(api: Client, server: subprocess.Popen[bytes], log: Path) -> None:
     t0 = time.monotonic()
     while time.monotonic() - t0 < STARTUP_S:
         if server.poll() is not None:
@@ -111,7 +113,7 @@ def _fit_over_http(api: Client, video: Path, seed: int) -> bytes:
           flush=True)
     shown: list[tuple[str, int]] = []
 
-    def report(state: dict) -> None:
+    def report(state: dict[str, Any]) -> None:
         now = (state["status"], state["progress"]["images_done"])
         if not shown or now != shown[-1]:
             print(f"  {time.monotonic() - t0:5.0f} s  {now[0]}, {now[1]}/"
@@ -127,7 +129,7 @@ def _fit_over_http(api: Client, video: Path, seed: int) -> bytes:
     return api.result(job["id"], "angles.csv")
 
 
-def _print_accuracy(table, truth: np.ndarray) -> None:
+def _print_accuracy(table: AnglesTable, truth: NDArray[np.float64]) -> None:
     rmse = np.sqrt(np.nanmean((table.dofs - truth) ** 2, axis=0))
     print("RMSE against the truth (degrees): " + ", ".join(
         f"{name} {value:.3f}" for name, value in zip(table.dof_names, rmse, strict=True)))

@@ -43,10 +43,10 @@ JOB = {"id": 7, "status": "running", "model_id": 1, "rig_id": 1, "batch_id": Non
        "finished_at": None}
 JOB_CREATE = {"model_id": 1, "rig_id": 1, "video_ids": [1], "options": {"marker_diameter_px": 4.0},
               "name": "walk-07", "metadata": METADATA}
+TRIALS = [{"video_ids": [1], "name": "walk", "metadata": {"speed": "slow"}},
+          {"video_ids": [2], "name": "walk", "metadata": {"speed": "fast"}}]
 BATCH_CREATE = {"model_id": 1, "rig_id": 1, "options": {"marker_diameter_px": 4.0}, "name": "day 3",
-                "metadata": {"experimenter": "AB"},
-                "trials": [{"video_ids": [1], "name": "walk", "metadata": {"speed": "slow"}},
-                           {"video_ids": [2], "name": "walk", "metadata": {"speed": "fast"}}]}
+                "metadata": {"experimenter": "AB"}, "trials": TRIALS}
 BATCH = {"id": 3, "name": "day 3", "metadata": {"experimenter": "AB"}, "status": "running",
          "statuses": {"running": 1, "succeeded": 1}, "progress": PROGRESS,
          "jobs": [{**JOB, "batch_id": 3, "trial": 0, "name": "walk", "metadata": {"speed": "slow"}}]}

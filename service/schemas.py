@@ -257,7 +257,7 @@ class JobCreate(BaseModel):
 
 
 class Trial(BaseModel):
-    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.BATCH_CREATE['trials'][0]))
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.TRIALS[0]))
     video_ids: list[DbId] = Field(min_length=1, max_length=16)
     name: Name | None = None
     metadata: Metadata | None = None

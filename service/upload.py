@@ -6,9 +6,8 @@ from __future__ import annotations
 import hashlib
 import io
 import uuid
-from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 from python_multipart.exceptions import FormParserError
 from python_multipart.multipart import MultipartParser, parse_options_header
@@ -16,6 +15,9 @@ from starlette.requests import Request
 
 from service.errors import InvalidError
 from service.storage import Storage
+
+if TYPE_CHECKING:
+    from python_multipart.multipart import MultipartCallbacks
 
 MULTIPART_SLACK = 64 * 1024  # part headers and boundaries on top of the file itself
 
@@ -49,7 +51,7 @@ class _FilePart:
     _writing: bool = False
     _done: bool = False
 
-    def callbacks(self) -> dict[str, Callable[..., None]]:
+    def callbacks(self) -> MultipartCallbacks:
         return {"on_header_field": self._on_field, "on_header_value": self._on_value,
                 "on_header_end": self._on_header_end, "on_headers_finished": self._on_headers,
                 "on_part_data": self._on_data, "on_part_end": self._on_part_end}
@@ -132,7 +134,7 @@ async def _stream_file_part(request: Request, boundary: bytes, out: BinaryIO, li
     as the file passes ``limit`` bytes (or the body ``limit`` plus the multipart overhead), 422
     for a malformed body or one without that field."""
     part = _FilePart(out, limit)
-    parser = MultipartParser(boundary, part.callbacks())  # type: ignore[arg-type]
+    parser = MultipartParser(boundary, part.callbacks())
     received = 0
     try:
         async for chunk in request.stream():

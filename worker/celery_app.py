@@ -1,29 +1,11 @@
-"""The Celery application, configured for long, idempotent, database-backed tasks.
+"""The worker's Celery app: ``service.broker``'s app (settings and why: there) with the tasks.
 
-Settings and why:
+``worker.tasks`` registers the tasks under ``service.broker``'s names and ``worker.reaper`` its
+signals; both are imported when ``celery -A worker.celery_app worker`` starts.
 
-- ``task_acks_late=True`` + ``task_reject_on_worker_lost=True``: a message is
-  acknowledged only after its task returns, so a worker that dies mid-chunk
-  (OOM, SIGKILL, lost machine) leaves the message to be delivered again rather
-  than losing the chunk. Tasks are idempotent (keyed upserts, guarded state
-  transitions in the database), so a second delivery changes nothing.
-- ``worker_prefetch_multiplier=1``: a chunk takes seconds to minutes; a worker
-  holding several reserved messages would starve idle workers (and with late
-  acks those messages wait behind the running one).
-- ``task_soft_time_limit < task_time_limit < visibility_timeout``: Redis
-  re-delivers an unacknowledged message after the visibility timeout; if a task
-  could run longer than that, a healthy chunk would be fitted twice at once. The
-  soft limit raises inside the task (recorded as its failure), the hard limit
-  kills a stuck process, both before Redis would hand the message to another.
-- ``task_ignore_result=True``: results go to the database (image rows, chunk
-  counts), the source of truth the API reads; a result backend would be a second,
-  unbounded copy nobody reads.
-- ``worker_init``: the main process compiles the fitting kernels (``core.warmup``) before the
-  prefork pool forks, so the pool's processes inherit them: a fresh machine compiles once,
-  not once per worker process, and says so in the log.
-- Embedded mode (``filesystem://``): kombu's filesystem transport in
-  ``MOCAP_DATA_DIR/broker``, polled every ``MOCAP_FILESYSTEM_POLL_S``; it has no
-  broadcast, so remote control (used by ``celery inspect`` and flower) is off there.
+``worker_init``: the main process compiles the fitting kernels (``core.warmup``) before the
+prefork pool forks, so the pool's processes inherit them: a fresh machine compiles once,
+not once per worker process, and says so in the log.
 """
 
 from __future__ import annotations
@@ -31,58 +13,20 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from celery import Celery, signals
+from celery import signals
 
-from service.settings import Settings, get_settings
+from service.broker import celery_app
 
-PLAN_JOB = "mocap.plan_job"
-FIT_CHUNK = "mocap.fit_chunk"
-REANALYSE_IMAGE = "mocap.reanalyse_image"
-RESUME_JOB = "mocap.resume_job"
+app = celery_app()
+app.conf.include = ["worker.tasks", "worker.reaper"]
 
 
-def make_celery(settings: Settings) -> Celery:
-    """A Celery app for ``settings`` (broker, queue, limits)."""
-    app = Celery("mocap", broker=settings.broker_url, include=["worker.tasks", "worker.reaper"])
-    transport: dict[str, Any] = {"visibility_timeout": settings.visibility_timeout_s}
-    embedded = settings.broker_url.startswith("filesystem")
-    if embedded:
-        folder = settings.broker_dir.resolve()
-        for sub in ("queue", "processed", "control"):
-            (folder / sub).mkdir(parents=True, exist_ok=True)
-        # control_folder: kombu's exchange table, else ./control in whatever directory runs us.
-        transport |= {"data_folder_in": str(folder / "queue"), "data_folder_out": str(folder / "queue"),
-                      "processed_folder": str(folder / "processed"), "store_processed": False,
-                      "control_folder": str(folder / "control"),
-                      "polling_interval": settings.filesystem_poll_s}
-    app.conf.update(
-        task_acks_late=True,
-        task_reject_on_worker_lost=True,
-        worker_prefetch_multiplier=1,
-        task_soft_time_limit=settings.task_soft_time_limit_s,
-        task_time_limit=settings.task_time_limit_s,
-        broker_transport_options=transport,
-        task_ignore_result=True,
-        task_default_queue=settings.queue,
-        task_serializer="json",
-        accept_content=["json"],
-        broker_connection_retry_on_startup=True,
-        worker_enable_remote_control=not embedded,
-        worker_send_task_events=not embedded,  # flower's live view (Redis)
-        task_send_sent_event=not embedded,
-    )
-    return app
-
-
-@signals.worker_init.connect
+@signals.worker_init.connect  # type: ignore[untyped-decorator]  # Celery has no types
 def compile_before_forking(**_: Any) -> None:
     """Compile (or load) the kernels in the worker's main process, before its pool forks."""
-    from core.warmup import compile_kernels  # the API imports this module too: not there
+    from core.warmup import compile_kernels  # flower imports this module too: not there
 
     log = logging.getLogger("mocap.worker")
     log.warning("compiling the fitting kernels once for all worker processes "
                 "(minutes on a first run on a fresh machine, seconds afterwards)")
     log.warning("fitting kernels ready in %.1f s", compile_kernels())
-
-
-app = make_celery(get_settings())

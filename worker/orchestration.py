@@ -47,7 +47,7 @@ from datetime import UTC
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import CursorResult, select, update
+from sqlalchemy import select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
@@ -59,9 +59,10 @@ from core.model import KinematicModel
 from core.pipeline import FitJob, FitOutcome, build_report, finish, fit_range, plan
 from core.pipeline import reanalyse as reanalyse_step
 from core.results import read_angles_csv, write_angles_csv
-from service import artifacts, histstore
+from service import artifacts, broker, histstore
+from service.broker import FIT_CHUNK, REANALYSE_IMAGE
 from service.crud import add_histogram_version, histogram_version, missing_frames
-from service.db import session_scope
+from service.db import rows_changed, session_scope
 from service.fitjob import build_fit_job
 from service.models import (
     TERMINAL,
@@ -83,7 +84,6 @@ from service.redact import redact, video_names
 from service.schemas import JobOptions
 from service.settings import get_settings
 from service.storage import Storage, get_storage
-from worker.celery_app import FIT_CHUNK, REANALYSE_IMAGE, app
 
 logger = logging.getLogger(__name__)
 
@@ -120,11 +120,6 @@ def _load(session: Session, job_id: int) -> _Loaded:
     return _Loaded(job, fit, prior.copy())
 
 
-def enqueue(name: str, *args: int) -> None:
-    """Send a task (ids only) to the settings' queue."""
-    app.send_task(name, args=list(args))
-
-
 # ---- 1. plan ----------------------------------------------------------------------------------
 def plan_job(job_id: int) -> None:
     """Count images, create chunk rows and queue them (only for a job still queued).
@@ -140,7 +135,7 @@ def plan_job(job_id: int) -> None:
             return
         steps = plan(_load(session, job_id).fit)
         # Guarded: with SQLite (no row locks) a cancel may have come in while the videos were probed.
-        if not _changed(session, update(Job).where(Job.id == job_id, Job.status == JobStatus.QUEUED)
+        if not rows_changed(session, update(Job).where(Job.id == job_id, Job.status == JobStatus.QUEUED)
                         .values(status=JobStatus.RUNNING, started_at=utcnow(), images_total=steps.images,
                                 chunks_total=len(steps.chunks))):
             return
@@ -152,7 +147,7 @@ def plan_job(job_id: int) -> None:
         ids = [c.id for c in chunks]
     logger.info("job %s: %d images in %d chunks", job_id, steps.images, len(ids))
     for chunk_id in ids:
-        enqueue(FIT_CHUNK, chunk_id)
+        broker.enqueue(FIT_CHUNK, chunk_id)
 
 
 # ---- 2. chunks --------------------------------------------------------------------------------
@@ -272,7 +267,7 @@ def _complete_chunk(chunk_id: int, job_id: int, key: str, fits: list[ImageFit], 
     with session_scope() as session:
         _insert_ignore(session, ImageResult, [_image_row(job_id, f) for f in fits])
         _insert_ignore(session, Attempt, [_attempt_row(job_id, f, worker) for f in fits])
-        done = _changed(session,
+        done = rows_changed(session,
             update(Chunk).where(Chunk.id == chunk_id, Chunk.status != ChunkStatus.DONE)
             .values(status=ChunkStatus.DONE, observed_key=key, heartbeat_at=utcnow())
         )
@@ -284,7 +279,7 @@ def _complete_chunk(chunk_id: int, job_id: int, key: str, fits: list[ImageFit], 
                     images_over_threshold=Job.images_over_threshold + over)
             .returning(Job.chunks_done, Job.chunks_total, Job.status)
         ).one()
-    return counts.chunks_done == counts.chunks_total and counts.status == JobStatus.RUNNING
+    return bool(counts.chunks_done == counts.chunks_total and counts.status == JobStatus.RUNNING)
 
 
 # ---- 3. merge and queue re-analysis -------------------------------------------------------------
@@ -300,7 +295,7 @@ def _after_chunks(job_id: int) -> None:
         fits = _fits(session, job_id)
         typical = typical_objective(fits)
         pending = [f.sample for f in fits if needs_reanalysis(f, loaded.fit.params, typical)]
-        moved = _changed(session,
+        moved = rows_changed(session,
             update(Job).where(Job.id == job_id, Job.status == JobStatus.RUNNING, Job.fitted_at.is_(None))
             .values(typical_objective=typical, reanalyses_pending=len(pending), fitted_at=utcnow(),
                     progress_at=utcnow(),
@@ -310,7 +305,7 @@ def _after_chunks(job_id: int) -> None:
         return
     logger.info("job %s: all chunks done, %d images to re-analyse", job_id, len(pending))
     for sample in pending:
-        enqueue(REANALYSE_IMAGE, job_id, sample, 2)
+        broker.enqueue(REANALYSE_IMAGE, job_id, sample, 2)
     if not pending:
         _finish(job_id)
 
@@ -332,7 +327,7 @@ def reanalyse(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
     again = needs_reanalysis(fit, loaded.fit.params, typical)
     over = int(fit.status is Status.OVER_THRESHOLD) - int(previous.status is Status.OVER_THRESHOLD)
     with session_scope() as session:
-        stored = _changed(session,
+        stored = rows_changed(session,
             update(ImageResult).where(ImageResult.job_id == job_id, ImageResult.sample == sample,
                                       ImageResult.attempts == attempt - 1)
             .values(**_image_row(job_id, fit))
@@ -347,7 +342,7 @@ def reanalyse(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
         left = session.execute(update(Job).where(Job.id == job_id).values(**values)
                                .returning(Job.reanalyses_pending)).scalar_one()
     if again:
-        enqueue(REANALYSE_IMAGE, job_id, sample, attempt + 1)
+        broker.enqueue(REANALYSE_IMAGE, job_id, sample, attempt + 1)
     elif left == 0:
         _finish(job_id)
 
@@ -402,7 +397,7 @@ def _finish(job_id: int) -> None:
     with session_scope() as session:
         model = session.scalars(select(Model).where(Model.id == model_id)
                                 .with_for_update()).one()  # one fold at a time per model
-        ended = _changed(session,
+        ended = rows_changed(session,
             update(Job).where(Job.id == job_id, Job.status.in_([JobStatus.RUNNING, JobStatus.REANALYSING]))
             .values(status=JobStatus.SUCCEEDED, finished_at=utcnow(), reanalyses_pending=0,
                     images_over_threshold=sum(f.status is Status.OVER_THRESHOLD for f in result.fits))
@@ -498,12 +493,6 @@ def _set_chunk(chunk_id: int, status: ChunkStatus) -> None:
 
 
 # ---- rows ---------------------------------------------------------------------------------------
-def _changed(session: Session, statement: Any) -> int:
-    """Rows an UPDATE changed: 0 means another delivery (or a cancel) got there first."""
-    result: CursorResult[Any] = session.execute(statement)  # type: ignore[assignment]
-    return result.rowcount
-
-
 def _videos(session: Session, job_id: int) -> list[Video]:
     """The job's videos in the rig's order."""
     return list(session.scalars(select(Video).join(JobVideo, JobVideo.video_id == Video.id)

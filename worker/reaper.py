@@ -38,13 +38,13 @@ from typing import Any
 
 from celery.signals import worker_process_init, worker_ready
 from sqlalchemy import func, or_, select, update
-from sqlalchemy.orm import Session
 
-from service.db import get_engine, session_scope
+from service import broker
+from service.broker import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, RESUME_JOB
+from service.db import get_engine, rows_changed, session_scope
 from service.models import Chunk, ChunkStatus, Job, JobStatus, utcnow
 from service.settings import get_settings
-from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, RESUME_JOB, app
-from worker.orchestration import enqueue, pending_reanalyses
+from worker.orchestration import pending_reanalyses
 
 logger = logging.getLogger(__name__)
 
@@ -83,6 +83,7 @@ def reap() -> Reaped:
 def queue_length() -> int:
     """Messages waiting in the settings' queue. Declares exchange, queue and binding first:
     a FLUSHDB deletes them, and the messages this pass sends must have a route."""
+    app = broker.celery_app()
     queue = app.amqp.queues[get_settings().queue]
     with app.connection_for_write() as connection:
         bound = queue.bind(connection.default_channel)
@@ -115,10 +116,10 @@ def _requeue_chunks(condition: tuple[Any, ...], now: datetime) -> list[int]:
         ids = session.scalars(select(Chunk.id).where(*condition)).all()
     for chunk_id in ids:
         with session_scope() as session:
-            won = _won(session, update(Chunk).where(Chunk.id == chunk_id, *condition)
+            won = rows_changed(session, update(Chunk).where(Chunk.id == chunk_id, *condition)
                        .values(status=ChunkStatus.QUEUED, queued_at=now))
         if won:
-            enqueue(FIT_CHUNK, chunk_id)
+            broker.enqueue(FIT_CHUNK, chunk_id)
             sent.append(chunk_id)
     return sent
 
@@ -128,7 +129,7 @@ def _requeue_lost_plans(old: datetime, now: datetime) -> list[int]:
                  or_(Job.progress_at.is_(None), Job.progress_at < old))
     sent = []
     for job_id in _won_jobs(condition, now):
-        enqueue(PLAN_JOB, job_id)
+        broker.enqueue(PLAN_JOB, job_id)
         sent.append(job_id)
     return sent
 
@@ -141,10 +142,10 @@ def _requeue_lost_reanalyses(old: datetime, now: datetime) -> tuple[int, list[in
         with session_scope() as session:
             pending = pending_reanalyses(session, job_id)
         for sample, attempt in pending:
-            enqueue(REANALYSE_IMAGE, job_id, sample, attempt)
+            broker.enqueue(REANALYSE_IMAGE, job_id, sample, attempt)
         sent += len(pending)
         if not pending:
-            enqueue(RESUME_JOB, job_id)
+            broker.enqueue(RESUME_JOB, job_id)
             resumed.append(job_id)
     return sent, resumed
 
@@ -156,7 +157,7 @@ def _resume_stalled_fan_in(old: datetime, now: datetime) -> list[int]:
                  last_done < old, or_(Job.progress_at.is_(None), Job.progress_at < old))
     won = _won_jobs(condition, now)
     for job_id in won:
-        enqueue(RESUME_JOB, job_id)
+        broker.enqueue(RESUME_JOB, job_id)
     return won
 
 
@@ -167,13 +168,9 @@ def _won_jobs(condition: tuple[Any, ...], now: datetime) -> list[int]:
     won = []
     for job_id in ids:
         with session_scope() as session:
-            if _won(session, update(Job).where(Job.id == job_id, *condition).values(progress_at=now)):
+            if rows_changed(session, update(Job).where(Job.id == job_id, *condition).values(progress_at=now)):
                 won.append(job_id)
     return won
-
-
-def _won(session: Session, statement: Any) -> bool:
-    return bool(session.execute(statement).rowcount)  # type: ignore[attr-defined]
 
 
 def start_reaper(interval_s: float | None = None) -> threading.Thread:
@@ -194,13 +191,13 @@ def start_reaper(interval_s: float | None = None) -> threading.Thread:
     return thread
 
 
-@worker_ready.connect
+@worker_ready.connect  # type: ignore[untyped-decorator]  # Celery has no types
 def _start_in_worker(**_: Any) -> None:
     """In the Celery main process (which forks the pool, and fits nothing itself)."""
     start_reaper()
 
 
-@worker_process_init.connect
+@worker_process_init.connect  # type: ignore[untyped-decorator]  # Celery has no types
 def _fresh_connections(**_: Any) -> None:
     """A forked pool process must not share the main process's pooled database connections
     (the reaper's): SQLAlchemy's advice, drop them without closing the parent's sockets."""

@@ -20,8 +20,9 @@ from core.histogram import HistogramError
 from core.model import ModelError
 from core.rig import RigError
 from core.video import VideoError
+from service.broker import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, RESUME_JOB
 from worker import orchestration
-from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE, RESUME_JOB, app
+from worker.celery_app import app
 
 logger = logging.getLogger(__name__)
 
@@ -61,7 +62,7 @@ def _caused_by(exc: BaseException | None, kind: type[BaseException]) -> bool:
     return False
 
 
-@app.task(bind=True, name=PLAN_JOB, throws=USER_ERRORS)
+@app.task(bind=True, name=PLAN_JOB, throws=USER_ERRORS)  # type: ignore[untyped-decorator]  # Celery has no types
 def plan_job(self: Task, job_id: int) -> None:
     """Count the job's images and queue one task per chunk."""
     job_id = int(job_id)
@@ -69,7 +70,7 @@ def plan_job(self: Task, job_id: int) -> None:
         orchestration.plan_job(job_id)
 
 
-@app.task(bind=True, name=FIT_CHUNK, throws=USER_ERRORS)
+@app.task(bind=True, name=FIT_CHUNK, throws=USER_ERRORS)  # type: ignore[untyped-decorator]  # Celery has no types
 def fit_chunk(self: Task, chunk_id: int) -> None:
     """Fit one chunk; the last chunk of a job merges and starts re-analysis."""
     chunk_id = int(chunk_id)
@@ -77,7 +78,7 @@ def fit_chunk(self: Task, chunk_id: int) -> None:
         orchestration.run_chunk(chunk_id, worker=self.request.hostname or "")
 
 
-@app.task(bind=True, name=RESUME_JOB, throws=USER_ERRORS)
+@app.task(bind=True, name=RESUME_JOB, throws=USER_ERRORS)  # type: ignore[untyped-decorator]  # Celery has no types
 def resume_job(self: Task, job_id: int) -> None:
     """Merge or finish a job whose worker died between its last step and the next (reaper)."""
     job_id = int(job_id)
@@ -85,7 +86,7 @@ def resume_job(self: Task, job_id: int) -> None:
         orchestration.resume(job_id)
 
 
-@app.task(bind=True, name=REANALYSE_IMAGE, throws=USER_ERRORS)
+@app.task(bind=True, name=REANALYSE_IMAGE, throws=USER_ERRORS)  # type: ignore[untyped-decorator]  # Celery has no types
 def reanalyse_image(self: Task, job_id: int, sample: int, attempt: int) -> None:
     """One more attempt on one image; the last one pending finishes the job."""
     job_id = int(job_id)

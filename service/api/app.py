@@ -8,7 +8,7 @@ core's message, which names the element or option at fault.
 from __future__ import annotations
 
 import logging
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI, Request
@@ -66,7 +66,7 @@ def create_app() -> FastAPI:
 
 
 def _errors(app: FastAPI) -> None:
-    def handler(status: int):  # type: ignore[no-untyped-def]
+    def handler(status: int) -> Callable[[Request, Exception], Awaitable[JSONResponse]]:
         async def respond(_request: Request, exc: Exception) -> JSONResponse:
             return JSONResponse({"detail": str(exc) or default[status]}, status_code=status)
         return respond

@@ -34,6 +34,7 @@ class HeaderTimeoutProtocol(HttpToolsProtocol):
     _header_timer: asyncio.TimerHandle | None = None
     _header_bytes = 0
 
+    # uvicorn's own connection_made narrows asyncio's BaseTransport to Transport (and ignores it alike).
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
         self._arm()

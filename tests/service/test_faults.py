@@ -29,7 +29,7 @@ from conftest import REDIS_FAULTS_URL, Deployment
 from sqlalchemy import text
 from svc_helpers import repeated, slow_rig, submit, upload_inputs, wait_for
 
-from worker.celery_app import FIT_CHUNK
+from service.broker import FIT_CHUNK
 
 pytestmark = [pytest.mark.service, pytest.mark.slow]
 logger = logging.getLogger(__name__)

@@ -13,7 +13,7 @@ from sqlalchemy import text
 from svc_helpers import repeated, slow_rig, submit, upload_inputs, wait_for
 
 from core.synth import write_video
-from worker.celery_app import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE
+from service.broker import FIT_CHUNK, PLAN_JOB, REANALYSE_IMAGE
 
 pytestmark = [pytest.mark.service, pytest.mark.slow]
 

@@ -1,5 +1,5 @@
 """A job in a real SQLite database, built by the service's own migrations and service layer,
-with the Celery queue replaced by a recorder: ``worker.orchestration.enqueue`` swapped for a
+with the Celery queue replaced by a recorder: ``service.broker.enqueue`` swapped for a
 function that appends the message to a list, so a test runs each step by hand (and twice).
 
 No broker, no worker processes: the orchestration's steps run in the test's process, on the
@@ -21,7 +21,7 @@ from core.examples import LOCUST
 from core.model import KinematicModel
 from core.rig import Rig
 from core.synth import natural_movements, render_frames, write_video
-from service import crud, db, migrate, settings
+from service import broker, crud, db, migrate, settings
 from service.labs import create_lab
 from service.models import Lab
 from service.schemas import JobCreate, JobOptions
@@ -44,7 +44,7 @@ def queue(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Recorder]
     _clear_process_caches()
     migrate.upgrade()
     recorder = Recorder()
-    monkeypatch.setattr(orchestration, "enqueue", recorder)
+    monkeypatch.setattr(broker, "enqueue", recorder)
     yield recorder
     db.get_engine().dispose()
     _clear_process_caches()

@@ -12,10 +12,10 @@ from typing import Any
 from recorded_queue import CHUNK_SIZE, IMAGES, MISFIT, Recorder
 from sqlalchemy import func, select
 
+from service.broker import FIT_CHUNK, REANALYSE_IMAGE
 from service.db import session_scope
 from service.models import Attempt, Chunk, ChunkStatus, HistogramVersion, ImageResult, Job, JobStatus
 from worker import orchestration
-from worker.celery_app import FIT_CHUNK, REANALYSE_IMAGE
 
 WORKER = "test-worker"
 

@@ -36,7 +36,9 @@ router = APIRouter(include_in_schema=False)
 
 
 def _openapi_url(request: Request) -> str:
-    return request.scope.get("root_path", "") + request.app.openapi_url
+    root: str = request.scope.get("root_path", "")
+    url: str = request.app.openapi_url
+    return root + url
 
 
 def _asset(request: Request, name: str) -> str:

@@ -9,7 +9,7 @@ from fastapi.responses import StreamingResponse
 
 from service import crud
 from service.api.deps import CurrentLab, PathId, SessionDep, SettingsDep, StorageDep
-from service.api.routes.jobs import enqueue, job_entries, job_public
+from service.api.routes.jobs import job_entries, job_public, queue_plans
 from service.archive import stream_zip, trial_folder
 from service.models import TERMINAL, Batch, Job, JobStatus
 from service.schemas import BatchCreate, BatchPublic, Progress
@@ -39,7 +39,7 @@ def submit(body: BatchCreate, response: Response, session: SessionDep, settings:
     into its archive folder). Example: ``POST /v1/batches`` with
     ``{"model_id": 1, "rig_id": 1, "trials": [{"video_ids": [1], "name": "walk"}]}``"""
     batch, jobs = crud.submit_batch(session, lab, settings, body)
-    enqueue(session, jobs)
+    queue_plans(session, jobs)
     response.headers["Location"] = f"/v1/batches/{batch.id}"
     return _public(batch, jobs)
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 from fastapi import APIRouter, Response
 from fastapi.responses import FileResponse, StreamingResponse
@@ -12,15 +12,13 @@ from kombu.exceptions import OperationalError
 from sqlalchemy.orm import Session
 
 from core.export import DETECTIONS_FILE, EXPORT_FILES
-from service import artifacts, crud, examples
+from service import artifacts, broker, crud, examples
 from service.api.deps import CurrentLab, Cursor, Limit, PathId, SessionDep, SettingsDep, StorageDep
 from service.archive import stream_zip
 from service.errors import NotFoundError, QueueUnavailableError
 from service.models import Job, JobStatus, Lab, Model, RigRow
 from service.schemas import JobCreate, JobPage, JobPublic, Progress
-from service.storage import Storage
-from worker.celery_app import PLAN_JOB
-from worker.celery_app import app as celery
+from service.storage import LocalStorage, Storage
 
 logger = logging.getLogger(__name__)
 
@@ -59,15 +57,16 @@ def progress(job: Job) -> Progress:
 PUBLISH_RETRY = {"max_retries": 2, "interval_start": 0.2, "interval_step": 0.5, "interval_max": 1.0}
 
 
-def enqueue(session: Session, jobs: list[Job]) -> None:
-    """Queue committed jobs' planning tasks (ids only: the worker reads the rest from the DB).
+def queue_plans(session: Session, jobs: list[Job]) -> None:
+    """Queue committed jobs' planning tasks (``service.broker.enqueue``: ids only, the worker
+    reads the rest from the DB).
 
     If the broker cannot be reached, the jobs not yet queued are failed with a message
     saying so (and the request is 503) rather than left ``queued`` with no task to run them.
     """
     for i, job in enumerate(jobs):
         try:
-            celery.send_task(PLAN_JOB, args=[job.id], retry=True, retry_policy=PUBLISH_RETRY)
+            broker.enqueue(broker.PLAN_JOB, job.id, retry_policy=PUBLISH_RETRY)
         except OperationalError as exc:
             logger.exception("cannot queue job %s", job.id)
             message = "the job queue (broker) is unreachable; the job was not started, submit it again"
@@ -84,7 +83,7 @@ def submit(body: JobCreate, response: Response, session: SessionDep, settings: S
     Poll the ``Location`` it returns. Example: ``POST /v1/jobs`` with
     ``{"model_id": 1, "rig_id": 1, "video_ids": [1], "name": "walk-07"}``"""
     job = crud.submit_job(session, lab, settings, body)
-    enqueue(session, [job])
+    queue_plans(session, [job])
     response.headers["Location"] = f"/v1/jobs/{job.id}"
     return job_public(job)
 
@@ -113,7 +112,7 @@ def cancel(job_id: PathId, session: SessionDep, lab: CurrentLab) -> JobPublic:
     return job_public(crud.cancel_job(session, lab, job_id))
 
 
-def _result(name: str):  # type: ignore[no-untyped-def]
+def _result(name: str) -> Callable[[int, Session, LocalStorage, Lab], FileResponse]:
     def download(job_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> FileResponse:
         key = crud.result_key(session, lab, job_id, name)
         return FileResponse(storage.path(key), media_type=RESULTS[name], filename=f"job-{job_id}-{name}")

@@ -47,7 +47,8 @@ def _created(session: SessionDep, row: Model, existing: Model | None) -> ModelCr
     archive = None if existing is None else ExistingArchive(
         model_id=existing.id, histogram_versions=crud.histogram_versions(session, existing),
         latest_version=crud.histogram_version(session, existing, None).version)
-    return ModelCreated(**_public(session, row).model_dump(), existing_model_id=existing and existing.id,
+    return ModelCreated(**_public(session, row).model_dump(),
+                        existing_model_id=None if existing is None else existing.id,
                         existing=archive, reused=row is existing)
 
 
