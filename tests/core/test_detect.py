@@ -5,29 +5,16 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from scenes import dots_model
 
 from core.detect import OPENCV_THREADS, DetectorParams, detect
 from core.error import Detections
-from core.model import KinematicModel
 from core.rig import Rig
 from core.synth import render_frames
 
 SIZE = (128, 96)  # width, height of the test frames
 # Four markers 40 and 30 px apart: isolated at any root position.
 SQUARE = ((0, 0), (40, 0), (0, 30), (40, 30))
-
-
-def dots_model(*offsets: tuple[float, float]) -> KinematicModel:
-    """Markers at fixed pixel offsets from a root that translates in x and y."""
-    markers = "".join(
-        f'<marker name="m{i}" joint="root" x="{x}" y="{y}" z="0"/>'
-        for i, (x, y) in enumerate(offsets)
-    )
-    return KinematicModel.from_xml(
-        '<model name="dots" units="px"><joint name="root">'
-        '<dof axis="tx" name="tx" min="0" max="128"/><dof axis="ty" name="ty" min="0" max="96"/>'
-        f"</joint>{markers}</model>"
-    )
 
 
 def pixel_rig(*rois: list[int] | None, videos: tuple[int, ...] | None = None) -> Rig:
