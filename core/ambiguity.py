@@ -39,7 +39,7 @@ from core.model import KinematicModel, _topological_order
 from core.rig import Rig
 
 __all__ = ["MAX_FLIP_REFINES", "Candidate", "FlipGeometry", "angle_gaps", "choose_candidates",
-           "flip_alternatives", "flip_masks"]
+           "flip_alternatives", "flip_masks", "plain_error"]
 
 MAX_ALTERNATIVES = 8
 # Flips refined per image at most. A flip that passes the screen (it images within the
@@ -169,13 +169,16 @@ def flip_alternatives(
         geo.depth, geo.perspective, geo.masks, MAX_FLIP_REFINES, out_q, out_objective,
     )
     return [
-        Candidate(out_q[k].copy(), _plain_error(out_q[k], detections, model, rig, off,
+        Candidate(out_q[k].copy(), plain_error(out_q[k], detections, model, rig, off,
                                                 empty_view_penalty_px), float(out_objective[k]))
         for k in range(n)
     ]
 
 
-def _plain_error(q, detections, model, rig, offsets, penalty) -> float:
+def plain_error(q: np.ndarray, detections: Detections, model: KinematicModel, rig: Rig,
+                offsets: np.ndarray, penalty: float) -> float:
+    """Plain Eq. 5 (pixels, no fusion) of posture ``q`` (D,) on ``detections``, views shifted by
+    ``offsets`` (V, 2); a view without detections costs ``penalty`` px per marker."""
     return float(_kernels.posture_error(q, model.arrays, rig.arrays, offsets, detections.kernel_points,
                                         detections.start, float(penalty), 0.0, _kernels.NO_UNSEEN))
 

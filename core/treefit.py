@@ -60,7 +60,8 @@ if TYPE_CHECKING:
     from core.fit import FitParams
 
 __all__ = ["attempt_kernel", "epipolar_start", "fit_tree", "part_objective", "refine_whole",
-           "shared_projections", "tree_flip_alternatives", "two_sided_error", "warm_start"]
+           "shared_projections", "tree_flip_alternatives", "two_sided_error", "warm_start",
+           "world_frames"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
@@ -209,7 +210,7 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
 
     if tree.trunk is not None:
         fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start, warm)
-    rot, pos = _frames(q, model)
+    rot, pos = world_frames(q, model)
     reach = _within_reach(det, rig, pos[[b.base for b in tree.branches]],
                           np.array([b.reach for b in tree.branches]), off)
     for part, keep in zip(tree.branches, reach, strict=True):
@@ -320,7 +321,7 @@ def two_sided_error(q: np.ndarray, det: Detections, model: KinematicModel, rig: 
     return total
 
 
-def _frames(q: np.ndarray, model: KinematicModel) -> tuple[np.ndarray, np.ndarray]:
+def world_frames(q: np.ndarray, model: KinematicModel) -> tuple[np.ndarray, np.ndarray]:
     """World rotation (J, 3, 3) and origin (J, 3) of every joint, topological order."""
     J = len(model.joints)
     rot, pos = np.empty((J, 3, 3)), np.empty((J, 3))
@@ -436,7 +437,7 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
                               tolerance_px=tolerance_px, fusion_px=fusion_px,
                               empty_view_penalty_px=empty_view_penalty_px, huber_px=huber_px,
                               offsets=offsets)
-    rot, pos = _frames(fit.dofs, model)
+    rot, pos = world_frames(fit.dofs, model)
     for part in tree.branches:
         geo = _branch_geometry(part, geometry)
         kin, q = part.at(rot[part.base], pos[part.base]), np.ascontiguousarray(fit.dofs[part.dofs])

@@ -16,11 +16,11 @@ import math
 import numpy as np
 
 from core import _kernels
-from core.ambiguity import Candidate, _plain_error, angle_gaps
+from core.ambiguity import Candidate, angle_gaps, plain_error
 from core.error import Detections, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
-from core.treefit import _frames
+from core.treefit import world_frames
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "confidence_chi2",
            "residual_tolerance", "undetermined_alternative"]
@@ -115,7 +115,7 @@ def undetermined_alternative(
         dofs, part_kin = np.arange(len(p)), kin
         if model.tree is not None:
             part = next(x for x in model.tree.parts if d in x.dofs)
-            rotation, origin = _frames(p, model)
+            rotation, origin = world_frames(p, model)
             dofs, part_kin = part.dofs, part.at(rotation[part.base], origin[part.base])
         lower, upper = model.lower[dofs].copy(), model.upper[dofs].copy()
         lower[dofs == d] = upper[dofs == d] = p[d]
@@ -148,7 +148,7 @@ def undetermined_alternative(
                     best, best_gap = p, gap
     if best is None:
         return None
-    return Candidate(best, _plain_error(best, detections, model, rig, off, penalty), objective(best))
+    return Candidate(best, plain_error(best, detections, model, rig, off, penalty), objective(best))
 
 
 def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig,
