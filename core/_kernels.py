@@ -32,6 +32,9 @@ DEG = math.pi / 180.0
 AFFINE, PINHOLE, MATRIX = 0, 1, 2
 BEHIND_CAMERA = 1.0e9  # pixel coordinate given to points behind a pinhole camera
 FRAME = 12  # numbers per joint frame: rotation (row-major 3×3), then origin (3)
+# For Python callers. Inside a kernel a global array is a read-only constant, another type: a
+# kernel passing one to another kernel would compile that one a second time (and everything
+# it calls), so kernels pass arrays of their own (:func:`_no_unseen`, :func:`_no_targets`).
 NO_TARGETS = np.zeros((0, 3))  # refine in image mode
 NO_UNSEEN = np.zeros((0, 0), dtype=np.bool_)  # every marker may be seen
 
@@ -494,6 +497,18 @@ def posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, l
                       work[6], work[7], unseen)
 
 
+@njit(cache=True, inline="always")
+def _no_unseen():
+    """No marker unseen: an empty (0, 0) mask of the type Python passes (``NO_UNSEEN``)."""
+    return np.zeros((0, 0), dtype=np.bool_)
+
+
+@njit(cache=True, inline="always")
+def _no_targets():
+    """Image mode for :func:`refine`: empty (0, 3) targets of the type Python passes (``NO_TARGETS``)."""
+    return np.zeros((0, 3))
+
+
 # ---- random numbers -------------------------------------------------------------------------
 
 
@@ -743,14 +758,14 @@ def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_
     out the markers :func:`_lost_markers` finds at ``q``: otherwise it pulls a lost
     marker onto the nearest other blob, the very pull the objective is there to stop.
     """
-    unseen = NO_UNSEEN
+    unseen = _no_unseen()
     if lost_px > 0.0:
         mask, lost = _lost_markers(q, kin, views, offset, det, start, lost_px, fuse_px)
         if lost:
             unseen = mask
     polished = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen,
-                      huber_c, _POLISH_STEPS, 1e-5, NO_TARGETS)
-    e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px, NO_UNSEEN,
+                      huber_c, _POLISH_STEPS, 1e-5, _no_targets())
+    e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px, _no_unseen(),
                           lost_px)
     if e_pol < e_q:
         out[:] = polished
@@ -954,7 +969,7 @@ def _refit_unseen(q, objective, lower, upper, kin, views, offset, det, start, pe
     if not lost:
         return objective
     refit = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen,
-                   huber_c, 50, 1e-5, NO_TARGETS)
+                   huber_c, 50, 1e-5, _no_targets())
     e_refit = posture_error(refit, kin, views, offset, det, start, penalty, fuse_px, unseen)
     if e_refit < objective:
         q[:] = refit
@@ -990,6 +1005,7 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
     ``fuse_px``.
     """
     q0, best = start_q.copy(), start_q.copy()
+    no_unseen = _no_unseen()
     objective, iterations = np.inf, 0
     for run in range(restarts + 1):
         if run > 0 and objective < eps:
@@ -1003,12 +1019,12 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
         iterations += its
         if refine_result:
             polished = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                              NO_UNSEEN, huber_c, 50, 1e-5, NO_TARGETS)
+                              no_unseen, huber_c, 50, 1e-5, _no_targets())
             e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px,
-                                  NO_UNSEEN, lost_px)
+                                  no_unseen, lost_px)
             if e_pol <= value:
                 q = polished
-        value = posture_error(q, kin, views, offset, det, start, penalty, fuse_px, NO_UNSEEN,
+        value = posture_error(q, kin, views, offset, det, start, penalty, fuse_px, no_unseen,
                               penalty)
         if refine_result:
             value = _refit_unseen(q, value, lower, upper, kin, views, offset, det, start, penalty,
@@ -1018,7 +1034,7 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
         if value < objective:
             best[:] = q
             objective = value
-    error = posture_error(best, kin, views, offset, det, start, penalty, 0.0, NO_UNSEEN)
+    error = posture_error(best, kin, views, offset, det, start, penalty, 0.0, no_unseen)
     return best, error, objective, iterations
 
 
@@ -1127,6 +1143,7 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
             joints[k, a] = fr[FRAME * k + 9 + a]
     targets, moved = np.empty((M, 3)), np.empty((J, 3))
     normal = np.empty(3)
+    no_unseen = _no_unseen()
     kind, P, K, dist = views
     found = refined = 0
     for v in range(V):
@@ -1156,10 +1173,10 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
                 return found
             refined += 1
             reached = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                             NO_UNSEEN, 1e9, 30, 1e-5, targets)
+                             no_unseen, 1e9, 30, 1e-5, targets)
             cand = refine(reached, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                          NO_UNSEEN, huber_c, 50, 1e-5, NO_TARGETS)
-            e_cand = posture_error(cand, kin, views, offset, det, start, penalty, fuse_px, NO_UNSEEN)
+                          no_unseen, huber_c, 50, 1e-5, _no_targets())
+            e_cand = posture_error(cand, kin, views, offset, det, start, penalty, fuse_px, no_unseen)
             if e_cand > objective + tolerance or not _distinct(cand, q, out_q, found):
                 continue
             out_q[found] = cand
