@@ -34,7 +34,8 @@ BEHIND_CAMERA = 1.0e9  # pixel coordinate given to points behind a pinhole camer
 FRAME = 12  # numbers per joint frame: rotation (row-major 3×3), then origin (3)
 # For Python callers. Inside a kernel a global array is a read-only constant, another type: a
 # kernel passing one to another kernel would compile that one a second time (and everything
-# it calls), so kernels pass arrays of their own (:func:`_no_unseen`, :func:`_no_targets`).
+# it calls), so kernels pass arrays of their own (:func:`_no_unseen`, :func:`_no_targets`). A
+# literal int is a type of its own too: kernels pass step counts as ``np.int64``.
 NO_TARGETS = np.zeros((0, 3))  # refine in image mode
 NO_UNSEEN = np.zeros((0, 0), dtype=np.bool_)  # every marker may be seen
 
@@ -490,7 +491,17 @@ def blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, 
 
 @njit(cache=True, nogil=True)
 def posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px=0.0):
-    """The objective (:func:`blob_error`) of one posture; plain Eq. 5 with ``fuse_px`` 0."""
+    """The objective (:func:`blob_error`) of one posture; plain Eq. 5 with ``fuse_px`` 0.
+
+    Python calls it with and without ``lost_px``, two signatures: each is a call of
+    :func:`_posture_error`, whose body is compiled once.
+    """
+    return _posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px)
+
+
+@njit(cache=True, nogil=True)
+def _posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px):
+    """:func:`posture_error` (``lost_px`` given)."""
     work = workspace(kin, views, q.shape[0], det.shape[0])
     project_posture(q, kin, views, offset, fuse_px, work)
     return blob_error(work[3], work[4], det, start, penalty, fuse_px, lost_px, np.inf, work[5],
@@ -764,7 +775,7 @@ def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_
         if lost:
             unseen = mask
     polished = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen,
-                      huber_c, _POLISH_STEPS, 1e-5, _no_targets())
+                      huber_c, np.int64(_POLISH_STEPS), 1e-5, _no_targets())
     e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px, _no_unseen(),
                           lost_px)
     if e_pol < e_q:
@@ -969,7 +980,7 @@ def _refit_unseen(q, objective, lower, upper, kin, views, offset, det, start, pe
     if not lost:
         return objective
     refit = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen,
-                   huber_c, 50, 1e-5, _no_targets())
+                   huber_c, np.int64(50), 1e-5, _no_targets())
     e_refit = posture_error(refit, kin, views, offset, det, start, penalty, fuse_px, unseen)
     if e_refit < objective:
         q[:] = refit
@@ -1019,7 +1030,7 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
         iterations += its
         if refine_result:
             polished = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                              no_unseen, huber_c, 50, 1e-5, _no_targets())
+                              no_unseen, huber_c, np.int64(50), 1e-5, _no_targets())
             e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px,
                                   no_unseen, lost_px)
             if e_pol <= value:
@@ -1145,7 +1156,7 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
     normal = np.empty(3)
     no_unseen = _no_unseen()
     kind, P, K, dist = views
-    found = refined = 0
+    found = refined = np.int64(0)
     for v in range(V):
         for mask in masks:
             targets[:] = world
@@ -1173,9 +1184,9 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
                 return found
             refined += 1
             reached = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                             no_unseen, 1e9, 30, 1e-5, targets)
+                             no_unseen, 1e9, np.int64(30), 1e-5, targets)
             cand = refine(reached, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                          no_unseen, huber_c, 50, 1e-5, _no_targets())
+                          no_unseen, huber_c, np.int64(50), 1e-5, _no_targets())
             e_cand = posture_error(cand, kin, views, offset, det, start, penalty, fuse_px, no_unseen)
             if e_cand > objective + tolerance or not _distinct(cand, q, out_q, found):
                 continue
