@@ -15,8 +15,11 @@ Written for the SA inner loop, which evaluates Eq. 5 some 10^5 times a second:
   the nearest detection, which markers fuse. A mispredicted branch costs more
   than the arithmetic it guards (measured: 166 → 77 ns for the locust FK, 160
   → 25 ns for an Eq. 6 proposal);
-- small helpers are inlined by numba (``inline='always'``), so the loop is one
-  function and arrays are not reference-counted at every call;
+- helpers that take arrays are inlined by numba (``inline='always'``), so the
+  loop is one function and arrays are not reference-counted at every call (called,
+  they made SA 3-4 times slower); numba types an inlined helper again at every call
+  site, so helpers of scalars alone (LLVM inlines them) and those called once per
+  refinement step are plain calls, compiled once;
 - random numbers come from an inlined xoshiro256** generator seeded from the
   caller's ``numpy.random.Generator`` (~1 ns a draw instead of ~7 ns).
 """
@@ -66,7 +69,7 @@ _C1, _C2, _C3 = 4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015
 _C4, _C5, _C6 = -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def sincos_deg(angle):
     """(sin, cos) of an angle in degrees, to a few ulp, without libm and without branches.
 
@@ -87,7 +90,7 @@ def sincos_deg(angle):
     return sin_sign * sin, cos_sign * cos
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _mix(s, c, a0, a1, a2, b0, b1, b2):
     """Columns (a, b) of M·R for an elementary rotation R mixing them: (c·a + s·b, c·b − s·a).
 
@@ -508,13 +511,13 @@ def _posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, 
                       work[6], work[7], unseen)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _no_unseen():
     """No marker unseen: an empty (0, 0) mask of the type Python passes (``NO_UNSEEN``)."""
     return np.zeros((0, 0), dtype=np.bool_)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _no_targets():
     """Image mode for :func:`refine`: empty (0, 3) targets of the type Python passes (``NO_TARGETS``)."""
     return np.zeros((0, 3))
@@ -523,7 +526,7 @@ def _no_targets():
 # ---- random numbers -------------------------------------------------------------------------
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _rotl(x, k):
     return (x << np.uint64(k)) | (x >> np.uint64(64 - k))
 
@@ -594,7 +597,7 @@ def _norm(res, g):
     return math.sqrt(acc)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _huber_cost(res, valid, c):
     total = 0.0
     for g in range(res.shape[0]):
@@ -617,7 +620,7 @@ def solve_spd(A, b):
     return x
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _cholesky_solve(A, b, L, x) -> None:
     """x = A⁻¹·b by Cholesky into the caller's scratch ``L`` (n,n); ``x`` (n,) also holds y."""
     n = b.shape[0]
