@@ -506,9 +506,24 @@ def posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, l
 def _posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px):
     """:func:`posture_error` (``lost_px`` given)."""
     work = workspace(kin, views, q.shape[0], det.shape[0])
+    return _evaluate(q, kin, views, offset, det, start, penalty, fuse_px, lost_px, np.inf, unseen, work)
+
+
+@njit(cache=True, nogil=True)
+def _evaluate(q, kin, views, offset, det, start, penalty, fuse_px, lost_px, limit, unseen, work):
+    """The objective (:func:`blob_error`, summed up to ``limit``) of posture ``q``, projected
+    into ``work`` (:func:`workspace`): a plain call, as :func:`_objective`."""
     project_posture(q, kin, views, offset, fuse_px, work)
-    return blob_error(work[3], work[4], det, start, penalty, fuse_px, lost_px, np.inf, work[5],
-                      work[6], work[7], unseen)
+    return _objective(work[3], work[4], det, start, penalty, fuse_px, lost_px, limit, work[5], work[6],
+                      work[7], unseen)
+
+
+@njit(cache=True, nogil=True)
+def _objective(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, dist, claims, unseen):
+    """:func:`blob_error` as a plain call, compiled once for the kernels that evaluate it
+    outside SA's inner loop (numba types an inlined helper again at every call site)."""
+    return blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, dist, claims,
+                      unseen)
 
 
 @njit(cache=True, nogil=True)
@@ -826,6 +841,7 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
         turns[i] = -1.0 if np.isnan(hist[i, 0]) else np.floor(lower[i] / 360.0)
     work = workspace(kin, views, D, det.shape[0])
     raw, fused, index, dist, claims = work[3], work[4], work[5], work[6], work[7]
+    no_unseen = _no_unseen()
     cur, cand, best, seed_q = q0.copy(), q0.copy(), q0.copy(), q0.copy()
     e_cur = e_best = np.inf  # the first pass evaluates q0 itself and always accepts it
     tau, step = tau0, l0
@@ -868,9 +884,8 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
                 e_seed = np.inf
                 for _ in range(draws):
                     draw_posture(lower, upper, hist, state, cand)
-                    project_posture(cand, kin, views, offset, fuse_px, work)
-                    e_new = blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, e_seed,
-                                       index, dist, claims, NO_UNSEEN)
+                    e_new = _evaluate(cand, kin, views, offset, det, start, penalty, fuse_px, lost_px,
+                                      e_seed, no_unseen, work)
                     if e_new < e_seed:
                         e_seed = e_new
                         seed_q[:] = cand
@@ -1180,8 +1195,8 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
             if fuse_px > 0.0:
                 fuse_projections(raw, fuse_px, fused)
             limit = objective + tolerance
-            if blob_error(raw, fused, det, start, penalty, fuse_px, 0.0, limit, work[5], work[6],
-                          work[7], NO_UNSEEN) > limit:
+            if _objective(raw, fused, det, start, penalty, fuse_px, 0.0, limit, work[5], work[6],
+                          work[7], no_unseen) > limit:
                 continue
             if refined == max_refined:
                 return found
