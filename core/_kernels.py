@@ -513,9 +513,15 @@ def _posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, 
 def _evaluate(q, kin, views, offset, det, start, penalty, fuse_px, lost_px, limit, unseen, work):
     """The objective (:func:`blob_error`, summed up to ``limit``) of posture ``q``, projected
     into ``work`` (:func:`workspace`): a plain call, as :func:`_objective`."""
-    project_posture(q, kin, views, offset, fuse_px, work)
+    _project(q, kin, views, offset, fuse_px, work)
     return _objective(work[3], work[4], det, start, penalty, fuse_px, lost_px, limit, work[5], work[6],
                       work[7], unseen)
+
+
+@njit(cache=True, nogil=True)
+def _project(q, kin, views, offset, fuse_px, work) -> None:
+    """:func:`project_posture` as a plain call, as :func:`_objective`."""
+    project_posture(q, kin, views, offset, fuse_px, work)
 
 
 @njit(cache=True, nogil=True)
@@ -964,7 +970,7 @@ def _lost_markers(q, kin, views, offset, det, start, penalty, fuse_px):
     detection (what an unseen marker costs): (V, M) mask, and whether any was found."""
     V, M = views[0].shape[0], kin[6].shape[0]
     work = workspace(kin, views, q.shape[0], det.shape[0])
-    project_posture(q, kin, views, offset, fuse_px, work)
+    _project(q, kin, views, offset, fuse_px, work)
     raw, fused, index, dist, claims = work[3], work[4], work[5], work[6], work[7]
     unseen = np.zeros((V, M), dtype=np.bool_)
     lost = False
