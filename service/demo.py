@@ -114,7 +114,7 @@ def _fit_over_http(client: httpx.Client, video: Path, seed: int) -> bytes:
     t0 = time.monotonic()
     job = submitted.json()
     print(f"job {job['id']} submitted; on a first run the workers first compile the fitting "
-          "kernels, once for all of them (minutes on a fresh machine), later runs start at once",
+          "kernels, once for all of them (about 30 s on a fresh machine), later runs start at once",
           flush=True)
     shown = None
     while job["status"] not in ("succeeded", "failed", "canceled"):

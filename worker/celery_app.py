@@ -77,12 +77,9 @@ def make_celery(settings: Settings) -> Celery:
 @signals.worker_init.connect
 def compile_before_forking(**_: Any) -> None:
     """Compile (or load) the kernels in the worker's main process, before its pool forks."""
-    from core.warmup import compile_kernels  # the API imports this module too: not there
+    from core.warmup import compile_kernels_saying_so  # the API imports this module too: not there
 
-    log = logging.getLogger("mocap.worker")
-    log.warning("compiling the fitting kernels once for all worker processes "
-                "(minutes on a first run on a fresh machine, seconds afterwards)")
-    log.warning("fitting kernels ready in %.1f s", compile_kernels())
+    compile_kernels_saying_so(logging.getLogger("mocap.worker").warning)
 
 
 app = make_celery(get_settings())
