@@ -11,7 +11,6 @@ COPY core core
 COPY service service
 COPY worker worker
 COPY migrations migrations
-COPY examples examples
 # Editable, so service/migrate.py finds migrations/ and alembic.ini beside the packages.
 RUN pip install --no-cache-dir -e '.[service,monitor]'
 

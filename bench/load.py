@@ -28,6 +28,8 @@ import httpx
 import numpy as np
 from sqlalchemy import create_engine, text
 
+from core.examples import LOCUST
+
 # bench/service.py's helpers (render, start the API and workers, create a lab), loaded by path:
 # run as a script, bench/ comes first on sys.path and "service" would be that file anyway.
 _spec = importlib.util.spec_from_file_location("bench_service", Path(__file__).with_name("service.py"))
@@ -141,8 +143,8 @@ def main() -> None:
         workers = bench.start_workers(env, args.workers, data / "workers.log")
         try:
             lab = bench.create_lab(env, url)
-            model = lab.post("/models", content=(bench.EXAMPLE / "model.xml").read_bytes()).json()["id"]
-            rig = lab.post("/rigs", content=(bench.EXAMPLE / "rig.json").read_bytes()).json()["id"]
+            model = lab.post("/models", content=(LOCUST / "model.xml").read_bytes()).json()["id"]
+            rig = lab.post("/rigs", content=(LOCUST / "rig.json").read_bytes()).json()["id"]
             t0 = time.perf_counter()
             rec, outcomes = asyncio.run(run_clients(
                 url, lab.headers["Authorization"], videos, {"model_id": model, "rig_id": rig},

@@ -28,18 +28,18 @@ import httpx
 import numpy as np
 from sqlalchemy import create_engine, text
 
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.rig import Rig
 from core.synth import natural_movements, render_frames, write_video
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "locust_hind_leg"
 PG = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 OPTIONS = {"marker_diameter_px": 4.0, "chunk_size": 50, "histogram_version": 1}
 
 
 def render_trials(folder: Path, trials: int, images: int) -> list[Path]:
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
+    rig = Rig.from_json(LOCUST / "rig.json")
     paths = []
     for k in range(trials):
         rng = np.random.default_rng(1000 + k)
@@ -108,8 +108,8 @@ def create_lab(env: dict[str, str], url: str) -> httpx.Client:
 
 
 def upload(client: httpx.Client, videos: list[Path]) -> dict:
-    model = client.post("/models", content=(EXAMPLE / "model.xml").read_bytes()).json()["id"]
-    rig = client.post("/rigs", content=(EXAMPLE / "rig.json").read_bytes()).json()["id"]
+    model = client.post("/models", content=(LOCUST / "model.xml").read_bytes()).json()["id"]
+    rig = client.post("/rigs", content=(LOCUST / "rig.json").read_bytes()).json()["id"]
     ids = []
     for path in videos:
         with path.open("rb") as f:

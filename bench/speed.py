@@ -40,8 +40,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from core.anneal import AnnealParams
-from core.demo import EXAMPLE, FUSION_PX, MARKER_DIAMETER_PX, locust_benchmark
+from core.demo import FUSION_PX, MARKER_DIAMETER_PX, locust_benchmark
 from core.detect import detect
+from core.examples import LOCUST
 from core.fit import FitParams, fit_sequence
 from core.histogram import Histograms
 from core.model import KinematicModel
@@ -173,8 +174,8 @@ finally:
 def peak_memory_mb(path: Path, out: Path) -> float:
     """Peak resident memory of a `mocap fit` process on ``path``, MB (Linux: VmHWM, kB)."""
     result = subprocess.run(
-        [sys.executable, "-c", PEAK_RSS, "fit", str(path), "--model", str(EXAMPLE / "model.xml"),
-         "--rig", str(EXAMPLE / "rig.json"), "--out", str(out), "--marker-diameter-px",
+        [sys.executable, "-c", PEAK_RSS, "fit", str(path), "--model", str(LOCUST / "model.xml"),
+         "--rig", str(LOCUST / "rig.json"), "--out", str(out), "--marker-diameter-px",
          str(MARKER_DIAMETER_PX)],
         capture_output=True, text=True, check=True,
     )
@@ -244,8 +245,8 @@ def main() -> None:
     compile_time()
     if args.compile_only:
         return
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
+    rig = Rig.from_json(LOCUST / "rig.json")
     one_core()
     bench = locust_benchmark(n_samples=args.samples)
     print(f"one core ({os.cpu_count()} on the machine), locust benchmark: {args.samples} images, "

@@ -5,11 +5,13 @@ One concept per module, named as the paper names it: the kinematic model
 (``histogram``, Eq. 4), the error function (``error``, Eq. 5), Simulated
 Annealing (``anneal``, Eq. 6) with local refinement (``refine``), depth
 ambiguities (``ambiguity``), fitting images and sequences (``fit``, §3.2),
-marker detection (``detect``), de-interlacing (``fields``), video input
+marker detection (``detect``), de-interlacing (``fields``), video files
 (``video``), root tracking (``track``), the job steps shared by ``mocap fit``
-and the workers (``pipeline``), results files (``results``) and the synthetic
-renderer (``synth``). The names below are the public ones; compiled kernels
-live in ``_kernels``.
+and the workers (``pipeline``), results files (``results``), the synthetic
+renderer (``render``) and its movements (``movement``), gathered with the truth
+files by ``synth``, the lab's XML files (``xmlio``) and the paper's examples
+(``examples``). The names below are the public ones; compiled kernels live in
+``_kernels``.
 """
 
 from core.anneal import AnnealParams, anneal

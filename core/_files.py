@@ -1,8 +1,16 @@
-"""Reading user documents (model XML, rig JSON, histogram XML) with a bound on their size."""
+"""The lab's documents (model XML, rig JSON, histogram XML, CSV tables): reading with a bound
+on their size, and the C-locale decimal syntax of their numbers.
+
+Numbers are written without exponents, the shortest digits that read back to the same
+float, and read refusing Python's extras ('1_0', non-ASCII digits), so that a typo cannot
+silently become another number.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
+
+import numpy as np
 
 
 def read_bounded(source: str | bytes | Path, limit: int, what: str, error: type[ValueError]) -> str | bytes:
@@ -23,3 +31,24 @@ def read_bounded(source: str | bytes | Path, limit: int, what: str, error: type[
     if len(source) > limit:
         raise error(f"{what} is larger than {limit} bytes")
     return source
+
+
+def parse_decimal(raw: str) -> float:
+    """``float(raw)`` for C-locale decimals only (raises ValueError otherwise).
+
+    >>> parse_decimal("-4.5e-1")
+    -0.45
+    """
+    if "_" in raw or not raw.isascii():
+        raise ValueError(f"could not convert string to float: {raw!r}")
+    return float(raw)
+
+
+def decimal(value: float) -> str:
+    """A C-locale decimal (never an exponent), shortest that reads back to the same float;
+    negative zero is written 0.
+
+    >>> decimal(4.0), decimal(1e-05), decimal(-0.5), decimal(-0.0), decimal(1e-7)
+    ('4', '0.00001', '-0.5', '0', '0.0000001')
+    """
+    return np.format_float_positional(float(value) + 0.0, trim="-")

@@ -40,30 +40,43 @@ class StopReason(enum.Enum):
 
 @dataclass(frozen=True)
 class AnnealParams:
-    """SA parameters; defaults are the paper's Table 1.
+    """SA parameters: the paper's Table 1, and the polishing this engine adds to it.
 
-    ``plausibility_threshold`` is T_h, compared with a histogram bin's probability.
-    ``polish_every``: every that many iterations SA's best and current postures
-    are refined (``core.refine``) and the ``E < eps`` stop is tested on them
-    (see ``core._kernels.anneal``); 0 gives the paper's plain SA. Measured on
-    the locust benchmark (seeds 2004, 1, 2, 3), most images end at their first
-    polish; 250 fitted 20-35 % more images/s than 500 with the same both-view
-    RMSE to the third decimal (polishing at every cooling step, 1500, needed 2.6
-    times more iterations than 500); once polishes took 10 LM steps and drew
-    postures (``draws``), 100 fitted the DV-field benchmark 6-8 % faster than
-    250 (three runs each; 50: as 250, 125: between), RMSE again unchanged.
-    ``patience``: with polishing, SA also stops after that many polish rounds
-    without lowering its best error by 1 % (scipy basin-hopping's
-    ``niter_success``); 0 keeps the paper's stop rules alone.
-    ``draws``: at every polish round that leaves the best at or above ε, that
-    many postures are drawn from the histograms and the one of lowest error is
-    polished as well (a restart of the refinement where SA has not found the
-    basin yet). Measured on the DV-field locust benchmark (seeds 2004, 1, 2, 3,
-    both views, one core): 32 draws take SA from 511-575 to 304-373 iterations
-    per image and the four fits from 1.25 to 0.96 s (8: 1.02, 16: 1.01, 64:
-    1.05; polishing 3 draws instead of screening: 1.05-1.11), every RMSE the
-    same to the third decimal; 0 turns them off.
-    ``huber_px`` is the refinement's least-squares radius.
+    Parameters
+    ----------
+    n_end : int
+        N_end, iterations at most (Table 1: 35000).
+    n_l, n_tau : int
+        Iterations between two coolings of the step length l (N_l) and of the
+        temperature τ (N_τ).
+    tau0, l0 : float
+        Initial temperature (units of the Eq. 5 error, pixels) and step-length factor.
+    c_l, c_tau : float in (0, 1]
+        Cooling factors of l and τ.
+    eps : float
+        ε, pixels: SA stops once the best Eq. 5 error is below it.
+    plausibility_threshold : float in [0, 1)
+        T_h, compared with a histogram bin's probability: a proposed angle whose bin
+        is below it is drawn again (implausible).
+    polish_every : int
+        Every that many iterations SA's best and current postures are refined
+        (``core.refine``) and the ``E < eps`` stop is tested on them, so that SA ends
+        as soon as it has found the basin (see ``core._kernels.anneal``); 0 gives the
+        paper's plain SA.
+    patience : int
+        With polishing, SA also stops after that many polish rounds without lowering
+        its best error by 1 % (scipy basin-hopping's ``niter_success``); 0 keeps the
+        paper's stop rules alone.
+    draws : int
+        At every polish round that leaves the best at or above ε, that many postures
+        are drawn from the histograms and the one of lowest error is polished as well:
+        a restart of the refinement where SA has not found the basin yet; 0 turns
+        them off.
+    huber_px : float
+        The refinement's least-squares radius, pixels.
+
+    The defaults of ``polish_every``, ``patience`` and ``draws`` were chosen on the locust
+    benchmarks; docs/ENGINE_NOTES.md has the measurements.
     """
 
     n_end: int = 35000

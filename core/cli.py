@@ -63,11 +63,12 @@ def run() -> None:
 
 
 @contextmanager
-def user_errors() -> Iterator[None]:
-    """Turn a user's mistake into one line on stderr and exit code 2."""
+def user_errors(*also: type[Exception]) -> Iterator[None]:
+    """Turn a user's mistake (or one of the exception types ``also``) into one line on stderr and
+    exit code 2."""
     try:
         yield
-    except USER_ERRORS as exc:
+    except (*USER_ERRORS, *also) as exc:
         typer.echo(f"mocap: error: {exc}", err=True)
         raise typer.Exit(2) from None
 

@@ -18,12 +18,12 @@ import numpy as np
 
 from core.detect import detect
 from core.error import Detections, fusion_distance
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.pipeline import VideoSource
 from core.rig import Rig
 from core.synth import natural_movements, render_frames, write_video
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "locust_hind_leg"
 N_SAMPLES = 668
 FPS = 50.0
 MARKER_DIAMETER_PX = 4.0  # as rendered
@@ -44,8 +44,8 @@ class Benchmark:
 
 def locust_benchmark(seed: int = 2004, n_samples: int = N_SAMPLES, *, interlaced: bool = False) -> Benchmark:
     """Render and detect the benchmark (deterministic for a seed); ``interlaced``: as PAL DV fields."""
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
+    rig = Rig.from_json(LOCUST / "rig.json")
     rng = np.random.default_rng(seed)
     truth = natural_movements(model, rig, n_samples, rng=rng, n_sequences=10, fps=FPS)
     frames = render_frames(model, rig, truth, marker_diameter_px=MARKER_DIAMETER_PX, rng=rng,

@@ -8,24 +8,11 @@ field row ``r`` of parity ``p`` is frame row ``2r + p``, hence
 ``v_frame = 2·v_field − 0.5 + p`` (pixel centres at +0.5), ``u`` unchanged.
 
 A field samples every other frame row, so a marker a few pixels across covers two
-or three of its rows and its weighted centroid locks onto them: ±0.28 px in v on
-4 px discs. Where a sharp disc explains a detection's pixels, its centre is fitted
-instead (``_kernels.fit_field_discs``). Measured on a rendered 4 px disc over 40
-sub-pixel positions, v error max / RMS in frame pixels:
-
-==================  ==============  ===============  =============
-blur σ, noise σ     disc or centroid  centroid only  disc always
-==================  ==============  ===============  =============
-0, 0                0.003 / 0.001   0.28 / 0.19      0.003 / 0.001
-0, 2                0.021 / 0.009   0.31 / 0.18      0.021 / 0.009
-0, 6                0.061 / 0.027   0.35 / 0.19      0.061 / 0.027
-0.5, 2              0.19 / 0.10     0.19 / 0.11      0.088 / 0.041
-0.7, 2              0.16 / 0.043    0.071 / 0.035    0.18 / 0.10
-1.0, 2              0.20 / 0.053    0.024 / 0.014    0.21 / 0.13
-==================  ==============  ===============  =============
-
-Blurred markers are where the choice (:data:`DISC_MISFIT_MAX`) is imperfect: a model
-of a blurred disc would serve them better.
+or three of its rows and its weighted centroid locks onto them (up to ±0.28 px in v
+on 4 px discs). Where a sharp disc explains a detection's pixels, its centre is fitted
+instead (``_kernels.fit_field_discs``), which brings a sharp disc's error to the noise's;
+blurred markers keep the centroid (:data:`DISC_MISFIT_MAX`), an imperfect choice that a
+model of a blurred disc would serve better. docs/ENGINE_NOTES.md has the measured errors.
 
 Which field is exposed first depends on the camera and the capture chain
 (analogue PAL captures are usually even-first, DV is odd-first); it is a

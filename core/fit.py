@@ -1,9 +1,10 @@
 """Fitting images and sequences: SA + refinement per image, histograms adapted per frame.
 
-Every image is fitted independently (paper §4): its random stream depends only
-on ``(seed, sample, attempt)``, so any slice of a sequence can be fitted by any
-worker, in any order, and give the same postures as a single process fitting
-the same chunks.
+Every image is fitted on its own (paper §4): its random stream depends only on
+``(seed, sample, attempt)``, and within a chunk the parts of a tree-shaped model start
+from the predecessor's posture (a warm start, :func:`fit_chunk`), so any chunk of a
+sequence can be fitted by any worker, in any order, and give the same postures as a
+single process fitting the same chunks.
 
 The sequence flow, shared by ``mocap fit`` and the distributed workers (each step a
 public function, so that a worker calls the same code as a local run):
@@ -47,7 +48,12 @@ from core.error import (
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
-from core.treefit import attempt_kernel, fit_tree, refine_whole
+from core.treefit import (
+    attempt_kernel,
+    fit_tree,
+    refine_whole,
+    tree_flip_alternatives,
+)
 
 __all__ = [
     "ChunkResult",
@@ -280,6 +286,7 @@ def fit_image(
     stream: np.ndarray,
     draw_start: bool = False,
     offsets: np.ndarray | None = None,
+    warm: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float, float, int]:
     """One attempt on one image: SA from the histogram means (paper §3.1), then refinement.
 
@@ -295,6 +302,11 @@ def fit_image(
     ----------
     stream : the attempt's random state from :func:`image_stream`; advanced in place.
     offsets : (V, 2) per-view pixel offsets (root tracking), optional.
+    warm : (k, D) warm starts, optional (:func:`_warm_starts`): for a tree, refined on this
+        image first per part, the first that reaches twice the part's ε replaces its SA
+        (``core.treefit.warm_start``). A single chain always runs SA: it costs about a
+        millisecond there, and a warm start that reaches ε in a wrong minimum would carry
+        that minimum on to the next images.
 
     Returns
     -------
@@ -303,7 +315,8 @@ def fit_image(
     check_views(detections, rig)
     off = view_offsets(offsets, rig)
     if model.tree is not None:
-        return fit_tree(detections, model, rig, model.tree, space, params, stream, draw_start, off)
+        return fit_tree(detections, model, rig, model.tree, space, params, stream, draw_start, off,
+                        warm)
     dofs, error, objective, iterations = attempt_kernel(
         np.arange(len(model.dofs)), model.arrays, detections.kernel_points, detections.start,
         model, rig, space, params, params.anneal.eps, stream, draw_start, off,
@@ -331,9 +344,10 @@ def fit_chunk(
     images : iterable of Detections, samples ``first_sample, first_sample + 1, …``.
     histograms : the constraints at the start of the chunk; not modified.
     seed : the job's seed; image ``s`` uses :func:`image_stream` ``(seed, s, 1)``.
-        Each image after the chunk's first also tries the previous image's posture as an
-        alternative (:func:`_attempt`), so a chunk's fits depend on its first sample:
-        fitted anywhere, the same chunks give the same fits.
+        Each image after the chunk's first starts from the previous image's posture (a
+        warm start) and tries it as an alternative (:func:`_attempt`); the chunk's first
+        image starts cold, so a chunk's fits depend on its first sample and nothing
+        before it: fitted anywhere, the same chunks give the same fits.
     offsets : optional per-image (V, 2) view offsets (root tracking), same length as images.
     should_stop : checked between images; returning True ends the chunk early (cancel).
     progress : called with every finished image.
@@ -349,7 +363,7 @@ def fit_chunk(
             break
         sample = first_sample + k
         off = next(offset_iter) if offset_iter is not None else None
-        warm = fits[-1].dofs if fits else None
+        warm = _warm_starts(fits, model)
         fit = _first_attempt(det, sample, off, model, rig, working, params, seed, geometry, warm)
         if fit.status is Status.OK:
             working.update(fit.dofs[rot])
@@ -378,32 +392,58 @@ def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed, g
 def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None):
     """fit_image, then its alternatives: (best candidate, the others, SA iterations).
 
-    Alternatives are the depth flips of the fit (``core.ambiguity``) and, given ``warm``
-    (the previous image's posture), that posture refined on this image, when it lands
-    in a distinct minimum scoring within the tolerance: at 50-200 Hz the previous
-    posture is usually near the truth, so a fit that jumped into another minimum that
-    explains the image as well (the paper's Fig. 9) gets the truth as its alternative,
-    and the choice by continuity can take it. SA itself never starts from it: one
-    wrong image cannot lead the next astray.
+    ``warm`` (:func:`_warm_starts`) holds warm starts (:func:`fit_image`): at 50-200 Hz
+    the previous image's posture is usually near the truth, and where it reaches twice ε
+    SA is skipped. Alternatives are the depth flips of the fit (``core.ambiguity``) and, where
+    SA ran and left its basin, the previous posture refined on this image, when it lands in a
+    distinct minimum scoring within the tolerance: a fit that jumped into another
+    minimum that explains the image as well (the paper's Fig. 9) gets the truth as its
+    alternative, and the choice by continuity can take it. A warm-started fit keeps its
+    depth flips as alternatives, so a previous posture in a wrong minimum that this
+    image still supports can be corrected by that choice too.
     """
     dofs, error, objective, its = fit_image(
         det, model=model, rig=rig, space=space, params=params, stream=stream,
-        draw_start=draw_start, offsets=offsets,
+        draw_start=draw_start, offsets=offsets, warm=warm,
     )
     fit = Candidate(dofs, error, objective)
     others = []
     tolerance = alternative_tolerance(params, det, len(model.markers))
     if tolerance > 0:
-        others = flip_alternatives(
+        flips = flip_alternatives if model.tree is None else tree_flip_alternatives
+        others = flips(
             fit, det, model=model, rig=rig, geometry=geometry, tolerance_px=tolerance,
             fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
             huber_px=params.anneal.huber_px, offsets=offsets,
         )
-        if warm is not None and np.all(np.isfinite(warm)):
+        if warm is not None and its > 0:  # with no SA iteration, every part came from warm
             others += _warm_alternatives(fit, others, warm, det, model, rig, params, tolerance,
                                          offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
     return ranked[0], tuple(ranked[1:]), its
+
+
+def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:
+    """Warm starts of the image after ``fits`` (the chunk's so far), (k, D), best guess first:
+    the last posture moved on by its last step (constant velocity, within the ranges), then
+    the last posture itself; None at a chunk's first image and after an image without a
+    posture, so that a chunk's fits depend on nothing before it.
+
+    >>> from core.examples import LOCUST
+    >>> from core.model import KinematicModel
+    >>> model = KinematicModel.from_xml(LOCUST / "model.xml")
+    >>> fit = ImageFit(0, model.lower + 10.0, 0.1, 0.1, 1, Status.OK, 1, (4, 4))
+    >>> _warm_starts([], model) is None, _warm_starts([fit], model).shape
+    (True, (1, 5))
+    >>> moved = replace(fit, sample=1, dofs=model.lower + 12.0)
+    >>> (_warm_starts([fit, moved], model)[:, 0] - model.lower[0]).tolist()
+    [14.0, 12.0]
+    """
+    if not fits or not np.all(np.isfinite(last := fits[-1].dofs)):
+        return None
+    if len(fits) < 2 or not np.all(np.isfinite(before := fits[-2].dofs)):
+        return last[None]
+    return np.vstack([np.clip(2.0 * last - before, model.lower, model.upper), last])
 
 
 def alternative_tolerance(params: FitParams, det: Detections, n_markers: int) -> float:
@@ -421,25 +461,32 @@ def alternative_tolerance(params: FitParams, det: Detections, n_markers: int) ->
 def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray, det: Detections,
                        model: KinematicModel, rig: Rig, params: FitParams, tolerance: float,
                        offsets: np.ndarray | None) -> list[Candidate]:
-    """The previous image's posture ``warm`` refined on this image, where it lands in another
-    minimum: within ``tolerance`` of the fit's objective (or better) and more than
-    :data:`DISTINCT_DEG` from the fit and every other alternative in some rotational DOF.
+    """The previous image's posture (``warm[-1]``, of the warm starts (k, D)) refined on this
+    image, where it lands in another minimum: within ``tolerance`` of the fit's objective
+    (or better) and more than :data:`DISTINCT_DEG` from the fit and every other alternative
+    in some rotational DOF.
 
-    Only where the fit left ``warm``'s basin (moved more than :data:`DISTINCT_DEG`; most
-    images at 50 Hz do not, and nothing is refined). For a tree (``core.tree``), each part
-    that moved is taken from ``warm`` on its own, the rest of the fit kept: one leg that
-    jumped must not need every other leg to be as it was. At most the best two are kept.
+    Only where the fit left the warm starts' basin (moved more than :data:`DISTINCT_DEG`
+    from each of them; at 50-200 Hz most images do not, and nothing is refined). For a
+    tree (``core.tree``), each part that moved is taken from ``warm[-1]`` on its own, the
+    rest of the fit kept: one leg that jumped must not need every other leg to be as it
+    was. At most the best two are kept.
     """
     rot = model.rotational
-    if not _apart(warm, fit.dofs, rot):
+
+    def moved(dofs: np.ndarray) -> bool:
+        return all(_apart(w[dofs], fit.dofs[dofs], rot[dofs]) for w in warm)
+
+    every = np.arange(len(model.dofs))
+    if not moved(every):
         return []
-    starts = [warm]
+    starts = [warm[-1]]
     if model.tree is not None:
         starts = []
         for part in model.tree.parts:
-            if _apart(warm[part.dofs], fit.dofs[part.dofs], rot[part.dofs]):
+            if moved(part.dofs):
                 start = fit.dofs.copy()
-                start[part.dofs] = warm[part.dofs]
+                start[part.dofs] = warm[-1][part.dofs]
                 starts.append(start)
     off = view_offsets(offsets, rig)
     found: list[Candidate] = []

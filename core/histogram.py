@@ -23,7 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from core import _kernels
-from core.model import KinematicModel, ModelError, _esc, _float, _num, _parse_xml
+from core._files import decimal, parse_decimal
+from core.model import KinematicModel
+from core.xmlio import attribute, parse
 
 __all__ = ["MAX_BINS", "MAX_COUNT", "HistogramError", "Histograms"]
 
@@ -171,20 +173,17 @@ class Histograms:
 
     # ---- FORMATS §4 --------------------------------------------------------------------------
     def to_xml(self) -> str:
-        lines = [f'<histograms model="{_esc(self.model)}" bins="{self.bins}">']
+        lines = [f'<histograms model="{attribute(self.model)}" bins="{self.bins}">']
         for name, count, p in zip(self.names, self.counts, self.probs, strict=True):
-            values = " ".join(_num(v) for v in p)
-            lines.append(f'  <dof name="{_esc(name)}" count="{_num(count)}">{values}</dof>')
+            values = " ".join(decimal(v) for v in p)
+            lines.append(f'  <dof name="{attribute(name)}" count="{decimal(count)}">{values}</dof>')
         lines.append("</histograms>")
         return "\n".join(lines) + "\n"
 
     @classmethod
     def from_xml(cls, source: str | bytes | Path, model: KinematicModel) -> Histograms:
         """Read ``histograms.xml`` for ``model``: one ``<dof>`` per rotational DOF of the model."""
-        try:
-            root = _parse_xml(source, "histogram file")
-        except ModelError as exc:
-            raise HistogramError(str(exc)) from exc
+        root = parse(source, "histogram file", HistogramError)
         if root.tag != "histograms":
             raise HistogramError(f"root element is <{root.tag}>, expected <histograms>")
         raw_bins = root.get("bins", str(DEFAULT_BINS)).strip()
@@ -221,8 +220,8 @@ def _parse_dof(el, name: str, bins: int) -> tuple[float, np.ndarray]:
         got = len(tokens) if len(tokens) < bins else bins + sum(1 for _ in _VALUE.finditer(tokens[-1]))
         raise HistogramError(f"{where}: expected {bins} values, got {got}")
     try:
-        count = _float(el.get("count", "nan"))
-        values = np.array([_float(v) for v in tokens], dtype=np.float64)
+        count = parse_decimal(el.get("count", "nan"))
+        values = np.array([parse_decimal(v) for v in tokens], dtype=np.float64)
     except ValueError as exc:
         raise HistogramError(f"{where}: {exc}") from None
     if not (math.isfinite(count) and count >= 0):

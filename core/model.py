@@ -16,21 +16,19 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
-from xml.etree.ElementTree import Element, TreeBuilder
+from xml.etree.ElementTree import Element
 
-import defusedxml.ElementTree as SafeET
 import numpy as np
-from defusedxml import DefusedXmlException
 
 from core import _kernels
-from core._files import read_bounded
+from core._files import decimal, parse_decimal
+from core.xmlio import attribute, parse
 
 if TYPE_CHECKING:
     from core.tree import Tree
 
 __all__ = [
-    "MAX_ABS_VALUE", "MAX_ATTRIBUTE_CHARS", "MAX_JOINTS", "MAX_MARKERS", "MAX_XML_ATTRIBUTES",
-    "MAX_XML_BYTES", "MAX_XML_DEPTH", "MAX_XML_ELEMENTS", "Dof", "Joint", "KinematicArrays", "KinematicModel",
+    "MAX_ABS_VALUE", "MAX_JOINTS", "MAX_MARKERS", "Dof", "Joint", "KinematicArrays", "KinematicModel",
     "Marker", "ModelError",
 ]
 
@@ -40,15 +38,6 @@ TRANSLATION_AXES = ("tx", "ty", "tz")
 _ROT_SLOT = {"y": 0, "x": 1, "z": 2}
 _TRANS_SLOT = {"tx": 0, "ty": 1, "tz": 2}
 
-# Limits on XML that users upload (model files, FORMATS §1, and histogram files, §4). Real
-# files are far below them: a lab's model has tens of joints and takes a few kB; histograms
-# of 100 DOFs at 360 bins take about 1 MB. They bound what a hostile file can cost (time and
-# memory of the parse, size of error messages and of output column names).
-MAX_XML_BYTES = 16 * 2**20  # bytes of a file or bytes object; characters of a str
-MAX_XML_DEPTH = 16  # a model nests three deep (model > joint > dof)
-MAX_XML_ELEMENTS = 100_000  # a 1000-joint model with three dofs per joint has ~7000
-MAX_XML_ATTRIBUTES = 200_000  # in the whole file; a 1000-joint model has ~25,000
-MAX_ATTRIBUTE_CHARS = 1024  # names, and numbers as to_xml writes them (1e-300 takes 302)
 # Defaults of the ``max_joints`` and ``max_markers`` options of ``from_xml``: ten times a
 # whole-body model with fingers. Fitting costs time per marker, so a service should not go
 # much higher; forward kinematics and validation are iterative and work at any size.
@@ -141,9 +130,10 @@ class KinematicModel:
         """Parse and validate ``model.xml`` given as text, bytes or a path.
 
         ``max_joints`` and ``max_markers`` refuse models larger than a lab would use
-        (see :data:`MAX_JOINTS`); the XML itself is bounded by the ``MAX_XML_*`` limits.
+        (see :data:`MAX_JOINTS`); the XML itself is bounded by the ``MAX_XML_*`` limits of
+        :mod:`core.xmlio`.
         """
-        root = _parse_xml(source)
+        root = parse(source, "model file", ModelError)
         if root.tag != "model":
             raise ModelError(f"root element is <{root.tag}>, expected <model>")
         _check_count(root, "joint", max_joints)
@@ -167,26 +157,26 @@ class KinematicModel:
 
     def to_xml(self) -> str:
         """The model as ``model.xml`` text (FORMATS §1); ``from_xml(to_xml())`` is identity."""
-        lines = [f'<model name="{_esc(self.name)}" units="{_esc(self.units)}">']
+        lines = [f'<model name="{attribute(self.name)}" units="{attribute(self.units)}">']
         for joint in self.joints:
-            parent = f' parent="{_esc(joint.parent)}"' if joint.parent is not None else ""
-            lines.append(f'  <joint name="{_esc(joint.name)}"{parent}>')
+            parent = f' parent="{attribute(joint.parent)}"' if joint.parent is not None else ""
+            lines.append(f'  <joint name="{attribute(joint.name)}"{parent}>')
             x, y, z = joint.offset
-            lines.append(f'    <offset x="{_num(x)}" y="{_num(y)}" z="{_num(z)}"/>')
+            lines.append(f'    <offset x="{decimal(x)}" y="{decimal(y)}" z="{decimal(z)}"/>')
             r = joint.rest
-            lines.append(f'    <rest y="{_num(r["y"])}" x="{_num(r["x"])}" z="{_num(r["z"])}"/>')
+            lines.append(f'    <rest y="{decimal(r["y"])}" x="{decimal(r["x"])}" z="{decimal(r["z"])}"/>')
             for dof in self.dofs:
                 if dof.joint == joint.name:
                     lines.append(
-                        f'    <dof axis="{dof.axis}" name="{_esc(dof.name)}" '
-                        f'min="{_num(dof.min)}" max="{_num(dof.max)}"/>'
+                        f'    <dof axis="{dof.axis}" name="{attribute(dof.name)}" '
+                        f'min="{decimal(dof.min)}" max="{decimal(dof.max)}"/>'
                     )
             lines.append("  </joint>")
         for m in self.markers:
             x, y, z = m.position
             lines.append(
-                f'  <marker name="{_esc(m.name)}" joint="{_esc(m.joint)}" '
-                f'x="{_num(x)}" y="{_num(y)}" z="{_num(z)}"/>'
+                f'  <marker name="{attribute(m.name)}" joint="{attribute(m.joint)}" '
+                f'x="{decimal(x)}" y="{decimal(y)}" z="{decimal(z)}"/>'
             )
         lines.append("</model>")
         return "\n".join(lines) + "\n"
@@ -277,86 +267,6 @@ class KinematicModel:
 # ---- parsing helpers ---------------------------------------------------------------
 
 
-def _parse_xml(source: str | bytes | Path, what: str = "model file") -> Element:
-    """The root element of ``source``, refusing DTDs, entities and anything over the limits.
-
-    ``what`` names the file in messages ("model file", "histogram file").
-    """
-    data = read_bounded(source, MAX_XML_BYTES, what, ModelError)
-    try:
-        return _parse_bounded(data)
-    except DefusedXmlException as exc:
-        raise ModelError(
-            f"refused unsafe XML ({type(exc).__name__}): DTDs and entities are not allowed"
-        ) from exc
-    except SafeET.ParseError as exc:
-        raise ModelError(f"not well-formed XML: {exc}") from exc
-
-
-def _parse_bounded(data: str | bytes) -> Element:
-    """Parse ``data`` in one pass, stopping at the first element beyond a limit.
-
-    expat is not recursive, but a tree a million elements deep or wide costs memory
-    and time in every later walk; :class:`_BoundedTreeBuilder` stops it while it is read.
-    """
-    _check_attribute_count(data)
-    parser = SafeET.DefusedXMLParser(target=_BoundedTreeBuilder(), forbid_dtd=True)
-    parser.feed(data)
-    return parser.close()
-
-
-def _check_attribute_count(data: str | bytes) -> None:
-    """Refuse more than :data:`MAX_XML_ATTRIBUTES` attributes before parsing.
-
-    expat hands an element's attributes over all at once: a million of them on one
-    element cost seconds and hundreds of MB before any callback could object. Every
-    attribute has one '=', so counting them (C speed) bounds the attributes from above.
-    """
-    equals = data.count(b"=" if isinstance(data, bytes) else "=")
-    if equals > MAX_XML_ATTRIBUTES:
-        raise ModelError(
-            f"more than {MAX_XML_ATTRIBUTES} attributes ({equals} '=' signs; MAX_XML_ATTRIBUTES)"
-        )
-
-
-class _BoundedTreeBuilder(TreeBuilder):
-    """A TreeBuilder that refuses depth, element count and lengths beyond the ``MAX_XML_*`` limits."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self._depth = self._elements = 0
-
-    def start(self, tag: str, attrs: dict[str, str]) -> Element:
-        self._depth += 1
-        self._elements += 1
-        if self._depth > MAX_XML_DEPTH:
-            raise ModelError(f"elements are nested more than {MAX_XML_DEPTH} deep (MAX_XML_DEPTH)")
-        if self._elements > MAX_XML_ELEMENTS:
-            raise ModelError(f"more than {MAX_XML_ELEMENTS} elements (MAX_XML_ELEMENTS)")
-        _check_lengths(tag, attrs)
-        return super().start(tag, attrs)
-
-    def end(self, tag: str) -> Element:
-        self._depth -= 1
-        return super().end(tag)
-
-
-def _check_lengths(tag: str, attrs: dict[str, str]) -> None:
-    """Refuse tag names, attribute names and values longer than :data:`MAX_ATTRIBUTE_CHARS`."""
-    if len(tag) > MAX_ATTRIBUTE_CHARS:
-        raise ModelError(
-            f"an element name is {len(tag)} characters long; at most {MAX_ATTRIBUTE_CHARS} "
-            "are allowed (MAX_ATTRIBUTE_CHARS)"
-        )
-    for key, value in attrs.items():
-        longest = max(len(key), len(value))
-        if longest > MAX_ATTRIBUTE_CHARS:
-            raise ModelError(
-                f"<{tag}> attribute {key[:40]!r} is {longest} characters long; at most "
-                f"{MAX_ATTRIBUTE_CHARS} are allowed (MAX_ATTRIBUTE_CHARS)"
-            )
-
-
 def _check_count(root: Element, tag: str, limit: int) -> None:
     count = len(root.findall(tag))
     if count > limit:
@@ -370,7 +280,7 @@ def _number(el: Element, attr: str, where: str, default: float | None = None) ->
             raise ModelError(f"{where}: missing attribute '{attr}'")
         return default
     try:
-        value = _float(raw)
+        value = parse_decimal(raw)
     except ValueError:
         raise ModelError(f"{where}: attribute {attr}={raw!r} is not a number") from None
     if not math.isfinite(value):
@@ -378,18 +288,6 @@ def _number(el: Element, attr: str, where: str, default: float | None = None) ->
     if abs(value) > MAX_ABS_VALUE:
         raise ModelError(f"{where}: attribute {attr}={raw!r} is beyond ±{MAX_ABS_VALUE:g} (MAX_ABS_VALUE)")
     return value
-
-
-def _float(raw: str) -> float:
-    """``float(raw)`` for C-locale decimals only: Python's digit separators ('1_0') and
-    non-ASCII digits are refused, so a typo cannot silently become another number.
-
-    >>> _float("-4.5e-1")
-    -0.45
-    """
-    if "_" in raw or not raw.isascii():
-        raise ValueError(f"could not convert string to float: {raw!r}")
-    return float(raw)
 
 
 def _xyz(el: Element | None, where: str) -> tuple[float, float, float]:
@@ -484,11 +382,11 @@ def _validate_model(model: KinematicModel) -> None:
 def _validate_dof(d: Dof, root: str) -> None:
     where = f"joint '{d.joint}' dof '{d.name}'"
     if d.min >= d.max:
-        raise ModelError(f"{where}: min={_num(d.min)} must be smaller than max={_num(d.max)}")
+        raise ModelError(f"{where}: min={decimal(d.min)} must be smaller than max={decimal(d.max)}")
     if not d.rotational and d.joint != root:
         raise ModelError(f"{where}: translational axis '{d.axis}' is only allowed on the root joint")
     if d.rotational and d.max - d.min > 360.0:
-        raise ModelError(f"{where}: range {_num(d.min)}..{_num(d.max)} spans more than 360 degrees")
+        raise ModelError(f"{where}: range {decimal(d.min)}..{decimal(d.max)} spans more than 360 degrees")
 
 
 def _check_unique(kind: str, names: list[str]) -> None:
@@ -560,20 +458,3 @@ def euler_matrix(y: float, x: float, z: float) -> np.ndarray:
     out = np.empty((3, 3))
     _kernels.euler_matrix(math.radians(y), math.radians(x), math.radians(z), out)
     return out
-
-
-def _num(value: float) -> str:
-    """A C-locale decimal (never an exponent), shortest that reads back to the same float.
-
-    >>> _num(4.0), _num(1e-05), _num(-0.5)
-    ('4', '0.00001', '-0.5')
-    """
-    return np.format_float_positional(float(value), trim="-")
-
-
-def _esc(text: str) -> str:
-    """Text for a double-quoted attribute; tab, LF, CR as references (raw ones would read back as spaces)."""
-    return (
-        text.replace("&", "&amp;").replace('"', "&quot;").replace("<", "&lt;").replace(">", "&gt;")
-        .replace("\t", "&#9;").replace("\n", "&#10;").replace("\r", "&#13;")
-    )

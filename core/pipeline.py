@@ -152,8 +152,8 @@ def estimate_marker_diameter(source: VideoSource, *, images: int = 50) -> float 
     """The markers' diameter in pixels (``core.detect.marker_diameter``) over the first
     ``images`` images, or None when none of them has a detection.
 
-    The first images, in one decoding pass: spreading them over the video costs one seek
-    each, which measured 0.2-0.6 s apiece on MJPG and FFV1 files.
+    The first images, in one decoding pass: spreading them over the video would cost one
+    seek each (docs/ENGINE_NOTES.md).
     """
     return marker_diameter(source[0:min(images, len(source))])
 
@@ -278,8 +278,8 @@ def run_fit(
 
     With several processes and no ``job.chunk_size``, the sequence is split into
     :data:`CHUNKS_PER_PROCESS` chunks per process, handed out as processes free
-    up (images differ in cost: equal halves left one process idle for 20 % of
-    the time); chunks are fitted from ``histograms`` and merged by counts,
+    up (images differ in cost: equal halves leave one process idle, docs/ENGINE_NOTES.md);
+    chunks are fitted from ``histograms`` and merged by counts,
     exactly as distributed workers do, and so are the re-analyses. ``progress``
     is then not called: every image is fitted in another process.
     """

@@ -1,4 +1,5 @@
-"""The per-image results table ``angles.csv`` (FORMATS §3) and the timing of samples.
+"""The per-sample tables: ``angles.csv`` (FORMATS §3), the true postures of a rendered clip
+(``truth.csv``, the same leading columns), and the timing of samples.
 
 Columns: ``sample,frame,field,time_s,<dof names in model order>,error_px,attempts,status``,
 then FORMATS §3's two optional columns, always written here:
@@ -7,6 +8,10 @@ is compared with) and ``alternative_deg`` (empty, or how far in degrees the best
 alternative posture lies: the image is ambiguous). DOFs are reported in their own range
 (no wrapping), C-locale decimals. An image without detections has empty DOF and error
 cells: there is no posture to report.
+
+``truth.csv`` has the same leading columns and the DOFs, nothing else:
+``sample,frame,field,time_s,<dof names>``, numbers written exactly (shortest decimals that
+read back to the same float), so that a rendered clip's truth survives the file.
 """
 
 from __future__ import annotations
@@ -20,11 +25,14 @@ from typing import TextIO
 
 import numpy as np
 
+from core._checks import check_positive, check_trajectory
+from core._files import decimal
 from core.fields import field_parities
 from core.fit import ImageFit, Status
 from core.model import KinematicModel
 
-__all__ = ["SampleClock", "angles_header", "read_angles_csv", "write_angles_csv"]
+__all__ = ["SampleClock", "angles_header", "read_angles_csv", "read_truth_csv", "write_angles_csv",
+           "write_truth_csv"]
 
 
 @dataclass(frozen=True)
@@ -61,12 +69,13 @@ class SampleClock:
         return (sample // 2) / self.fps + (sample % 2) / (2.0 * self.fps)
 
 
+SAMPLE_COLUMNS = ["sample", "frame", "field", "time_s"]  # both tables begin with them
 _FIXED_TAIL = ["error_px", "attempts", "status"]
 OPTIONAL_COLUMNS = ["error_per_marker_px", "alternative_deg"]
 
 
 def angles_header(model: KinematicModel) -> list[str]:
-    return ["sample", "frame", "field", "time_s", *model.dof_names, *_FIXED_TAIL, *OPTIONAL_COLUMNS]
+    return [*SAMPLE_COLUMNS, *model.dof_names, *_FIXED_TAIL, *OPTIONAL_COLUMNS]
 
 
 def write_angles_csv(
@@ -125,7 +134,7 @@ def read_angles_csv(path: Path) -> AnglesTable:
     except ValueError:
         status_at = -1
     names = header[4:status_at - 2]
-    if header[:4] != ["sample", "frame", "field", "time_s"] or status_at < 7 \
+    if header[:4] != SAMPLE_COLUMNS or status_at < 7 \
             or header[status_at - 2:status_at + 1] != _FIXED_TAIL:
         raise ValueError(f"{path.name}: header {header} is not an angles.csv header (FORMATS §3)")
     extra = header[status_at + 1:]
@@ -153,3 +162,80 @@ def read_angles_csv(path: Path) -> AnglesTable:
         error_per_marker=optional("error_per_marker_px"),
         alternative_deg=optional("alternative_deg"),
     )
+
+
+# ---- truth.csv ---------------------------------------------------------------------------------
+
+
+def write_truth_csv(
+    path: str | Path,
+    model: KinematicModel,
+    trajectory: np.ndarray,
+    *,
+    fps: float,
+    interlaced: bool,
+) -> None:
+    """Write the true postures as CSV: ``sample,frame,field,time_s,<dof names>``.
+
+    Columns mean what they mean in ``angles.csv`` (FORMATS §3): ``sample`` is the
+    0-based sample (frame, or field when ``interlaced``), ``frame`` the video
+    frame, ``field`` ``even``/``odd`` when interlaced and empty otherwise,
+    ``time_s`` seconds from the start of the video, then one column per DOF in
+    model-file order (degrees, model units). Numbers are C-locale decimals
+    without exponents, written with the shortest digits that read back exactly.
+
+    Parameters
+    ----------
+    path : str or Path
+    model : KinematicModel
+    trajectory : ndarray of shape (T, D), float64, model-file DOF order.
+    fps : float
+        Video frame rate, > 0 (fields are 1 / (2 fps) apart when interlaced).
+    interlaced : bool
+        True if samples are fields: sample 2k is frame k's even field, 2k+1 its odd field.
+    """
+    q = check_trajectory(trajectory, model)
+    clock = SampleClock(fps=check_positive("fps", fps), deinterlaced=bool(interlaced))
+    with Path(path).open("w", newline="") as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow([*SAMPLE_COLUMNS, *model.dof_names])
+        for s, row in enumerate(q):
+            writer.writerow(
+                [s, clock.frame(s), clock.field(s), decimal(clock.time(s)),
+                 *(decimal(v) for v in row)]
+            )
+
+
+def read_truth_csv(path: str | Path) -> tuple[list[str], np.ndarray]:
+    """Read a truth CSV written by :func:`write_truth_csv`.
+
+    Returns
+    -------
+    names : list of str
+        DOF names, in column (model-file) order.
+    dofs : ndarray of shape (T, D), float64
+        True DOF values, one row per sample, in sample order.
+
+    Raises
+    ------
+    ValueError
+        If the header is not ``sample,frame,field,time_s,<dofs>``, or a cell is not a number.
+    """
+    path = Path(path)
+    with path.open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows or rows[0][:4] != SAMPLE_COLUMNS or len(rows[0]) < 5:
+        head = rows[0] if rows else []
+        raise ValueError(f"{path}: header {head} is not 'sample,frame,field,time_s,<dof names>'")
+    names = rows[0][4:]
+    values = np.empty((len(rows) - 1, len(names)), dtype=np.float64)
+    for i, row in enumerate(rows[1:]):
+        if len(row) != len(names) + 4:
+            raise ValueError(
+                f"{path}: line {i + 2} has {len(row)} cells, expected {len(names) + 4}"
+            )
+        try:
+            values[i] = [float(c) for c in row[4:]]
+        except ValueError:
+            raise ValueError(f"{path}: line {i + 2} has a DOF cell that is not a number") from None
+    return names, values

@@ -88,9 +88,9 @@ def decompose(model: KinematicModel) -> Tree | None:
     None for a single chain (no joint with two children carrying markers and DOFs)
     and for a trunk whose DOFs its own markers cannot fix.
 
+    >>> from core.examples import LOCUST
     >>> from core.model import KinematicModel
-    >>> leg = open("examples/locust_hind_leg/model.xml").read()
-    >>> decompose(KinematicModel.from_xml(leg)) is None
+    >>> decompose(KinematicModel.from_xml(LOCUST / "model.xml")) is None
     True
     """
     topo = model.arrays

@@ -19,30 +19,50 @@ detector merged), and the new posture is kept where it lowers the
 branches' reach, its distance to the nearest marker, capped), which does charge
 the stolen leg's blobs. A real fusion (two markers imaged as one blob) survives:
 refitting without the shared blob raises the error, and the first posture stays.
+
+Within a chunk, each part first tries the previous image's posture (:func:`warm_start`):
+refined on the part's detections, it replaces the part's SA where it reaches twice the
+part's ε, and when every part came from a warm start the joint refinement takes
+:data:`WARM_JOINT_STEPS` steps: at 50-200 Hz most parts of most images skip SA (figures in
+docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
+(:func:`tree_flip_alternatives`).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from core import _kernels
-from core.error import Detections
+from core.ambiguity import (
+    MAX_ALTERNATIVES,
+    MAX_FLIP_REFINES,
+    Candidate,
+    FlipGeometry,
+    flip_alternatives,
+    flip_masks,
+)
+from core.error import Detections, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
-from core.tree import Part, Tree, reach_points
+from core.tree import Part, Tree, _subtrees, reach_points
 
 if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
-__all__ = ["attempt_kernel", "fit_tree", "refine_whole", "two_sided_error"]
+__all__ = ["attempt_kernel", "fit_tree", "part_objective", "refine_whole", "shared_projections",
+           "tree_flip_alternatives", "two_sided_error", "warm_start"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
 CONFLICT_SWEEPS = 2
 JOINT_STEPS = 10  # LM steps of the joint refinement: the parts arrive refined
+WARM_STEPS = 10  # LM steps refining the previous image's posture of a part (a warm start)
+WARM_JOINT_STEPS = 2  # joint refinement of parts that all came from warm starts
+WARM_EPS_FACTOR = 2.0  # a warm start stands in for SA within this many times the part's ε
 
 
 def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
@@ -63,36 +83,130 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
     )
 
 
+def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None,
+               model: KinematicModel, rig: Rig, params: FitParams, eps: float, off: np.ndarray,
+               unseen: np.ndarray = _kernels.NO_UNSEEN) -> tuple[np.ndarray, float, bool] | None:
+    """The warm starts ``warm`` (k, D), each one's posture of the DOFs ``dofs`` (a part posed
+    by ``kin``) refined on detections ``points`` (N, 3) grouped at ``start`` (V + 1,) by
+    :data:`WARM_STEPS` LM steps: (posture (d,), objective in pixels, whether it reaches
+    :data:`WARM_EPS_FACTOR` times ``eps``, SA's stop) of the first that reaches it, else of
+    the lowest objective; None without ``warm``. One that reaches it leaves SA nothing to do.
+
+    Why more than ε: where a warm start misses ε by a little, the part's minimum itself is
+    above it (a ghost blob merged with a marker in one view, say), and SA only runs to its
+    patience to end in the same minimum; a warm start in another minimum costs far more
+    (a wrong leg is pixels off in several views), and a depth flip that costs as little is
+    offered as an alternative either way (``core.ambiguity``).
+
+    ``unseen`` (V, m) bool marks projections next to another part's marker
+    (:func:`shared_projections`): they are left out of the refinement and of the objective
+    (:func:`part_objective`), and ``eps`` (per projection) shrinks in proportion. Such a
+    blob is two markers fused, off each by pixels, which no posture of this part alone
+    explains: left in, it keeps a leg that fits everywhere else above ε (the joint
+    refinement reads it as fused).
+
+    At 50-200 Hz a part has moved a few degrees since the previous image, inside the
+    basin LM descends; where it moved farther, or the previous posture lies in a minimum
+    this image no longer supports, the refined posture stays above ``eps``.
+    """
+    if warm is None:
+        return None
+    unseen = _in_seen_views(unseen, start)
+    if unseen.size:
+        eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(np.diff(start)), 1)
+    best: tuple[np.ndarray, float, bool] | None = None
+    for row in warm:
+        q = np.ascontiguousarray(row[dofs])
+        if params.refine:
+            q = _kernels.refine(q, model.lower[dofs], model.upper[dofs], kin, rig.arrays, off,
+                                points, start, float(params.empty_view_penalty_px),
+                                float(params.fusion_px), unseen, float(params.anneal.huber_px),
+                                WARM_STEPS, 1e-5, _kernels.NO_TARGETS)
+        value = part_objective(q, kin, points, start, unseen, rig, params, off)
+        if value < WARM_EPS_FACTOR * eps:
+            return q, value, True
+        if best is None or value < best[1]:
+            best = (q, value, False)
+    return best
+
+
+def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, unseen: np.ndarray,
+                   rig: Rig, params: FitParams, off: np.ndarray) -> float:
+    """The objective (pixels) of a part's posture ``q`` (d,) posed by ``kin`` on detections
+    ``points`` grouped at ``start``, without the projections ``unseen`` (V, m) marks."""
+    penalty = float(params.empty_view_penalty_px)
+    unseen = _in_seen_views(unseen, start)
+    return float(_kernels.posture_error(q, kin, rig.arrays, off, points, start, penalty,
+                                        float(params.fusion_px), unseen)) - penalty * np.count_nonzero(unseen)
+
+
+def _in_seen_views(unseen: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """``unseen`` (V, m) bool limited to views with detections (an empty view is charged in
+    full whatever it marks)."""
+    return np.ascontiguousarray(unseen & (np.diff(start) > 0)[:, None]) if unseen.size else unseen
+
+
+def shared_projections(q: np.ndarray, model: KinematicModel, rig: Rig, tree: Tree,
+                       params: FitParams, off: np.ndarray) -> dict[str, np.ndarray]:
+    """Per part of ``tree`` (by name), (V, m) bool: where posture ``q`` (D,) projects one of
+    the part's markers within the fusion distance (at least :data:`CLAIM_PX`) of a marker
+    of another part, in pixels of that view."""
+    proj = rig.project(model.marker_positions(q)) + off[:, None, :]
+    near = np.linalg.norm(proj[:, :, None, :] - proj[:, None, :, :], axis=3) < max(
+        float(params.fusion_px), CLAIM_PX)
+    out = {}
+    for part in tree.parts:
+        others = np.ones(len(model.markers), dtype=bool)
+        others[part.markers] = False
+        out[part.name] = near[:, part.markers][:, :, others].any(axis=2)
+    return out
+
+
 def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
-             params: FitParams, stream: np.ndarray, draw_start: bool,
-             off: np.ndarray) -> tuple[np.ndarray, float, float, int]:
+             params: FitParams, stream: np.ndarray, draw_start: bool, off: np.ndarray,
+             warm: np.ndarray | None = None) -> tuple[np.ndarray, float, float, int]:
     """One attempt on one image, part by part: (dofs (D,), plain Eq. 5 error, objective, SA
-    iterations), as :func:`core.fit.fit_image` returns them."""
+    iterations), as :func:`core.fit.fit_image` returns them. Each part first tries its
+    posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
+    where none reaches twice the part's ε, keeping the warm start where SA ends higher."""
     q = space.mean.copy()
     iterations = 0
     views_seen = int(np.count_nonzero(det.counts))
+    shared = {} if warm is None else shared_projections(warm[0], model, rig, tree, params, off)
 
-    def fit_part(part: Part, kin, points: np.ndarray, start: np.ndarray) -> None:
+    def fit_part(part: Part, kin, points: np.ndarray, start: np.ndarray,
+                 warm: np.ndarray | None = None) -> None:
         nonlocal iterations
         eps = params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
+        unseen = shared.get(part.name, _kernels.NO_UNSEEN)
+        tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen)
+        if tried is not None and tried[2]:
+            q[part.dofs] = tried[0]
+            return
         q[part.dofs], _, _, its = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
                                                  params, eps, stream, draw_start, off)
         iterations += its
+        if tried is not None and tried[1] < part_objective(q[part.dofs], kin, points, start, unseen,
+                                                           rig, params, off):
+            q[part.dofs] = tried[0]  # SA ended in a worse minimum than the warm start's
 
     if tree.trunk is not None:
-        fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start)
+        fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start, warm)
     rot, pos = _frames(q, model)
-    reach = [_within_reach(det, rig, pos[b.base], b.reach, off) for b in tree.branches]
+    reach = _within_reach(det, rig, pos[[b.base for b in tree.branches]],
+                          np.array([b.reach for b in tree.branches]), off)
     for part, keep in zip(tree.branches, reach, strict=True):
-        fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep))
-    in_reach = np.logical_or.reduce(reach)
-    score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
+        fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep), warm)
+    in_reach = reach.any(axis=0)
+    score = np.inf  # the two-sided error, computed once there is a conflict to judge
     previous: list[int] = []
     for _ in range(CONFLICT_SWEEPS):
         conflicted = _conflicts(q, det, model, rig, tree, off)
         if not conflicted or conflicted == previous:
             break
         previous = conflicted
+        if score == np.inf:
+            score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
         for b in conflicted:
             part, saved = tree.branches[b], q.copy()
             keep = reach[b] & ~_claimed(q, det, model, rig, tree, off, exclude=b)
@@ -102,7 +216,10 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
                 score = new
             else:
                 q[:] = saved
-    return (*refine_whole(q, det, model, rig, params, off), iterations)
+    # Parts that all came from warm starts arrive at ε on their own projections, refined:
+    # the joint steps (each costing D evaluations) only read the blobs parts share as fused.
+    steps = JOINT_STEPS if iterations else WARM_JOINT_STEPS
+    return (*refine_whole(q, det, model, rig, params, off, steps), iterations)
 
 
 def two_sided_error(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
@@ -135,16 +252,19 @@ def _frames(q: np.ndarray, model: KinematicModel) -> tuple[np.ndarray, np.ndarra
     return rot, pos
 
 
-def _within_reach(det: Detections, rig: Rig, origin: np.ndarray, reach: float,
+def _within_reach(det: Detections, rig: Rig, origins: np.ndarray, reach: np.ndarray,
                   off: np.ndarray) -> np.ndarray:
-    """(N,) bool: the detections a branch hanging at ``origin`` can reach, those inside its
-    projected reach sphere (``core.tree.reach_points``) in their view."""
-    proj = rig.project(reach_points(origin, reach)) + off[:, None, :]
-    radius = np.linalg.norm(proj[:, 1:] - proj[:, :1], axis=2).max(axis=1)
-    keep = np.zeros(len(det.points), dtype=bool)
+    """(B, N) bool: the detections each of B branches hanging at ``origins`` (B, 3) with
+    reaches ``reach`` (B,) can reach, those inside its projected reach sphere
+    (``core.tree.reach_points``) in their view."""
+    spheres = np.concatenate([reach_points(o, r) for o, r in zip(origins, reach, strict=True)])
+    proj = (rig.project(spheres) + off[:, None, :]).reshape(len(rig.views), len(reach), -1, 2)
+    radius = np.linalg.norm(proj[:, :, 1:] - proj[:, :, :1], axis=3).max(axis=2)  # (V, B)
+    keep = np.zeros((len(reach), len(det.points)), dtype=bool)
     for v in range(det.n_views):
         a, b = det.start[v], det.start[v + 1]
-        keep[a:b] = np.linalg.norm(det.points[a:b] - proj[v, 0], axis=1) <= radius[v]
+        gap = np.linalg.norm(det.points[None, a:b] - proj[v, :, :1], axis=2)  # (B, n)
+        keep[:, a:b] = gap <= radius[v][:, None]
     return keep
 
 
@@ -160,15 +280,19 @@ def _claims(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tre
     """(B, N) bool: detections claimed (nearest, within :data:`CLAIM_PX`) by each branch's
     markers in their view."""
     proj = rig.project(model.marker_positions(q)) + off[:, None, :]
+    owner = np.full(len(model.markers), -1)
+    for k, part in enumerate(tree.branches):
+        owner[part.markers] = k
+    mine = owner >= 0
     out = np.zeros((len(tree.branches), len(det.points)), dtype=bool)
     for v in range(det.n_views):
         a, b = det.start[v], det.start[v + 1]
         if a == b:
             continue
-        for k, part in enumerate(tree.branches):
-            d = np.linalg.norm(proj[v][part.markers][:, None, :] - det.points[a:b][None], axis=2)
-            nearest = d.argmin(axis=1)
-            out[k, a + nearest[d.min(axis=1) <= CLAIM_PX]] = True
+        d = np.linalg.norm(proj[v][mine][:, None, :] - det.points[a:b][None], axis=2)
+        nearest = d.argmin(axis=1)
+        close = d[np.arange(len(d)), nearest] <= CLAIM_PX
+        out[owner[mine][close], a + nearest[close]] = True
     return out
 
 
@@ -188,10 +312,11 @@ def _conflicts(q, det, model, rig, tree, off) -> list[int]:
 
 
 def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
-                  params: FitParams, off: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """Joint refinement of a whole posture ``q`` (changed in place): (posture, plain Eq. 5
-    error, objective), the objective as ``_kernels.fit_attempt`` reports it (fusion, a
-    lost marker per view)."""
+                 params: FitParams, off: np.ndarray,
+                 steps: int = JOINT_STEPS) -> tuple[np.ndarray, float, float]:
+    """Joint refinement of a whole posture ``q`` (changed in place) by ``steps`` LM steps:
+    (posture, plain Eq. 5 error, objective), the objective as ``_kernels.fit_attempt``
+    reports it (fusion, a lost marker per view)."""
     a, kin, views = params.anneal, model.arrays, rig.arrays
     points, start = det.kernel_points, det.start
     penalty, fuse = float(params.empty_view_penalty_px), float(params.fusion_px)
@@ -201,13 +326,82 @@ def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig
                                       _kernels.NO_UNSEEN, penalty)
 
     value = objective(q)
-    if params.refine:
+    if params.refine and steps > 0:
         polished = _kernels.refine(q, model.lower, model.upper, kin, views, off, points, start,
-                                   penalty, fuse, _kernels.NO_UNSEEN, float(a.huber_px), JOINT_STEPS, 1e-5,
+                                   penalty, fuse, _kernels.NO_UNSEEN, float(a.huber_px), steps, 1e-5,
                                    _kernels.NO_TARGETS)
         if (e := objective(polished)) <= value:
             q, value = polished, e
+    if params.refine:
         value = _kernels._refit_unseen(q, value, model.lower, model.upper, kin, views, off, points,
                                        start, penalty, fuse, float(a.huber_px))
     error = _kernels.posture_error(q, kin, views, off, points, start, penalty, 0.0, _kernels.NO_UNSEEN)
     return q, float(error), float(value)
+
+
+def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: KinematicModel,
+                           rig: Rig, geometry: FlipGeometry, tolerance_px: float, fusion_px: float,
+                           empty_view_penalty_px: float, huber_px: float,
+                           offsets: np.ndarray | None = None) -> list[Candidate]:
+    """``core.ambiguity.flip_alternatives`` for a tree, branch by branch: the same depth flips,
+    each branch's scored on that branch's markers alone, then the fit with the flipped
+    branch scored whole and kept within ``tolerance_px`` of it; the trunk's flips (which
+    carry the branches along) on the whole model. Up to ``MAX_ALTERNATIVES``, best first.
+
+    A flip below a branch joint moves that branch's markers only, so scoring it on the
+    whole model (27 markers in 6 views for the hexapod, 180 flips an image) repeats the
+    other branches' unchanged cost every time.
+    """
+    tree, off = model.tree, view_offsets(offsets, rig)
+    points, start, views = detections.kernel_points, detections.start, rig.arrays
+    penalty, fuse = float(empty_view_penalty_px), float(fusion_px)
+    trunk = replace(geometry, masks=geometry.masks[_trunk_masks(geometry, model, tree)])
+    found = flip_alternatives(fit, detections, model=model, rig=rig, geometry=trunk,
+                              tolerance_px=tolerance_px, fusion_px=fusion_px,
+                              empty_view_penalty_px=empty_view_penalty_px, huber_px=huber_px,
+                              offsets=offsets)
+    rot, pos = _frames(fit.dofs, model)
+    for part in tree.branches:
+        geo = _branch_geometry(part, geometry)
+        kin, q = part.at(rot[part.base], pos[part.base]), np.ascontiguousarray(fit.dofs[part.dofs])
+        out_q, out_objective = np.empty((MAX_ALTERNATIVES, len(q))), np.empty(MAX_ALTERNATIVES)
+        own = _kernels.posture_error(q, kin, views, off, points, start, penalty, fuse,
+                                     _kernels.NO_UNSEEN)
+        n = _kernels.flip_alternatives(
+            q, own, float(tolerance_px), model.lower[part.dofs], model.upper[part.dofs], kin, views,
+            off, points, start, penalty, fuse, float(huber_px), geo.flip_joints, geo.subtree_joints,
+            geo.subtree_markers, geo.depth, geo.perspective, geo.masks, MAX_FLIP_REFINES, out_q,
+            out_objective)
+        for k in range(n):
+            whole = fit.dofs.copy()
+            whole[part.dofs] = out_q[k]
+            objective = float(_kernels.posture_error(whole, model.arrays, views, off, points, start,
+                                                     penalty, fuse, _kernels.NO_UNSEEN, penalty))
+            if objective <= fit.objective + tolerance_px:
+                error = _kernels.posture_error(whole, model.arrays, views, off, points, start,
+                                               penalty, 0.0, _kernels.NO_UNSEEN)
+                found.append(Candidate(whole, float(error), objective))
+    return sorted(found, key=lambda c: c.objective)[:MAX_ALTERNATIVES]
+
+
+def _trunk_masks(geometry: FlipGeometry, model: KinematicModel, tree: Tree) -> np.ndarray:
+    """(K,) bool: the masks of ``geometry`` (the whole model's) that flip no branch joint, a
+    joint whose subtree holds markers of one branch only."""
+    in_branch = np.zeros(len(geometry.flip_joints), dtype=bool)
+    for part in tree.branches:
+        outside = np.ones(len(model.markers), dtype=bool)
+        outside[part.markers] = False
+        in_branch |= ~geometry.subtree_markers[:, outside].any(axis=1)
+    bits = int(np.sum(np.left_shift(1, np.flatnonzero(in_branch).astype(np.int64))))
+    return (geometry.masks & bits) == 0
+
+
+def _branch_geometry(part: Part, geometry: FlipGeometry) -> FlipGeometry:
+    """The depth-flip geometry of one branch alone (its arrays, base first), the views' depth
+    directions from the whole model's ``geometry``."""
+    kin = part.kin
+    flip = np.flatnonzero((kin.rot_dof >= 0).any(axis=1))
+    below = _subtrees(kin.parent)[flip]
+    return replace(geometry, flip_joints=flip.astype(np.int64), subtree_joints=below,
+                   subtree_markers=np.ascontiguousarray(below[:, kin.marker_joint]),
+                   masks=flip_masks(len(flip)))

@@ -2,14 +2,28 @@
 
 from __future__ import annotations
 
+import re
 import time
 import zipfile
 from collections.abc import Iterable, Iterator
 from typing import BinaryIO
 
+from service.models import Job
 from service.storage import Storage
 
 _BLOCK = 1 << 20
+FOLDER_NAME_CHARS = 60
+_UNSAFE = re.compile(r"[^\w.-]+")  # \w: letters and digits of any script, and "_"
+
+
+def trial_folder(job: Job) -> str:
+    """A batch trial's folder in the batch archive: ``trial-003-job-12/``, with the trial's name
+    after it when it has one (``trial-003-job-12-walk_fast/``). Trial index and job id make it
+    unique in the archive, even for trials of the same name; the name is sanitised to letters,
+    digits, ``._-`` (no path separators), without leading dots (never ``..``)."""
+    folder = f"trial-{job.trial:03d}-job-{job.id}"
+    name = _UNSAFE.sub("_", job.name or "").lstrip(".")[:FOLDER_NAME_CHARS]
+    return f"{folder}-{name}/" if name else f"{folder}/"
 
 
 class _Sink:

@@ -1,6 +1,6 @@
 """``mocap``'s service commands (``serve``, ``worker``, ``reap``, ``admin create-lab``,
 ``list-labs``, ``revoke-key``, ``rotate-key``,
-``demo --service``) added to core's CLI.
+``demo --service``, ``remote …``) added to core's CLI.
 
 This is the console script: it registers the commands below on ``core.cli.app``
 and runs it. Service code is imported inside the commands, so ``mocap fit``,
@@ -24,12 +24,14 @@ import typer
 from core.cli import app, user_errors
 from core.cli import demo as local_demo
 from core.cli import run as run_core
+from service.remote import remote
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session
 
 admin = typer.Typer(no_args_is_help=True, help="Administer labs.")
 app.add_typer(admin, name="admin")
+app.add_typer(remote, name="remote")  # imports httpx only when a `remote` command runs
 # `demo` gains --service here; core's own command (no flag) is replaced, not duplicated.
 app.registered_commands[:] = [c for c in app.registered_commands if c.callback is not local_demo]
 
@@ -114,6 +116,7 @@ def demo(
         local_demo(samples=samples, seed=seed)
         return
     try:
+        from service.client import ClientError
         from service.demo import run_demo
     except ModuleNotFoundError as exc:
         typer.echo(f"mocap: error: --service needs the service's packages ({exc.name} is missing): "
@@ -121,7 +124,7 @@ def demo(
         raise typer.Exit(2) from None
     try:
         run_demo(samples, seed, workers)
-    except (RuntimeError, OSError, subprocess.CalledProcessError) as exc:
+    except (RuntimeError, OSError, subprocess.CalledProcessError, ClientError) as exc:
         typer.echo(f"mocap: error: {exc}", err=True)
         raise typer.Exit(1) from None
 

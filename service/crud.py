@@ -7,6 +7,7 @@ check. Functions that change state commit; routes never do.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from typing import Any, TypeVar
 
@@ -48,20 +49,44 @@ def owned(session: Session, kind: type[Owned], id_: int, lab: Lab) -> Owned:
     """The ``kind`` row ``id_`` if it belongs to ``lab``; otherwise :class:`NotFoundError`."""
     row = session.get(kind, id_)
     if row is None or row.lab_id != lab.id:
-        raise NotFoundError(f"{kind.__tablename__[:-1]} {id_} not found")
+        table = kind.__tablename__
+        raise NotFoundError(f"{table[:-2] if table.endswith('ches') else table[:-1]} {id_} not found")
     return row
 
 
 # ---- models and their histogram archive -------------------------------------------------------
-def create_model(session: Session, storage: Storage, lab: Lab, xml: bytes) -> Model:
+def create_model(session: Session, storage: Storage, lab: Lab, xml: bytes, *, name: str | None = None,
+                 meta: dict[str, Any] | None = None) -> Model:
     """Validate and store a model; its archive starts with the uniform prior as version 1."""
     kinematic = KinematicModel.from_xml(xml)  # ModelError → 422
-    row = Model(lab_id=lab.id, name=kinematic.name, xml=xml.decode())
+    row = Model(lab_id=lab.id, name=name or kinematic.name, xml=xml.decode(),
+                sha256=hashlib.sha256(xml).hexdigest(), meta=meta)
     session.add(row)
     session.flush()
     add_histogram_version(session, storage, row, Histograms.uniform(kinematic), job_id=None)
     session.commit()
     return row
+
+
+def store_model(session: Session, storage: Storage, lab: Lab, xml: bytes, *, name: str | None,
+                meta: dict[str, Any] | None, reuse: bool) -> tuple[Model, Model | None]:
+    """(the model, an identical one the lab uploaded before or None). With ``reuse`` and such a
+    model, that model itself and nothing stored: jobs on it go on with its histogram archive."""
+    existing = identical_model(session, lab, hashlib.sha256(xml).hexdigest())
+    if reuse and existing is not None:
+        return existing, existing
+    return create_model(session, storage, lab, xml, name=name, meta=meta), existing
+
+
+def identical_model(session: Session, lab: Lab, sha256: str) -> Model | None:
+    """The lab's model whose XML has this ``sha256`` and whose histogram archive has the most
+    versions (the most jobs folded in; the oldest on a tie); None if none. Only ``lab``'s models
+    are searched: another lab's identical model is never revealed."""
+    versions = func.count(HistogramVersion.id)
+    query = (select(Model).join(HistogramVersion, HistogramVersion.model_id == Model.id)
+             .where(Model.lab_id == lab.id, Model.sha256 == sha256)
+             .group_by(Model.id).order_by(versions.desc(), Model.id).limit(1))
+    return session.scalars(query).first()
 
 
 def add_histogram_version(
@@ -94,9 +119,10 @@ def histogram_versions(session: Session, model: Model) -> int:
 
 
 # ---- rigs and videos --------------------------------------------------------------------------
-def create_rig(session: Session, lab: Lab, spec: Any) -> RigRow:
+def create_rig(session: Session, lab: Lab, spec: Any, *, name: str | None = None,
+               meta: dict[str, Any] | None = None) -> RigRow:
     Rig.from_dict(spec)  # RigError → 422
-    row = RigRow(lab_id=lab.id, spec=spec)
+    row = RigRow(lab_id=lab.id, spec=spec, name=name, meta=meta)
     session.add(row)
     session.commit()
     return row
@@ -104,7 +130,7 @@ def create_rig(session: Session, lab: Lab, spec: Any) -> RigRow:
 
 def register_video(
     session: Session, storage: LocalStorage, lab: Lab, settings: Settings, *, key: str, filename: str,
-    size: int, sha256: str,
+    size: int, sha256: str, name: str | None = None, meta: dict[str, Any] | None = None,
 ) -> Video:
     """Probe a fully stored upload and register it within the lab's hourly upload limits.
 
@@ -123,7 +149,7 @@ def register_video(
         limits.check_upload(session, lab, settings, size)
         row = Video(lab_id=lab.id, storage_key=key, filename=filename, frames=info.frames,
                     announced_frames=info.announced_frames, fps=info.fps, width=info.width,
-                    height=info.height, size_bytes=size, sha256=sha256)
+                    height=info.height, size_bytes=size, sha256=sha256, name=name, meta=meta)
         session.add(row)
         session.commit()
     except BaseException:
@@ -142,21 +168,78 @@ def missing_frames(video: Video) -> str | None:
             f"jobs fit the {video.frames} that decode")
 
 
-def remove_orphan_videos(session: Session, storage: LocalStorage, older_than_s: float) -> int:
-    """Delete stored videos that no row names (their API process died between storing and
-    registering), if older than ``older_than_s`` (younger ones may be being registered)."""
-    stored = dict(storage.files("videos", older_than_s))
+def remove_orphans(session: Session, storage: LocalStorage, older_than_s: float) -> int:
+    """Delete stored videos and histogram archive files that no row names, if older than
+    ``older_than_s`` (younger ones may be being registered). They are left when a process dies
+    between storing a file and committing its row, or between deleting a row and its file
+    (:func:`delete_upload`)."""
+    folders = [("videos", Video.storage_key),
+               *((folder, HistogramVersion.storage_key) for folder in storage.folders("models"))]
+    return sum(_remove_unnamed(session, storage, folder, column, older_than_s) for folder, column in folders)
+
+
+def _remove_unnamed(session: Session, storage: LocalStorage, folder: str, column: Any,
+                    older_than_s: float) -> int:
+    """Delete the files of ``folder`` whose key no row has in ``column``."""
+    stored = dict(storage.files(folder, older_than_s))
     keys, known = list(stored), set()
     for start in range(0, len(keys), 500):  # bound values per statement (SQLite: 32,766)
         batch = keys[start:start + 500]
-        known.update(session.scalars(select(Video.storage_key).where(Video.storage_key.in_(batch))))
+        known.update(session.scalars(select(column).where(column.in_(batch))))
     orphans = [key for key in keys if key not in known]
     for key in orphans:
         storage.delete(key)
     if orphans:
-        logger.warning("removed %d stored video(s) without a row (%d bytes)", len(orphans),
+        logger.warning("removed %d stored file(s) in %s without a row (%d bytes)", len(orphans), folder,
                        sum(stored[k] for k in orphans))
     return len(orphans)
+
+
+# ---- deleting uploads ---------------------------------------------------------------------------
+# Jobs listed by id in a 409; more are counted.
+USERS_SHOWN = 20
+
+
+def delete_upload(session: Session, storage: Storage, lab: Lab, kind: type[Model | RigRow | Video],
+                  id_: int) -> None:
+    """Delete the lab's model, rig or video, unless a job uses it (409 naming the jobs).
+
+    "Uses" is any job that names it, finished ones too: a finished job's archive carries its
+    model and rig, its report names its videos, and the rows keep those ids meaningful. The
+    row (and a model's archive rows) go in one transaction, with the lab locked as submissions
+    lock it, so no job can start using it meanwhile; the stored files go after the commit. A
+    crash in between leaves files no row names, which :func:`remove_orphans` deletes: never a
+    row without its file.
+    """
+    row = owned(session, kind, id_, lab)
+    limits.lock_lab(session, lab)
+    label = f"{kind.__tablename__[:-1]} {id_}"
+    if users := jobs_using(session, row):
+        shown = ", ".join(str(j) for j in users[:USERS_SHOWN])
+        more = f" and {len(users) - USERS_SHOWN} more" if len(users) > USERS_SHOWN else ""
+        raise ConflictError(f"{label} is used by job(s) {shown}{more}; an upload a job names (finished "
+                            "or not) cannot be deleted: its results and archive refer to it")
+    keys = [row.storage_key] if isinstance(row, Video) else []
+    if isinstance(row, Model):
+        versions = list(session.scalars(select(HistogramVersion).where(HistogramVersion.model_id == row.id)))
+        keys = [v.storage_key for v in versions]
+        for version in versions:
+            session.delete(version)
+        session.flush()  # the versions' rows go before the model's (their foreign key)
+    session.delete(row)
+    session.commit()
+    for key in keys:
+        storage.delete(key)
+    logger.info("lab %s deleted %s (%d stored file(s))", lab.id, label, len(keys))
+
+
+def jobs_using(session: Session, row: Model | RigRow | Video) -> list[int]:
+    """Ids of the jobs (any status) that name ``row``, ascending."""
+    if isinstance(row, Video):
+        query = select(JobVideo.job_id).where(JobVideo.video_id == row.id)
+    else:
+        query = select(Job.id).where((Job.model_id if isinstance(row, Model) else Job.rig_id) == row.id)
+    return sorted(set(session.scalars(query)))
 
 
 # ---- jobs and batches ---------------------------------------------------------------------------
@@ -164,7 +247,8 @@ def submit_job(session: Session, lab: Lab, settings: Settings, body: JobCreate) 
     """Create a queued job (committed) within the lab's limits; the caller enqueues its planning task."""
     limits.lock_lab(session, lab)
     limits.check_active_jobs(session, lab, settings, 1)
-    job = _new_job(session, lab, settings, body.model_id, body.rig_id, body.video_ids, body.options)
+    job = _new_job(session, lab, settings, body.model_id, body.rig_id, body.video_ids, body.options,
+                   name=body.name, meta=body.metadata)
     session.commit()
     return job
 
@@ -174,12 +258,12 @@ def submit_batch(session: Session, lab: Lab, settings: Settings,
     """One job per trial, all or none (committed together), within the lab's limits."""
     limits.lock_lab(session, lab)
     limits.check_active_jobs(session, lab, settings, len(body.trials))
-    batch = Batch(lab_id=lab.id)
+    batch = Batch(lab_id=lab.id, name=body.name, meta=body.metadata)
     session.add(batch)
     session.flush()
     jobs = [
         _new_job(session, lab, settings, body.model_id, body.rig_id, trial.video_ids, body.options,
-                 batch=batch, trial=i)
+                 batch=batch, trial=i, name=trial.name, meta=trial.metadata)
         for i, trial in enumerate(body.trials)
     ]
     session.commit()
@@ -188,7 +272,8 @@ def submit_batch(session: Session, lab: Lab, settings: Settings,
 
 def _new_job(
     session: Session, lab: Lab, settings: Settings, model_id: int, rig_id: int, video_ids: list[int],
-    options: JobOptions, *, batch: Batch | None = None, trial: int | None = None,
+    options: JobOptions, *, batch: Batch | None = None, trial: int | None = None, name: str | None = None,
+    meta: dict[str, Any] | None = None,
 ) -> Job:
     model = owned(session, Model, model_id, lab)
     rig = Rig.from_dict(owned(session, RigRow, rig_id, lab).spec)
@@ -205,7 +290,7 @@ def _new_job(
     start = histogram_version(session, model, options.histogram_version)
     job = Job(lab_id=lab.id, model_id=model.id, rig_id=rig_id, options=options.model_dump(),
               histogram_version_id=start.id, batch_id=None if batch is None else batch.id, trial=trial,
-              status=JobStatus.QUEUED)
+              name=name, meta=meta, status=JobStatus.QUEUED)
     session.add(job)
     session.flush()
     session.add_all(JobVideo(job_id=job.id, position=i, video_id=v.id) for i, v in enumerate(videos))

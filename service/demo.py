@@ -17,14 +17,15 @@ import tempfile
 import time
 from pathlib import Path
 
-import httpx
 import numpy as np
 
-from core.demo import EXAMPLE, FPS, MARKER_DIAMETER_PX
+from core.demo import FPS, MARKER_DIAMETER_PX
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.results import read_angles_csv
 from core.rig import Rig
 from core.synth import natural_movements, render_frames, write_video
+from service.client import Client, ClientError
 
 STARTUP_S = 120.0  # migrations, worker start-up and a first numba compile on a slow machine
 
@@ -43,12 +44,11 @@ def run_demo(samples: int, seed: int, workers: int) -> None:
             [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", str(workers)],
             env=env, stdout=log, stderr=subprocess.STDOUT)
         try:
-            with httpx.Client(base_url=f"http://127.0.0.1:{port}/v1", timeout=60.0,
-                              headers={"Authorization": f"Bearer {key}"}) as client:
-                _wait_until_up(client, server, root / "serve.log")
+            with Client(f"http://127.0.0.1:{port}", key) as api:
+                _wait_until_up(api, server, root / "serve.log")
                 print(f"embedded service up on port {port} ({workers} worker processes, SQLite, "
                       "filesystem broker)", flush=True)
-                angles = _fit_over_http(client, video, seed)
+                angles = _fit_over_http(api, video, seed)
         finally:
             server.send_signal(signal.SIGTERM)
             server.wait(timeout=90)
@@ -58,8 +58,8 @@ def run_demo(samples: int, seed: int, workers: int) -> None:
 
 
 def _render(path: Path, samples: int, seed: int) -> tuple[np.ndarray, Path]:
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
+    rig = Rig.from_json(LOCUST / "rig.json")
     rng = np.random.default_rng(seed)
     truth = natural_movements(model, rig, samples, rng=rng, fps=FPS)
     write_video(path, render_frames(model, rig, truth, rng=rng, marker_diameter_px=MARKER_DIAMETER_PX),
@@ -85,58 +85,46 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _wait_until_up(client: httpx.Client, server: subprocess.Popen, log: Path) -> None:
+def _wait_until_up(api: Client, server: subprocess.Popen, log: Path) -> None:
     t0 = time.monotonic()
     while time.monotonic() - t0 < STARTUP_S:
         if server.poll() is not None:
             raise RuntimeError(f"mocap serve exited with {server.returncode}:\n{log.read_text()[-2000:]}")
         try:
-            if client.get("/jobs").status_code == 200:
-                return
-        except httpx.TransportError:
+            api.ping()
+            return
+        except ClientError:
             pass
         time.sleep(0.3)
     raise RuntimeError(f"mocap serve did not answer within {STARTUP_S:.0f} s")
 
 
-def _fit_over_http(client: httpx.Client, video: Path, seed: int) -> bytes:
+def _fit_over_http(api: Client, video: Path, seed: int) -> bytes:
     """Upload, submit, poll to a terminal status, return angles.csv."""
-    model = _created(client.post("/models", content=(EXAMPLE / "model.xml").read_bytes(),
-                                 headers={"Content-Type": "application/xml"}))
-    rig = _created(client.post("/rigs", content=(EXAMPLE / "rig.json").read_bytes(),
-                               headers={"Content-Type": "application/json"}))
-    with video.open("rb") as f:
-        uploaded = _created(client.post("/videos", files={"file": (video.name, f, "video/x-msvideo")}))
-    submitted = client.post("/jobs", json={"model_id": model["id"], "rig_id": rig["id"],
-                                           "video_ids": [uploaded["id"]], "options": {"seed": seed}})
-    if submitted.status_code != 202:
-        raise RuntimeError(f"job refused: {submitted.status_code} {submitted.text}")
+    model = api.upload_model(LOCUST / "model.xml")
+    rig = api.upload_rig(LOCUST / "rig.json")
+    uploaded = api.upload_video(video)
     t0 = time.monotonic()
-    job = submitted.json()
+    job = api.submit_job(model["id"], rig["id"], [uploaded["id"]], {"seed": seed})
     print(f"job {job['id']} submitted; on a first run the workers first compile the fitting "
           "kernels, once for all of them (about 30 s on a fresh machine), later runs start at once",
           flush=True)
-    shown = None
-    while job["status"] not in ("succeeded", "failed", "canceled"):
-        time.sleep(0.5)
-        job = client.get(f"/jobs/{job['id']}").json()
-        state = (job["status"], job["progress"]["images_done"])
-        if state != shown:
-            print(f"  {time.monotonic() - t0:5.0f} s  {state[0]}, {state[1]}/"
-                  f"{job['progress']['images_total']} images", flush=True)
-            shown = state
+    shown: list[tuple[str, int]] = []
+
+    def report(state: dict) -> None:
+        now = (state["status"], state["progress"]["images_done"])
+        if not shown or now != shown[-1]:
+            print(f"  {time.monotonic() - t0:5.0f} s  {now[0]}, {now[1]}/"
+                  f"{state['progress']['images_total']} images", flush=True)
+            shown.append(now)
+
+    job = api.wait("job", job["id"], max_interval=0.5, on_poll=report)
     print(f"job {job['id']} {job['status']} in {time.monotonic() - t0:.1f} s: "
           f"{job['progress']['images_done']} images, "
           f"{job['progress']['images_over_threshold']} over threshold", flush=True)
     if job["status"] != "succeeded":
         raise RuntimeError(f"job {job['status']}: {job['error']}")
-    return client.get(f"/jobs/{job['id']}/angles.csv").content
-
-
-def _created(response: httpx.Response) -> dict:
-    if response.status_code != 201:
-        raise RuntimeError(f"{response.request.url.path} refused: {response.status_code} {response.text}")
-    return response.json()
+    return api.result(job["id"], "angles.csv")
 
 
 def _print_accuracy(table, truth: np.ndarray) -> None:

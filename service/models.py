@@ -73,13 +73,17 @@ class Lab(Base):
 
 
 class Model(Base):
-    """A kinematic model (FORMATS §1), its XML as uploaded."""
+    """A kinematic model (FORMATS §1), its XML as uploaded; ``sha256`` of those bytes finds an
+    identical model of the lab (and its histogram archive) when one is uploaded again."""
 
     __tablename__ = "models"
+    __table_args__ = (Index("ix_models_lab_id_sha256", "lab_id", "sha256"),)
     id: Mapped[int] = mapped_column(primary_key=True)
     lab_id: Mapped[int] = mapped_column(ForeignKey("labs.id"), index=True)
-    name: Mapped[str] = mapped_column(String(200))
+    name: Mapped[str] = mapped_column(String(200))  # the lab's, or the XML's <model name>
     xml: Mapped[str] = mapped_column(Text)
+    sha256: Mapped[str | None] = mapped_column(String(64))
+    meta: Mapped[dict[str, Any] | None] = mapped_column("metadata", JSON)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
@@ -106,6 +110,8 @@ class RigRow(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     lab_id: Mapped[int] = mapped_column(ForeignKey("labs.id"), index=True)
     spec: Mapped[dict[str, Any]] = mapped_column(JSON)
+    name: Mapped[str | None] = mapped_column(String(200))
+    meta: Mapped[dict[str, Any] | None] = mapped_column("metadata", JSON)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
@@ -126,6 +132,8 @@ class Video(Base):
     height: Mapped[int] = mapped_column(Integer)
     size_bytes: Mapped[int] = mapped_column(BigInteger)  # 2 GiB and more
     sha256: Mapped[str] = mapped_column(String(64))
+    name: Mapped[str | None] = mapped_column(String(200))
+    meta: Mapped[dict[str, Any] | None] = mapped_column("metadata", JSON)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
@@ -135,6 +143,8 @@ class Batch(Base):
     __tablename__ = "batches"
     id: Mapped[int] = mapped_column(primary_key=True)
     lab_id: Mapped[int] = mapped_column(ForeignKey("labs.id"), index=True)
+    name: Mapped[str | None] = mapped_column(String(200))
+    meta: Mapped[dict[str, Any] | None] = mapped_column("metadata", JSON)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
@@ -147,8 +157,11 @@ class Job(Base):
     lab_id: Mapped[int] = mapped_column(ForeignKey("labs.id"), index=True)
     batch_id: Mapped[int | None] = mapped_column(ForeignKey("batches.id"), index=True)
     trial: Mapped[int | None] = mapped_column(Integer)  # index in its batch
-    model_id: Mapped[int] = mapped_column(ForeignKey("models.id"))
-    rig_id: Mapped[int] = mapped_column(ForeignKey("rigs.id"))
+    name: Mapped[str | None] = mapped_column(String(200))  # the job's, or its trial's
+    meta: Mapped[dict[str, Any] | None] = mapped_column("metadata", JSON)
+    # Indexed: deleting an upload looks up the jobs that name it.
+    model_id: Mapped[int] = mapped_column(ForeignKey("models.id"), index=True)
+    rig_id: Mapped[int] = mapped_column(ForeignKey("rigs.id"), index=True)
     histogram_version_id: Mapped[int] = mapped_column(ForeignKey("histogram_versions.id"))
     options: Mapped[dict[str, Any]] = mapped_column(JSON)
     status: Mapped[str] = mapped_column(String(16), default=JobStatus.QUEUED)
@@ -175,7 +188,7 @@ class JobVideo(Base):
     __tablename__ = "job_videos"
     job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id"), primary_key=True)
     position: Mapped[int] = mapped_column(Integer, primary_key=True)
-    video_id: Mapped[int] = mapped_column(ForeignKey("videos.id"))
+    video_id: Mapped[int] = mapped_column(ForeignKey("videos.id"), index=True)
 
 
 class Chunk(Base):

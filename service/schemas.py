@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import json
+import math
 from datetime import UTC, datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 from core.detect import MAX_BLUR, MAX_MORPHOLOGY_ITERATIONS
 from core.video import MAX_FRAME_PIXELS
+from service import examples as ex
+from service.errors import InvalidError
 
 
 def _utc(moment: datetime | None) -> datetime | None:
@@ -24,10 +28,103 @@ MAX_DB_INT = 2**31 - 1
 DbId = Annotated[int, Field(ge=1, le=MAX_DB_INT)]
 
 
+class Problem(BaseModel):
+    """Every error: a message naming what is wrong in the lab's terms (ids, filenames, fields)."""
+
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.PROBLEM))
+    detail: str
+
+
+# ---- names and free metadata of uploads, jobs, batches and trials ----------------------------
+NAME_MAX_CHARS = 200  # the name columns' String(200)
+METADATA_MAX_BYTES = 4096  # the object as compact UTF-8 JSON
+METADATA_MAX_DEPTH = 4  # nested objects and arrays, the metadata object itself counting 1
+METADATA_MAX_KEY_CHARS = 64
+METADATA_MAX_STRING_CHARS = 1000
+
+
+def json_depth(value: Any) -> int:
+    """Nesting depth of parsed JSON (a number: 0, ``[1]``: 1), without recursion."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        deepest = max(deepest, depth)
+        if isinstance(item, dict | list):
+            stack.extend((child, depth + 1) for child in (item.values() if isinstance(item, dict) else item))
+    return deepest
+
+
+def _printable(text: str) -> str:
+    """Names and metadata keys are shown in listings and folder names: no control characters
+    (PostgreSQL text cannot hold NUL either)."""
+    if not text.isprintable():
+        raise ValueError("must not contain control characters")
+    return text
+
+
+def _bounded(metadata: dict[str, Any]) -> dict[str, Any]:
+    """The metadata object if within the bounds above: stored as JSON and copied into every
+    report.json, so a client cannot make rows or reports grow without limit."""
+    if (depth := json_depth(metadata)) > METADATA_MAX_DEPTH:
+        raise ValueError(f"nests {depth} levels deep; at most {METADATA_MAX_DEPTH}")
+    stack: list[Any] = [metadata]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, dict):
+            for key in item:
+                if not 1 <= len(key) <= METADATA_MAX_KEY_CHARS:
+                    raise ValueError(f"key {key[:METADATA_MAX_KEY_CHARS]!r}… has {len(key)} characters; "
+                                     f"keys have 1 to {METADATA_MAX_KEY_CHARS}")
+                _printable(key)
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+        elif isinstance(item, str) and (len(item) > METADATA_MAX_STRING_CHARS or "\x00" in item):
+            raise ValueError(f"a string value has {len(item)} characters; at most "
+                             f"{METADATA_MAX_STRING_CHARS}, without NUL")
+        elif isinstance(item, float) and not math.isfinite(item):
+            raise ValueError("numbers must be finite (JSON has no NaN or Infinity)")
+    size = len(json.dumps(metadata, separators=(",", ":"), ensure_ascii=False).encode())
+    if size > METADATA_MAX_BYTES:
+        raise ValueError(f"is {size} bytes as JSON; at most {METADATA_MAX_BYTES}")
+    return metadata
+
+
+Name = Annotated[str, Field(min_length=1, max_length=NAME_MAX_CHARS, examples=["walk-07"],
+                            description="the lab's name for it: shown back, in report.json and in "
+                                        "batch archive folder names"),
+                 AfterValidator(_printable)]
+Metadata = Annotated[dict[str, Any], Field(
+    examples=[ex.METADATA],
+    description=f"free JSON object, carried into report.json: at most {METADATA_MAX_BYTES} bytes as "
+                f"JSON, {METADATA_MAX_DEPTH} levels deep, keys of 1-{METADATA_MAX_KEY_CHARS} and "
+                f"strings of at most {METADATA_MAX_STRING_CHARS} characters"),
+    AfterValidator(_bounded)]
+_METADATA = TypeAdapter(Metadata)
+_NAME = TypeAdapter(Name)
+
+
+def labels_from_query(name: str | None, metadata: str | None) -> tuple[str | None, dict[str, Any] | None]:
+    """``?name=`` and ``?metadata=`` (JSON text) of an upload, checked as in JSON bodies; 422
+    naming the parameter."""
+    try:
+        checked_name = None if name is None else _NAME.validate_python(name)
+    except ValidationError as exc:
+        raise InvalidError(f"name: {exc.errors()[0]['msg']}") from None
+    if metadata is None:
+        return checked_name, None
+    if len(metadata.encode()) > METADATA_MAX_BYTES:
+        raise InvalidError(f"metadata: is {len(metadata.encode())} bytes; at most {METADATA_MAX_BYTES}")
+    try:
+        return checked_name, _METADATA.validate_json(metadata)
+    except ValidationError as exc:
+        raise InvalidError(f"metadata: {exc.errors()[0]['msg']}") from None
+
+
 class DetectorOptions(BaseModel):
     """Marker detection (``core.detect.DetectorParams``)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.DETECTOR))
     threshold: Annotated[float, Field(ge=0, le=255)] | Literal["otsu"] = 100.0
     channel: Literal["grey", "red", "green", "blue"] = "grey"
     blur: int = Field(default=0, ge=0, le=MAX_BLUR)
@@ -44,7 +141,7 @@ class JobOptions(BaseModel):
     chunk_size : images per chunk task; None: the server's default.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.OPTIONS))
     deinterlace: bool = False
     field_order: Literal["even-first", "odd-first"] = "even-first"
     error_threshold_px: float = Field(
@@ -70,23 +167,51 @@ class JobOptions(BaseModel):
 
 
 class ModelPublic(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.MODEL))
     id: int
-    name: str
+    name: str = Field(description="the lab's name for it (?name= on upload), else the XML's <model name>")
     dofs: list[str]
     histogram_versions: int
+    sha256: str | None = Field(description="of the XML as uploaded: identical uploads share it")
+    metadata: dict[str, Any] | None
     created_at: UtcDatetime
 
 
+class ExistingArchive(BaseModel):
+    """An identical model (same sha256) of the same lab and its histogram archive."""
+
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.EXISTING))
+    model_id: int
+    histogram_versions: int
+    latest_version: int = Field(description="GET /v1/models/{model_id}/histograms.xml serves it")
+
+
+class ModelCreated(ModelPublic):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.MODEL_CREATED))
+    existing_model_id: int | None = Field(
+        description="an identical model this lab uploaded before (the one with the most histogram "
+                    "versions): submit jobs with its id to go on with its archive; null: none")
+    existing: ExistingArchive | None = Field(description="that model's archive; null: none")
+    reused: bool = Field(description="true: ?reuse=true and this is that existing model, nothing "
+                                     "was stored; false: a new model with a new archive (version 1)")
+
+
 class RigPublic(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.RIG_PUBLIC))
     id: int
+    name: str | None
+    metadata: dict[str, Any] | None
     views: list[str]
     videos: int
     created_at: UtcDatetime
 
 
 class VideoPublic(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.VIDEO))
     id: int
     filename: str
+    name: str | None
+    metadata: dict[str, Any] | None
     frames: int = Field(description="frames that decode: what a job fits")
     announced_frames: int | None = Field(description="frames the container announces (0: it gives "
                                          "no count); more than frames for a truncated file")
@@ -104,42 +229,52 @@ NEXT_CURSOR = "pass as ?cursor= for the next page; null: last page"
 
 
 class ModelPage(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.page(ex.MODEL)))
     items: list[ModelPublic]
     next_cursor: int | None = Field(description=NEXT_CURSOR)
 
 
 class RigPage(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.page(ex.RIG_PUBLIC)))
     items: list[RigPublic]
     next_cursor: int | None = Field(description=NEXT_CURSOR)
 
 
 class VideoPage(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.page(ex.VIDEO)))
     items: list[VideoPublic]
     next_cursor: int | None = Field(description=NEXT_CURSOR)
 
 
 class JobCreate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.JOB_CREATE))
     model_id: DbId
     rig_id: DbId
     video_ids: list[DbId] = Field(min_length=1, max_length=16)
     options: JobOptions = Field(default_factory=JobOptions)
+    name: Name | None = None
+    metadata: Metadata | None = None
 
 
 class Trial(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.BATCH_CREATE['trials'][0]))
     video_ids: list[DbId] = Field(min_length=1, max_length=16)
+    name: Name | None = None
+    metadata: Metadata | None = None
 
 
 class BatchCreate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.BATCH_CREATE))
     model_id: DbId
     rig_id: DbId
     trials: list[Trial] = Field(min_length=1, max_length=1000)
     options: JobOptions = Field(default_factory=JobOptions)
+    name: Name | None = None
+    metadata: Metadata | None = None
 
 
 class Progress(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.PROGRESS))
     images_total: int
     images_done: int
     images_over_threshold: int
@@ -149,12 +284,15 @@ class Progress(BaseModel):
 
 
 class JobPublic(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.JOB))
     id: int
     status: str
     model_id: int
     rig_id: int
     batch_id: int | None
     trial: int | None
+    name: str | None = Field(description="the job's, or its batch trial's")
+    metadata: dict[str, Any] | None
     histogram_version_id: int
     options: dict[str, Any]
     progress: Progress
@@ -166,12 +304,16 @@ class JobPublic(BaseModel):
 
 
 class JobPage(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.page(ex.JOB)))
     items: list[JobPublic]
     next_cursor: int | None = Field(description=NEXT_CURSOR)
 
 
 class BatchPublic(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.BATCH))
     id: int
+    name: str | None
+    metadata: dict[str, Any] | None
     status: str = Field(description="running until every job is terminal; then succeeded if all "
                                     "succeeded, else failed (or canceled if any was)")
     statuses: dict[str, int]
@@ -185,7 +327,7 @@ class BatchPublic(BaseModel):
 class DetectPreviewCreate(BaseModel):
     """One frame of an uploaded video through ``core.detect``, with a rig's views of that video."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.PREVIEW_CREATE))
     rig_id: DbId
     frame: int = Field(default=0, ge=0, le=MAX_DB_INT)
     video_index: int = Field(default=0, ge=0, le=255, description="which of the rig's videos this "
@@ -194,6 +336,7 @@ class DetectPreviewCreate(BaseModel):
 
 
 class DetectPreview(BaseModel):
+    model_config = ConfigDict(json_schema_extra=ex.example(ex.PREVIEW))
     video_id: int
     rig_id: int
     frame: int

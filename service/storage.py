@@ -106,6 +106,11 @@ class LocalStorage:
     def delete(self, key: str) -> None:
         self.path(key).unlink(missing_ok=True)
 
+    def folders(self, parent: str) -> list[str]:
+        """Keys of the folders directly in ``parent`` (none if it does not exist)."""
+        base = self.path(parent)
+        return sorted(f"{parent}/{p.name}" for p in base.iterdir() if p.is_dir()) if base.is_dir() else []
+
     def files(self, folder: str, older_than_s: float = 0.0) -> Iterator[tuple[str, int]]:
         """(key, size in bytes) of the complete files in ``folder`` last written more than
         ``older_than_s`` seconds ago (partial files are :meth:`remove_abandoned`'s)."""

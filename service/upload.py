@@ -8,7 +8,7 @@ import io
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from python_multipart.exceptions import FormParserError
 from python_multipart.multipart import MultipartParser, parse_options_header
@@ -191,6 +191,19 @@ async def _buffered(request: Request, limit: int) -> Request:
         return {"type": "http.request", "body": body, "more_body": False}
 
     return Request(request.scope, receive)
+
+
+def document_body(media_type: str, schema: dict[str, Any], example: Any) -> dict[str, Any]:
+    """``openapi_extra`` describing a body these routes read themselves (:func:`read_document`):
+    ``media_type`` with ``example``, or the same file as a multipart field ``file``."""
+    return {"requestBody": {"required": True, "content": {
+        media_type: {"schema": schema, "example": example}, **FILE_BODY["requestBody"]["content"]}}}
+
+
+# ``openapi_extra`` of a body sent as the multipart field ``file`` (:func:`receive_video`).
+FILE_BODY: dict[str, Any] = {"requestBody": {"required": True, "content": {"multipart/form-data": {
+    "schema": {"type": "object", "properties": {"file": {"type": "string", "format": "binary"}},
+               "required": ["file"]}}}}}
 
 
 def display_name(filename: str) -> str:

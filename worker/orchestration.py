@@ -66,6 +66,7 @@ from service.fitjob import build_fit_job
 from service.models import (
     TERMINAL,
     Attempt,
+    Batch,
     Chunk,
     ChunkStatus,
     HistogramVersion,
@@ -74,6 +75,7 @@ from service.models import (
     JobStatus,
     JobVideo,
     Model,
+    RigRow,
     Video,
     utcnow,
 )
@@ -448,12 +450,26 @@ def _report(session: Session, loaded: _Loaded, result: Any, fits: list[ImageFit]
     workers = session.scalars(select(Chunk.worker).where(Chunk.job_id == job.id).distinct()).all()
     report = build_report(loaded.fit, FitOutcome(result, seconds, max(len(workers), 1)))
     report["videos"] = [  # as the lab knows them, never server paths or storage keys
-        {"id": v.id, "filename": v.filename, "frames": v.frames, "announced_frames": v.announced_frames,
-         "warning": missing_frames(v)} for v in _videos(session, job.id)]
+        {"id": v.id, "filename": v.filename, "name": v.name, "metadata": v.meta, "frames": v.frames,
+         "announced_frames": v.announced_frames, "warning": missing_frames(v)}
+        for v in _videos(session, job.id)]
+    report.update(_labels(session, job))
     report["service"] = {"job_id": job.id, "chunks": job.chunks_total, "workers": sorted(workers),
                          "histogram_version_id": job.histogram_version_id,
                          "attempts_total": sum(f.attempts for f in fits)}
     return report
+
+
+def _labels(session: Session, job: Job) -> dict[str, Any]:
+    """The lab's ids, names and metadata of the job, its batch (if any), model and rig."""
+    model, rig = session.get_one(Model, job.model_id), session.get_one(RigRow, job.rig_id)
+    batch = None if job.batch_id is None else session.get_one(Batch, job.batch_id)
+    return {
+        "job": {"id": job.id, "name": job.name, "metadata": job.meta, "trial": job.trial},
+        "batch": None if batch is None else {"id": batch.id, "name": batch.name, "metadata": batch.meta},
+        "model": {"id": model.id, "name": model.name, "metadata": model.meta},
+        "rig": {"id": rig.id, "name": rig.name, "metadata": rig.meta},
+    }
 
 
 # ---- failures -----------------------------------------------------------------------------------

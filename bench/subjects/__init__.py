@@ -1,7 +1,7 @@
 """Benchmark subjects: model, rig and natural movements of whole animals (``bench/animals.py``).
 
 Each subject is a model (FORMATS §1) and a rig (FORMATS §2) in ``bench/subjects/<name>/``
-or ``examples/<name>/``, a frame size, a frame rate, and a movement generator:
+or ``core/examples/<name>/``, a frame size, a frame rate, and a movement generator:
 
 - ``hexapod``: a tethered fruit fly, 6 legs × 7 DOFs, walking in a tripod gait;
 - ``biped``: a human lower body walking along a 2.4 m walkway, pelvis moving forward;
@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from core.examples import EXAMPLES
 from core.model import KinematicModel, Marker
 from core.rig import Rig
 from core.synth import natural_movements
@@ -59,8 +60,8 @@ def load(name: str, cameras: int | None = None) -> Subject:
     """The subject ``name`` (one of :data:`NAMES`); ``cameras`` picks the hexapod's 6, 3 or 2."""
     if name not in NAMES:
         raise ValueError(f"subject must be one of {', '.join(NAMES)}, got {name!r}")
-    folder = {"stick": ROOT / "examples" / "stick_insect_front_leg",
-              "locust": ROOT / "examples" / "locust_hind_leg"}.get(name, ROOT / "bench" / "subjects" / name)
+    folder = {"stick": EXAMPLES / "stick_insect_front_leg",
+              "locust": EXAMPLES / "locust_hind_leg"}.get(name, ROOT / "bench" / "subjects" / name)
     model = KinematicModel.from_xml(folder / "model.xml")
     rig = Rig.from_json(folder / "rig.json")
     if name == "hexapod":

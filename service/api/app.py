@@ -18,6 +18,7 @@ from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import SQLAlchemyError
 
 from service import crud
+from service.api.deps import ERRORS
 from service.api.guard import RequestGuard
 from service.api.routes import apidocs, batches, dashboard, jobs, models, rigs, videos
 from service.db import read_session_factory
@@ -28,21 +29,23 @@ from service.upload import TooLargeError
 logger = logging.getLogger(__name__)
 
 
-# A stored video this old without a row is an orphan; a younger one may be being probed.
+# A stored video or histogram file this old without a row is an orphan; a younger one may be
+# being probed or registered.
 ORPHAN_AGE_S = 3600
 
 
 @asynccontextmanager
 async def _lifespan(_app: FastAPI) -> AsyncIterator[None]:
-    """On start, delete the partial uploads of an API process that died mid-upload, and the
-    complete ones it stored but never registered."""
+    """On start, delete the partial uploads of an API process that died mid-upload, the
+    complete ones it stored but never registered, and the files of deleted uploads whose
+    deletion a crash interrupted."""
     storage = get_storage()
     storage.remove_abandoned()
     try:
         with read_session_factory()() as session:
-            crud.remove_orphan_videos(session, storage, ORPHAN_AGE_S)
+            crud.remove_orphans(session, storage, ORPHAN_AGE_S)
     except SQLAlchemyError:  # the database is down: serve anyway (requests will say so), sweep next start
-        logger.exception("orphan videos not swept: the database cannot be read")
+        logger.exception("orphan files not swept: the database cannot be read")
     yield
 
 
@@ -51,7 +54,7 @@ def create_app() -> FastAPI:
                   description="Model-based motion capture as a service: upload models, rigs and "
                               "videos, submit fitting jobs, download angles and histograms.")
     for router in (models.router, rigs.router, videos.router, jobs.router, batches.router):
-        app.include_router(router, prefix="/v1")
+        app.include_router(router, prefix="/v1", responses=ERRORS)
     # The lab dashboard at / and the API docs at /docs, /redoc, with every asset served from here.
     app.include_router(dashboard.router)
     app.include_router(apidocs.router)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import Depends, Path, Query, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session
 from service.api.auth import authenticate
 from service.db import read_session_factory, session_factory
 from service.models import Lab
-from service.schemas import MAX_DB_INT
+from service.schemas import MAX_DB_INT, Problem
 from service.settings import Settings, get_settings
 from service.storage import LocalStorage, get_storage
 
@@ -30,6 +30,21 @@ PathId = Annotated[int, Path(ge=1, le=MAX_DB_INT)]
 # A listing's page: after ``cursor`` (the ``next_cursor`` of the page before), ``limit`` rows at most.
 Cursor = Annotated[int | None, Query(ge=1, le=MAX_DB_INT, description="next_cursor of the last page")]
 Limit = Annotated[int, Query(ge=1, le=200)]
+# An upload's name and metadata: query parameters, the body being the file itself.
+NameQuery = Annotated[str | None, Query(description="the lab's name for the upload (1-200 characters)",
+                                        examples=["walk-07"])]
+MetadataQuery = Annotated[str | None, Query(
+    description="free metadata: a JSON object (bounds: see the schemas' metadata)",
+    examples=['{"subject": "locust 7", "condition": "walking"}'])]
+# Errors every /v1 operation may answer, all {"detail": "..."} (service/api/app.py).
+ERRORS: dict[int | str, dict[str, Any]] = {
+    401: {"model": Problem, "description": "no valid API key"},
+    404: {"model": Problem, "description": "no such id in this lab (another lab's ids look the same)"},
+    422: {"model": Problem, "description": "invalid input; the message names the field, id or file"},
+}
+# The 409 of deleting an upload a job uses.
+CONFLICT: dict[int | str, dict[str, Any]] = {
+    409: {"model": Problem, "description": "a job uses it; the message names the jobs"}}
 StorageDep = Annotated[LocalStorage, Depends(get_storage)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 

@@ -3,26 +3,24 @@
 from __future__ import annotations
 
 from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from core.ambiguity import Candidate, FlipGeometry, choose_candidates, flip_alternatives
 from core.error import Detections, view_error
+from core.examples import LOCUST
 from core.fit import FitParams, ImageFit, Status, fit_sequence
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
-
 
 @pytest.fixture(scope="module")
 def locust() -> tuple[KinematicModel, Rig, Rig]:
     """The locust leg with its two-view rig and the side view alone."""
-    rig = Rig.from_json(EXAMPLE / "rig.json")
-    return KinematicModel.from_xml(EXAMPLE / "model.xml"), rig, Rig((rig.views[0],))
+    rig = Rig.from_json(LOCUST / "rig.json")
+    return KinematicModel.from_xml(LOCUST / "model.xml"), rig, Rig((rig.views[0],))
 
 
 def _exact(model, rig, q) -> Detections:

@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from core.cli import app
 from core.error import fusion_distance
+from core.examples import LOCUST
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.pipeline import VideoSource, estimate_marker_diameter
@@ -21,7 +22,6 @@ from core.results import read_angles_csv
 from core.rig import Rig
 from core.synth import read_truth_csv
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 RUN = CliRunner()
 
 
@@ -32,7 +32,7 @@ def _invoke(*args: str):
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("clip")
-    result = _invoke("synth", "--model", EXAMPLE / "model.xml", "--rig", EXAMPLE / "rig.json",
+    result = _invoke("synth", "--model", LOCUST / "model.xml", "--rig", LOCUST / "rig.json",
                      "--out", out, "--samples", "40", "--seed", "3")
     assert result.exit_code == 0, result.output
     return out
@@ -41,7 +41,7 @@ def clip(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def interlaced_clip(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("interlaced")
-    result = _invoke("synth", "--model", EXAMPLE / "model.xml", "--rig", EXAMPLE / "rig.json",
+    result = _invoke("synth", "--model", LOCUST / "model.xml", "--rig", LOCUST / "rig.json",
                      "--out", out, "--samples", "24", "--seed", "4", "--interlaced")
     assert result.exit_code == 0, result.output
     return out
@@ -57,8 +57,8 @@ def _chain_xml(n: int) -> str:
 
 
 def _fit(clip: Path, out: Path, *extra: str):
-    return _invoke("fit", clip / "video0.avi", "--model", EXAMPLE / "model.xml",
-                   "--rig", EXAMPLE / "rig.json", "--out", out, "--marker-diameter-px", "4", *extra)
+    return _invoke("fit", clip / "video0.avi", "--model", LOCUST / "model.xml",
+                   "--rig", LOCUST / "rig.json", "--out", out, "--marker-diameter-px", "4", *extra)
 
 
 def test_fit_writes_formats_files_and_matches_the_truth(clip, tmp_path):
@@ -73,7 +73,7 @@ def test_fit_writes_formats_files_and_matches_the_truth(clip, tmp_path):
     rmse = np.sqrt(np.mean((table.dofs - truth) ** 2, axis=0))
     assert np.all(rmse < 0.5), rmse
     assert all(s.value == "ok" for s in table.statuses)
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
     hist = Histograms.from_xml(tmp_path / "out" / "histograms.xml", model)
     assert hist.counts[0] == 100 + 40
     report = json.loads((tmp_path / "out" / "report.json").read_text())
@@ -111,13 +111,13 @@ def test_marker_diameter_is_estimated_in_frame_pixels_by_default(request, name, 
     """Rendered 4 px markers: the default 'auto' finds 3.5-4.5 px (fields: areas in frame pixels)
     and fits with the fusion distance of that diameter."""
     clip = request.getfixturevalue(name)
-    source = VideoSource((clip / "video0.avi",), Rig.from_json(EXAMPLE / "rig.json"),
+    source = VideoSource((clip / "video0.avi",), Rig.from_json(LOCUST / "rig.json"),
                          deinterlace=deinterlace)
     diameter = estimate_marker_diameter(source)
     assert 3.5 < diameter < 4.5
     args = ["--deinterlace"] if deinterlace else []
-    result = _invoke("fit", clip / "video0.avi", "--model", EXAMPLE / "model.xml",
-                     "--rig", EXAMPLE / "rig.json", "--out", tmp_path, *args)
+    result = _invoke("fit", clip / "video0.avi", "--model", LOCUST / "model.xml",
+                     "--rig", LOCUST / "rig.json", "--out", tmp_path, *args)
     assert result.exit_code == 0, result.output
     fusion = json.loads((tmp_path / "report.json").read_text())["settings"]["fit"]["fusion_px"]
     assert fusion == pytest.approx(fusion_distance(diameter))
@@ -131,7 +131,7 @@ def test_marker_diameter_is_estimated_in_frame_pixels_by_default(request, name, 
      ("model_of_1000_joints", "one attempt on one image is estimated to take up to")],
 )
 def test_bad_input_exits_2_with_one_line(clip, tmp_path, case, match):
-    model, rig, video = EXAMPLE / "model.xml", EXAMPLE / "rig.json", clip / "video0.avi"
+    model, rig, video = LOCUST / "model.xml", LOCUST / "rig.json", clip / "video0.avi"
     extra: list = []
     videos = [video]
     if case == "missing_model":
@@ -181,11 +181,11 @@ def test_the_console_script_turns_usage_errors_into_one_line_and_exit_2(tmp_path
 def test_fit_with_root_tracking_follows_a_moving_body(tmp_path):
     """Rendered with a translating root, fitted with the fixed-root model and --root-marker."""
     phi = '<dof axis="y" name="phi"'
-    text = (EXAMPLE / "model.xml").read_text().replace(
+    text = (LOCUST / "model.xml").read_text().replace(
         phi, '<dof axis="tx" name="x" min="-10" max="10"/>\n    ' + phi)
     moving = tmp_path / "moving.xml"
     moving.write_text(text)
-    synth = _invoke("synth", "--model", moving, "--rig", EXAMPLE / "rig.json", "--out", tmp_path / "clip",
+    synth = _invoke("synth", "--model", moving, "--rig", LOCUST / "rig.json", "--out", tmp_path / "clip",
                     "--samples", "20", "--seed", "8")
     assert synth.exit_code == 0, synth.output
     names, truth = read_truth_csv(tmp_path / "clip" / "truth.csv")

@@ -13,12 +13,12 @@ from test_export import read_mot, read_trc
 from typer.testing import CliRunner
 
 from core.cli import app
+from core.examples import LOCUST
 from core.export import marker_trajectories
 from core.model import KinematicModel
 from core.results import read_angles_csv
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
-MODEL = KinematicModel.from_xml(EXAMPLE / "model.xml")
+MODEL = KinematicModel.from_xml(LOCUST / "model.xml")
 
 
 def _invoke(*args: object):
@@ -26,14 +26,14 @@ def _invoke(*args: object):
 
 
 def _fit(video: Path, out: Path, *extra: str):
-    return _invoke("fit", video, "--model", EXAMPLE / "model.xml", "--rig", EXAMPLE / "rig.json",
+    return _invoke("fit", video, "--model", LOCUST / "model.xml", "--rig", LOCUST / "rig.json",
                    "--out", out, "--marker-diameter-px", "4", *extra)
 
 
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory) -> Path:
     clip = tmp_path_factory.mktemp("clip")
-    done = _invoke("synth", "--model", EXAMPLE / "model.xml", "--rig", EXAMPLE / "rig.json",
+    done = _invoke("synth", "--model", LOCUST / "model.xml", "--rig", LOCUST / "rig.json",
                    "--out", clip, "--samples", "12", "--seed", "5")
     assert done.exit_code == 0, done.output
     out = clip / "out"
@@ -65,7 +65,7 @@ def test_fit_detections_csv_is_what_the_report_counts(fitted):
 
 
 def test_export_command_writes_metres(fitted, tmp_path):
-    done = _invoke("export", fitted / "angles.csv", "--model", EXAMPLE / "model.xml", "--out", tmp_path,
+    done = _invoke("export", fitted / "angles.csv", "--model", LOCUST / "model.xml", "--out", tmp_path,
                    "--to", "trc", "--units", "m")
     assert done.exit_code == 0, done.output
     meta, _, _, points = read_trc(tmp_path / "markers.trc")

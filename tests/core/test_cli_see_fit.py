@@ -14,14 +14,14 @@ from typer.testing import CliRunner
 
 from core.cli import app
 from core.detect import DetectorParams, detect
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.overlay import MARK_BGR
 from core.results import read_angles_csv
 from core.rig import Rig
 from core.video import VideoSet
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
-MODEL, RIG = EXAMPLE / "model.xml", EXAMPLE / "rig.json"
+MODEL, RIG = LOCUST / "model.xml", LOCUST / "rig.json"
 IMAGES = 8
 RUN = CliRunner()
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,14 +13,14 @@ from core.ambiguity import Candidate, FlipGeometry, flip_alternatives
 from core.anneal import AnnealParams, search_space
 from core.cost import FitCost, FitCostError, check_fit_cost, estimate_fit_cost
 from core.error import Detections, view_error
+from core.examples import EXAMPLES
 from core.fit import FitParams, fit_image, image_stream
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
-RIG = Rig.from_json(EXAMPLE / "rig.json")
-LOCUST = KinematicModel.from_xml(EXAMPLE / "model.xml")
+RIG = Rig.from_json(EXAMPLES / "locust_hind_leg" / "rig.json")
+LOCUST = KinematicModel.from_xml(EXAMPLES / "locust_hind_leg" / "model.xml")
 
 
 def chain(n: int) -> KinematicModel:

@@ -10,13 +10,12 @@ from typer.testing import CliRunner
 
 from core.cli import app
 from core.detect import detect
+from core.examples import EXAMPLES
 from core.fit import FitParams, Status, fit_sequence
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 from core.synth import natural_movements, render_frames, write_video
-
-EXAMPLES = Path(__file__).parents[2] / "examples"
 
 
 def _read_grey(path: Path) -> list[np.ndarray]:

@@ -2,32 +2,30 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from core.calibration import from_dlt
 from core.cli import app
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.results import read_angles_csv
 from core.rig import Rig
 from core.synth import read_truth_csv
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
-MODEL = KinematicModel.from_xml(EXAMPLE / "model.xml")
+MODEL = KinematicModel.from_xml(LOCUST / "model.xml")
 NEW_RIGS = ["rig_pinhole.json", "rig_dlt.json"]  # rig.json is the paper's, tested elsewhere
 
 
 def test_the_dlt_example_is_the_import_of_its_coefficients():
-    committed = Rig.from_json(EXAMPLE / "rig_dlt.json")
-    assert committed == from_dlt(EXAMPLE / "cal_dltCoefs.csv", heights=[576])
+    committed = Rig.from_json(LOCUST / "rig_dlt.json")
+    assert committed == from_dlt(LOCUST / "cal_dltCoefs.csv", heights=[576])
 
 
 @pytest.mark.parametrize("name", NEW_RIGS)
 def test_every_posture_in_range_is_seen_inside_the_frame(name):
-    rig = Rig.from_json(EXAMPLE / name)
+    rig = Rig.from_json(LOCUST / name)
     postures = np.random.default_rng(0).uniform(MODEL.lower, MODEL.upper, (2000, len(MODEL.dofs)))
     uv = rig.project(MODEL.marker_positions(postures).reshape(-1, 3))
     for v, view in enumerate(rig.views):
@@ -36,14 +34,14 @@ def test_every_posture_in_range_is_seen_inside_the_frame(name):
 
 @pytest.mark.parametrize("name", NEW_RIGS)
 def test_a_clip_rendered_through_the_example_is_fitted_back(tmp_path, name):
-    rig = Rig.from_json(EXAMPLE / name)
+    rig = Rig.from_json(LOCUST / name)
     run = CliRunner()
-    done = run.invoke(app, ["synth", "--model", str(EXAMPLE / "model.xml"), "--rig", str(EXAMPLE / name),
+    done = run.invoke(app, ["synth", "--model", str(LOCUST / "model.xml"), "--rig", str(LOCUST / name),
                             "--out", str(tmp_path), "--samples", "10", "--seed", "2"])
     assert done.exit_code == 0, done.output
     videos = [str(tmp_path / f"video{k}.avi") for k in range(rig.n_videos)]
-    done = run.invoke(app, ["fit", *videos, "--model", str(EXAMPLE / "model.xml"),
-                            "--rig", str(EXAMPLE / name), "--out", str(tmp_path / "out"),
+    done = run.invoke(app, ["fit", *videos, "--model", str(LOCUST / "model.xml"),
+                            "--rig", str(LOCUST / name), "--out", str(tmp_path / "out"),
                             "--marker-diameter-px", "4"])
     assert done.exit_code == 0, done.output
     _, truth = read_truth_csv(tmp_path / "truth.csv")

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from core.error import Detections
+from core.examples import LOCUST
 from core.export import (
     marker_trajectories,
     write_c3d,
@@ -22,8 +23,7 @@ from core.model import KinematicModel
 from core.results import AnglesTable, SampleClock
 from core.rig import Rig
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
-MODEL = KinematicModel.from_xml(EXAMPLE / "model.xml")
+MODEL = KinematicModel.from_xml(LOCUST / "model.xml")
 
 
 def angles_table(model: KinematicModel, n: int = 12, *, fps: float = 50.0, seed: int = 0) -> AnglesTable:
@@ -91,7 +91,7 @@ def test_trc_in_metres(tmp_path):
 
 
 def test_metres_need_a_known_length_unit(tmp_path):
-    model = KinematicModel.from_xml((EXAMPLE / "model.xml").read_text().replace('units="mm"', 'units="px"'))
+    model = KinematicModel.from_xml((LOCUST / "model.xml").read_text().replace('units="mm"', 'units="px"'))
     with pytest.raises(ValueError, match="the model's units 'px' are not a length"):
         write_trc(tmp_path / "x.trc", angles_table(model), model, units="m")
     with pytest.raises(ValueError, match="units must be 'model' or 'm'"):
@@ -122,7 +122,7 @@ def test_c3d_read_back_by_ezc3d(tmp_path, units):
 
 
 def test_detections_csv_lists_every_centroid(tmp_path):
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    rig = Rig.from_json(LOCUST / "rig.json")
     images = [
         Detections.from_views([np.array([[10.25, 20.5], [30.0, 40.125]]), np.zeros((0, 2))],
                               [np.array([12.0, 13.0]), np.zeros(0)]),

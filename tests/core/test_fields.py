@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from core.detect import detect
+from core.examples import LOCUST
 from core.fields import detect_fields, field_rig
 from core.model import KinematicModel
+from core.render import _Painter
 from core.results import SampleClock
 from core.rig import Rig
-from core.synth import _Painter, render_frames
-
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
+from core.synth import render_frames
 
 
 @pytest.mark.parametrize(
@@ -35,8 +33,8 @@ def test_a_field_roi_holds_exactly_the_field_rows_inside_the_frame_roi(roi, pari
 
 
 def _interlaced_frame(seed: int):
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
+    rig = Rig.from_json(LOCUST / "rig.json")
     truth = np.array([[150.0, 10.0, 0.0, 20.0, 90.0], [180.0, -20.0, 5.0, 40.0, 60.0]])
     (frame,) = render_frames(model, rig, truth, rng=np.random.default_rng(seed), interlaced=True)
     return model, rig, truth, frame

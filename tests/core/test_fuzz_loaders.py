@@ -18,16 +18,15 @@ import json
 import time
 import tracemalloc
 from collections.abc import Callable
-from pathlib import Path
 
 import hypothesis.strategies as st
 from hypothesis import HealthCheck, given, settings
 
+from core.examples import EXAMPLES
 from core.histogram import HistogramError, Histograms
 from core.model import KinematicModel, ModelError
 from core.rig import Rig, RigError
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 TIME_BOUND_S = 5.0  # a guard against hangs on a busy 2-core machine; measured calls take < 0.5 s
 MEMORY_BOUND_BYTES = 64 * 2**20
 BUDGET = settings(max_examples=60, deadline=10_000, suppress_health_check=[HealthCheck.too_slow])
@@ -67,7 +66,7 @@ def _bounded(call: Callable[[], object], error: type[ValueError]) -> None:
 
 
 def _valid_rig() -> dict:
-    return json.loads((EXAMPLE / "rig.json").read_text())
+    return json.loads((EXAMPLES / "locust_hind_leg" / "rig.json").read_text())
 
 
 @st.composite
@@ -183,7 +182,7 @@ def test_model_from_xml_of_random_bytes(data):
 
 # ---- histogram XML -------------------------------------------------------------------------------
 
-LOCUST = KinematicModel.from_xml(EXAMPLE / "model.xml")
+LOCUST = KinematicModel.from_xml(EXAMPLES / "locust_hind_leg" / "model.xml")
 
 
 @st.composite

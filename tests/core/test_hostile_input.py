@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 import pytest
 
-from core import model as model_module
 from core import video as video_module
+from core import xmlio
 from core.histogram import MAX_BINS, HistogramError, Histograms
 from core.model import MAX_JOINTS, KinematicModel, ModelError
 from core.pipeline import VideoSource
@@ -178,7 +178,7 @@ def test_a_cycle_of_10000_joints_is_found_without_recursion():
 
 def test_the_xml_limits_are_module_settings(monkeypatch):
     """A service may lower a limit; it is read when a file is parsed."""
-    monkeypatch.setattr(model_module, "MAX_XML_DEPTH", 2)
+    monkeypatch.setattr(xmlio, "MAX_XML_DEPTH", 2)
     _raises_fast(lambda: KinematicModel.from_xml(_model()), ModelError, "nested more than 2 deep")
 
 

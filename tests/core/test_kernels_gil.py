@@ -9,18 +9,17 @@ from __future__ import annotations
 
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 
 from core.anneal import AnnealParams, search_space
 from core.error import Detections
+from core.examples import LOCUST
 from core.fit import FitParams, fit_image, image_stream
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 TICK_S = 0.005
 
 
@@ -39,8 +38,8 @@ def test_another_thread_runs_while_a_fit_kernel_runs():
     """While one fit (about two seconds of compiled SA) runs in a thread, the main thread keeps
     ticking every 5 ms: at least a quarter of the ticks a free thread would make. Measured on
     a loaded machine: 377 of 440; with a GIL-holding copy of the kernel, 2 in 1.83 s."""
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
+    rig = Rig.from_json(LOCUST / "rig.json")
     _long_fit(model, rig, 1000)  # compile (or load the cache) outside the measurement
     worker = threading.Thread(target=_long_fit, args=(model, rig, 4_000_000))
     ticks = 0

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,9 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from core._kernels import sincos_deg
+from core.examples import EXAMPLES
 from core.model import Dof, Joint, KinematicModel, Marker, ModelError, euler_matrix
 
-EXAMPLES = Path(__file__).parents[2] / "examples"
 LOCUST = EXAMPLES / "locust_hind_leg" / "model.xml"
 STICK = EXAMPLES / "stick_insect_front_leg" / "model.xml"
 

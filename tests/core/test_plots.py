@@ -11,13 +11,13 @@ import defusedxml.ElementTree as SafeET
 import numpy as np
 import pytest
 
+from core.examples import LOCUST
 from core.fit import Status
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.plots import MAX_PLOT_DOFS, angles_figure, histogram_interval, write_plots
 from core.results import AnglesTable
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 SVG_G = "{http://www.w3.org/2000/svg}g"
 
 
@@ -48,7 +48,7 @@ def axes_in_svg(path: Path) -> int:
 
 
 def test_plots_are_valid_png_and_svg_with_one_axis_per_dof(tmp_path):
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
     table, final = sequence(model)
     names = write_plots(tmp_path, table, model, Histograms.uniform(model), final)
     assert names == ["angles.png", "angles.svg", "histograms.png", "histograms.svg"]
@@ -64,7 +64,7 @@ def test_plots_are_valid_png_and_svg_with_one_axis_per_dof(tmp_path):
 
 
 def test_the_angle_figure_marks_what_the_table_says():
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
     table, final = sequence(model)
     figure = angles_figure(table, model, final)
     lines = {line.get_label(): line for line in figure.axes[0].get_lines()}
@@ -75,7 +75,7 @@ def test_the_angle_figure_marks_what_the_table_says():
 
 
 def test_histogram_interval_holds_the_central_mass():
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
     h = Histograms.empty(model)
     h.update(np.array([170.5, 0.5, 359.5, 10.5, 90.5]))  # one count per DOF
     assert histogram_interval(h, 0) == (170.0, 171.0)

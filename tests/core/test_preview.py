@@ -2,24 +2,21 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from core.detect import DetectorParams, detect
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.preview import CENTROID_BGR, ROI_BGR, preview_frame
 from core.rig import Rig
 from core.synth import render_frames
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
-
 
 @pytest.fixture(scope="module")
 def frames() -> list[np.ndarray]:
     """Three frames of the locust example (two views in one video), two ghosts per view."""
-    model, rig = KinematicModel.from_xml(EXAMPLE / "model.xml"), Rig.from_json(EXAMPLE / "rig.json")
+    model, rig = KinematicModel.from_xml(LOCUST / "model.xml"), Rig.from_json(LOCUST / "rig.json")
     postures = (model.lower + model.upper) / 2 + np.array([[0.0] * 5, [10.0] * 5, [-15.0] * 5])
     return list(render_frames(model, rig, postures, rng=np.random.default_rng(1), ghosts_per_view=2))
 
@@ -28,7 +25,7 @@ def frames() -> list[np.ndarray]:
                                     DetectorParams(threshold=60, erode=1, dilate=1, min_area=6),
                                     DetectorParams(max_area=3)])
 def test_counts_and_centroids_are_core_detects(frames, params):
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    rig = Rig.from_json(LOCUST / "rig.json")
     for frame in frames:
         drawn, found = preview_frame([frame], rig=rig, params=params)
         expected = detect([frame], rig=rig, params=params)
@@ -38,7 +35,7 @@ def test_counts_and_centroids_are_core_detects(frames, params):
 
 
 def test_roi_mask_and_centroids_are_drawn_at_their_pixels(frames):
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    rig = Rig.from_json(LOCUST / "rig.json")
     (drawn,), found = preview_frame([frames[0]], rig=rig)
     assert found.counts.min() >= 4
     for u, v in found.points:
@@ -53,7 +50,7 @@ def test_roi_mask_and_centroids_are_drawn_at_their_pixels(frames):
 
 
 def test_regions_the_area_limits_refuse_are_tinted_without_centroid(frames):
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    rig = Rig.from_json(LOCUST / "rig.json")
     (drawn,), found = preview_frame([frames[0]], rig=rig, params=DetectorParams(min_area=1000))
     assert found.counts.tolist() == [0, 0]
     real = detect([frames[0]], rig=rig)

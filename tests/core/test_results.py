@@ -4,24 +4,29 @@ from __future__ import annotations
 
 import io
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from core.error import Detections
+from core.examples import LOCUST
 from core.fit import FitParams, ImageFit, Status, fit_sequence
 from core.histogram import Histograms
 from core.model import KinematicModel
-from core.results import SampleClock, angles_header, read_angles_csv, write_angles_csv
+from core.results import (
+    SampleClock,
+    angles_header,
+    read_angles_csv,
+    read_truth_csv,
+    write_angles_csv,
+    write_truth_csv,
+)
 from core.rig import Rig
-
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 
 
 @pytest.fixture(scope="module")
 def locust() -> tuple[KinematicModel, Rig]:
-    return KinematicModel.from_xml(EXAMPLE / "model.xml"), Rig.from_json(EXAMPLE / "rig.json")
+    return KinematicModel.from_xml(LOCUST / "model.xml"), Rig.from_json(LOCUST / "rig.json")
 
 
 def _views(model, rig, q, noise_px, drop_view=None, seed=0) -> Detections:
@@ -95,3 +100,36 @@ def test_an_image_without_an_alternative_leaves_the_cell_empty(locust):
     write_angles_csv(text, model, [fit], SampleClock(50.0))
     row = text.getvalue().splitlines()[1].split(",")
     assert row[-3] == "ok" and row[-1] == ""
+
+
+# ---- truth.csv ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("interlaced", [False, True])
+def test_truth_csv_round_trip_and_header(tmp_path, locust, interlaced):
+    model, _ = locust
+    q = np.array([[170.0, -0.5, 1e-7, 10.123456789012345, 90.0],
+                  [120.0, 40.0, -10.0, 0.1 + 0.2, 160.0],
+                  [200.0, 0.0, -0.0, 33.3, 20.0],
+                  [150.5, 1.5, 2.5, 3.5, 45.0]])
+    path = tmp_path / "truth.csv"
+    write_truth_csv(path, model, q, fps=25.0, interlaced=interlaced)
+    lines = path.read_text().splitlines()
+    assert lines[0] == "sample,frame,field,time_s,phi,psi,alpha,beta,gamma"
+    if interlaced:
+        assert lines[1].startswith("0,0,even,0,170,-0.5,0.0000001,")
+        assert lines[4].startswith("3,1,odd,0.06,")
+    else:
+        assert lines[1].startswith("0,0,,0,")
+        assert lines[4].startswith("3,3,,0.12,")
+    assert not any("e" in cell.lower() for line in lines[1:] for cell in line.split(",")[3:])
+    names, back = read_truth_csv(path)
+    assert names == model.dof_names
+    np.testing.assert_array_equal(back, q)
+
+
+def test_read_truth_csv_rejects_another_header(tmp_path):
+    path = tmp_path / "other.csv"
+    path.write_text("frame,phi\n0,1\n")
+    with pytest.raises(ValueError, match="header"):
+        read_truth_csv(path)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import copy
 import json
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -13,9 +12,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from core.examples import LOCUST
 from core.rig import Rig, RigError
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg" / "rig.json"
+EXAMPLE = LOCUST / "rig.json"
 
 AFFINE = {"type": "affine", "matrix": [[3.0, 0, 0, 240], [0, -3.0, 0, 184]]}
 PINHOLE = {"type": "pinhole", "K": [[800.0, 0, 320], [0, 700.0, 240], [0, 0, 1]],

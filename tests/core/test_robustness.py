@@ -23,7 +23,6 @@ import copy
 import csv
 import functools
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,6 +32,7 @@ from core.cli import app
 from core.demo import single_view
 from core.detect import detect
 from core.error import Detections
+from core.examples import EXAMPLES
 from core.fit import FitParams, SequenceResult, Status, fit_sequence
 from core.histogram import Histograms
 from core.model import KinematicModel
@@ -40,7 +40,6 @@ from core.results import read_angles_csv
 from core.rig import Rig
 from core.synth import natural_movements, read_truth_csv, render_frames, write_video
 
-EXAMPLES = Path(__file__).parents[2] / "examples"
 LOCUST, STICK_INSECT = "locust_hind_leg", "stick_insect_front_leg"
 MARKER_PX = 4.0
 PARAMS = FitParams(fusion_px=2 * MARKER_PX)  # defaults otherwise: threshold 10 px, 5 attempts

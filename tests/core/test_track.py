@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from core.detect import detect
 from core.error import Detections
+from core.examples import LOCUST
 from core.fit import FitParams, fit_sequence
 from core.histogram import Histograms
 from core.model import KinematicModel
@@ -16,17 +15,15 @@ from core.rig import Rig
 from core.synth import render_frames
 from core.track import RootTracking, root_reference, track_root
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
-
 
 @pytest.fixture(scope="module")
 def locust() -> tuple[KinematicModel, Rig]:
-    return KinematicModel.from_xml(EXAMPLE / "model.xml"), Rig.from_json(EXAMPLE / "rig.json")
+    return KinematicModel.from_xml(LOCUST / "model.xml"), Rig.from_json(LOCUST / "rig.json")
 
 
 def _moving_root_model() -> KinematicModel:
     """The locust leg whose root also translates along x and z (a walking body)."""
-    text = (EXAMPLE / "model.xml").read_text()
+    text = (LOCUST / "model.xml").read_text()
     text = text.replace('<dof axis="y" name="phi"', '<dof axis="tx" name="x" min="-15" max="15"/>\n'
                         '    <dof axis="tz" name="z" min="-15" max="15"/>\n    <dof axis="y" name="phi"')
     return KinematicModel.from_xml(text)

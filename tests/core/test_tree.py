@@ -2,21 +2,17 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from tree_subjects import FREE_ROOT, angle_errors, detections, insect, movement, ring_rig
 
 from core import _kernels
+from core.examples import EXAMPLES
 from core.fit import FitParams, fit_sequence
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 from core.treefit import two_sided_error
-
-EXAMPLES = Path(__file__).parents[2] / "examples"
-
 
 # ---- decomposition ---------------------------------------------------------------------------
 

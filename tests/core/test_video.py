@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from core import video as video_module
-from core.video import MAX_FRAME_MISMATCH, VideoError, VideoSet, probe
+from core.movement import natural_movements
+from core.render import render_frames
+from core.video import MAX_FRAME_MISMATCH, VideoError, VideoSet, probe, write_video
 
 DATA = Path(__file__).parents[1] / "data"
 WIDTH, HEIGHT = 720, 576
@@ -151,3 +153,39 @@ def test_each_open_video_decodes_on_one_thread(video):
         assert capture.get(cv2.CAP_PROP_N_THREADS) == video_module.DECODE_THREADS == 1
     finally:
         capture.release()
+
+
+# ---- writing ------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("suffix", [".avi", ".mkv"])
+def test_write_video_reads_back_bit_exact(tmp_path, locust, suffix):
+    model, rig = locust
+    q = natural_movements(model, rig, 4, rng=np.random.default_rng(1), n_sequences=1)
+    frames = list(render_frames(model, rig, q, rng=np.random.default_rng(2)))
+    path = tmp_path / f"clip{suffix}"
+    assert write_video(path, iter(frames), fps=25.0) == 4
+    cap = cv2.VideoCapture(str(path))
+    back = []
+    while True:
+        ok, image = cap.read()
+        if not ok:
+            break
+        back.append(image)
+    cap.release()
+    assert len(back) == len(frames)
+    for original, read in zip(frames, back, strict=True):
+        np.testing.assert_array_equal(read[:, :, 0], original)
+        np.testing.assert_array_equal(read[:, :, 2], original)
+
+
+def test_write_video_errors(tmp_path):
+    frame = np.zeros((8, 8), np.uint8)
+    with pytest.raises(ValueError, match=r"\.avi or \.mkv"):
+        write_video(tmp_path / "clip.mp4", [frame], fps=25.0)
+    with pytest.raises(ValueError, match="empty"):
+        write_video(tmp_path / "clip.avi", [], fps=25.0)
+    with pytest.raises(ValueError, match="frame 1"):
+        write_video(tmp_path / "clip.avi", [frame, np.zeros((8, 9), np.uint8)], fps=25.0)
+    with pytest.raises(OSError, match="cannot open"):
+        write_video(tmp_path / "missing" / "clip.avi", [frame], fps=25.0)

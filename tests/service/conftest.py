@@ -29,12 +29,12 @@ import pytest
 from sqlalchemy import Engine, text
 from svc_helpers import submit, upload_inputs, wait_for
 
+from core.examples import LOCUST
 from core.model import KinematicModel
 from core.rig import Rig
 from core.synth import natural_movements, render_frames, write_video
 from service.db import make_engine
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 PG_ADMIN_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 REDIS_URL = "redis://127.0.0.1:6379/9"
 REDIS_FAULTS_URL = "redis://127.0.0.1:6379/10"  # FLUSHDB'd by the fault tests
@@ -201,20 +201,30 @@ def faults(tmp_path_factory) -> Iterator[Deployment]:
         yield deployment
 
 
-@pytest.fixture(scope="session")
-def embedded(tmp_path_factory) -> Iterator[Deployment]:
-    data = tmp_path_factory.mktemp("embedded")
+def serve_embedded(data: Path, port: int, workers: int = 2) -> Deployment:
+    """``mocap serve`` on ``port`` with its data (SQLite, broker, files) in ``data``, once it answers;
+    started again on the same ``data`` it finds everything as it was (the caller stops it)."""
+    data.mkdir(parents=True, exist_ok=True)
     env = _base_env(data)
     for name in ("MOCAP_DATABASE_URL", "MOCAP_BROKER_URL", "MOCAP_QUEUE"):
         env.pop(name, None)
-    port = free_port()
     deployment = Deployment("embedded", f"http://127.0.0.1:{port}/v1", env,
                             f"sqlite:///{data / 'mocap.db'}")
     deployment.processes.append(subprocess.Popen(
-        [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", "2"],
-        env=env, stdout=(data / "serve.log").open("w"), stderr=subprocess.STDOUT))
+        [sys.executable, "-m", "service.cli", "serve", "--port", str(port), "--workers", str(workers)],
+        env=env, stdout=(data / "serve.log").open("a"), stderr=subprocess.STDOUT))
     try:
         wait_healthy(deployment)
+    except RuntimeError:
+        deployment.stop()
+        raise
+    return deployment
+
+
+@pytest.fixture(scope="session")
+def embedded(tmp_path_factory) -> Iterator[Deployment]:
+    deployment = serve_embedded(tmp_path_factory.mktemp("embedded"), free_port())
+    try:
         yield deployment
     finally:
         deployment.stop()
@@ -246,8 +256,8 @@ class Clip:
 
 @pytest.fixture(scope="session")
 def clip(tmp_path_factory) -> Clip:
-    model = KinematicModel.from_xml(EXAMPLE / "model.xml")
-    rig = Rig.from_json(EXAMPLE / "rig.json")
+    model = KinematicModel.from_xml(LOCUST / "model.xml")
+    rig = Rig.from_json(LOCUST / "rig.json")
     rng = np.random.default_rng(CLIP_SEED)
     truth = natural_movements(model, rig, CLIP_IMAGES, rng=rng, n_sequences=2)
     video = tmp_path_factory.mktemp("clip") / "clip.avi"

@@ -10,18 +10,18 @@ from typing import Any
 import cv2
 import httpx
 
+from core.examples import LOCUST
 from core.synth import write_video
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
 TERMINAL = {"succeeded", "failed", "canceled"}
 
 
 def upload_inputs(client: httpx.Client, video: Path, rig: bytes | None = None) -> dict[str, int]:
     """Upload the locust model, a rig (the example's by default) and ``video``; return their ids."""
-    model = client.post("/models", content=(EXAMPLE / "model.xml").read_bytes(),
+    model = client.post("/models", content=(LOCUST / "model.xml").read_bytes(),
                         headers={"Content-Type": "application/xml"})
     assert model.status_code == 201, model.text
-    rig_response = client.post("/rigs", content=rig or (EXAMPLE / "rig.json").read_bytes(),
+    rig_response = client.post("/rigs", content=rig or (LOCUST / "rig.json").read_bytes(),
                                headers={"Content-Type": "application/json"})
     assert rig_response.status_code == 201, rig_response.text
     with video.open("rb") as f:
@@ -64,7 +64,7 @@ def repeated(video: Path, times: int, out: Path) -> Path:
 def slow_rig() -> bytes:
     """The example rig at half the true scale: no posture explains the markers, so every image
     runs all its iterations (~40 ms): chunks that last long enough to kill mid-way."""
-    rig = json.loads((EXAMPLE / "rig.json").read_text())
+    rig = json.loads((LOCUST / "rig.json").read_text())
     for view in rig["views"]:
         view["projection"]["matrix"][0][0] = 1.5
     return json.dumps(rig).encode()

@@ -9,8 +9,9 @@ import sys
 import httpx
 import pytest
 from conftest import Deployment, free_port, wait_healthy
-from svc_helpers import EXAMPLE, upload_inputs
+from svc_helpers import upload_inputs
 
+from core.examples import LOCUST
 from core.model import KinematicModel
 
 pytestmark = [pytest.mark.service, pytest.mark.slow]
@@ -30,7 +31,7 @@ def test_another_labs_key_gets_404_on_every_endpoint(redis_pg, owner_job, clip):
     values = {"model_id": ids["model_id"], "rig_id": ids["rig_id"], "video_id": ids["video_id"],
               "job_id": ids["job_id"], "batch_id": ids["batch_id"], "name": "plots/angles.svg"}
     operations = _paths_with_ids(redis_pg)
-    assert len(operations) == 16, operations  # 14 downloads and reads, cancel and detect-preview
+    assert len(operations) == 19, operations  # 14 downloads and reads, cancel, detect-preview, 3 deletes
     for method, template in operations:
         path = template.format(**values)
         if method == "GET":
@@ -114,9 +115,9 @@ def test_results_before_success_are_409(owner_job, redis_pg):
 
 def test_model_can_also_be_sent_as_a_multipart_file(redis_pg):
     client = redis_pg.create_lab("multipart")
-    response = client.post("/models", files={"file": ("m.xml", (EXAMPLE / "model.xml").read_bytes())})
+    response = client.post("/models", files={"file": ("m.xml", (LOCUST / "model.xml").read_bytes())})
     assert response.status_code == 201
-    assert response.json()["dofs"] == KinematicModel.from_xml(EXAMPLE / "model.xml").dof_names
+    assert response.json()["dofs"] == KinematicModel.from_xml(LOCUST / "model.xml").dof_names
 
 
 @pytest.fixture

@@ -5,12 +5,12 @@ from __future__ import annotations
 import json
 import shutil
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from core.anneal import AnnealParams
+from core.examples import LOCUST
 from core.fit import FitParams
 from core.histogram import Histograms
 from core.model import KinematicModel
@@ -20,12 +20,10 @@ from core.synth import natural_movements, render_frames, write_video
 from service.artifacts import INDEX, listed, render
 from service.storage import LocalStorage
 
-EXAMPLE = Path(__file__).parents[2] / "examples" / "locust_hind_leg"
-
 
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
-    model, rig = KinematicModel.from_xml(EXAMPLE / "model.xml"), Rig.from_json(EXAMPLE / "rig.json")
+    model, rig = KinematicModel.from_xml(LOCUST / "model.xml"), Rig.from_json(LOCUST / "rig.json")
     video = tmp_path_factory.mktemp("clip") / "clip.avi"
     rng = np.random.default_rng(4)
     truth = natural_movements(model, rig, 6, rng=rng)

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 from sqlalchemy import text
-from svc_helpers import EXAMPLE
+
+from core.examples import LOCUST
 
 pytestmark = [pytest.mark.service, pytest.mark.slow]  # creating a lab (a subprocess) takes ~10 s
 
@@ -44,11 +45,11 @@ def test_a_rig_naming_video_one_billion_is_422_at_once_and_the_api_memory_stays(
     """Measured: 422 in 17 ms; the API's peak RSS (180 MiB) grew by 16 kB (by 22.7 GB before)."""
     client = redis_pg.create_lab("rig-bomb")
     api = redis_pg.processes[0].pid
-    rig = json.loads((EXAMPLE / "rig.json").read_text())
+    rig = json.loads((LOCUST / "rig.json").read_text())
     rig["views"][1]["video"] = 1_000_000_000
     body = json.dumps(rig).encode()
     assert len(body) == 296  # the issue's request
-    assert client.post("/rigs", content=(EXAMPLE / "rig.json").read_bytes(), headers=JSON).status_code == 201
+    assert client.post("/rigs", content=(LOCUST / "rig.json").read_bytes(), headers=JSON).status_code == 201
     before = _peak_rss_bytes(api)  # after a rig has been parsed: the baseline is reached
     start = time.perf_counter()
     response = client.post("/rigs", content=body, headers=JSON)
@@ -70,7 +71,7 @@ def test_a_job_whose_one_image_could_run_for_hours_is_422_at_submission(redis_pg
     model = client.post("/models", content=_chain_xml(1000).encode(),
                         headers={"Content-Type": "application/xml"})
     assert model.status_code == 201, model.text  # within the file limits: stored
-    rig = client.post("/rigs", content=(EXAMPLE / "rig.json").read_bytes(), headers=JSON)
+    rig = client.post("/rigs", content=(LOCUST / "rig.json").read_bytes(), headers=JSON)
     with clip.video.open("rb") as f:
         video = client.post("/videos", files={"file": (clip.video.name, f, "video/x-msvideo")})
     assert rig.status_code == 201 and video.status_code == 201, rig.text + video.text
@@ -95,7 +96,7 @@ def test_the_heartbeat_is_written_while_one_long_image_is_fitted(redis_pg, clip)
     client = redis_pg.create_lab("long-images")
     model = client.post("/models", content=_chain_xml(80).encode(),
                         headers={"Content-Type": "application/xml"})
-    rig = client.post("/rigs", content=(EXAMPLE / "rig.json").read_bytes(), headers=JSON)
+    rig = client.post("/rigs", content=(LOCUST / "rig.json").read_bytes(), headers=JSON)
     with clip.video.open("rb") as f:
         video = client.post("/videos", files={"file": (clip.video.name, f, "video/x-msvideo")})
     job = client.post("/jobs", json={"model_id": model.json()["id"], "rig_id": rig.json()["id"],

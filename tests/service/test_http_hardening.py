@@ -20,8 +20,8 @@ from urllib.parse import urlsplit
 import pytest
 from conftest import Deployment, redis_pg_deployment
 from sqlalchemy.orm import Session
-from svc_helpers import EXAMPLE
 
+from core.examples import LOCUST
 from service.labs import create_lab
 
 pytestmark = pytest.mark.service
@@ -210,7 +210,7 @@ def test_a_keep_alive_connection_serves_requests_normally(guarded, key):
             status, _, body = _response(sock)
             assert status == 200 and json.loads(body)["items"] == []
             time.sleep(0.5)
-        rig = (EXAMPLE / "rig.json").read_bytes()
+        rig = (LOCUST / "rig.json").read_bytes()
         sock.sendall(_head("POST", "/rigs", key, Content_Type="application/json",
                            Content_Length=str(len(rig))) + rig)
         assert _response(sock)[0] == 201

@@ -21,8 +21,9 @@ import cv2
 import numpy as np
 import pytest
 from conftest import redis_pg_deployment
-from svc_helpers import EXAMPLE, upload_inputs, wait_for
+from svc_helpers import upload_inputs, wait_for
 
+from core.examples import LOCUST
 from core.synth import write_video
 
 pytestmark = [pytest.mark.service, pytest.mark.slow]
@@ -206,7 +207,7 @@ def test_a_chunk_over_the_time_limit_fails_its_job_with_a_clear_message(limited,
     probes the video in ~0.5 s; on a loaded machine it may be the task that passes the limit,
     and the message is the same."""
     client = limited.create_lab("time-limit")
-    rig = json.loads((EXAMPLE / "rig.json").read_text())
+    rig = json.loads((LOCUST / "rig.json").read_text())
     for view in rig["views"]:
         view["projection"]["matrix"][0][0] = 1.5
     ids = upload_inputs(client, clip.video, rig=json.dumps(rig).encode())

@@ -181,8 +181,9 @@ def test_a_truncated_video_shows_its_missing_frames_in_the_job_report(redis_pg, 
     assert wait_for(client, job.json()["id"])["status"] == "succeeded"
     report = client.get(f"/jobs/{job.json()['id']}/report.json").json()
     assert report["images"] == video["frames"]
-    assert report["videos"] == [{"id": video["id"], "filename": "cut.avi", "frames": video["frames"],
-                                 "announced_frames": 40, "warning": video["warning"]}]
+    assert report["videos"] == [{"id": video["id"], "filename": "cut.avi", "name": None, "metadata": None,
+                                 "frames": video["frames"], "announced_frames": 40,
+                                 "warning": video["warning"]}]
 
 
 def test_a_job_failing_on_its_video_names_it_as_uploaded_and_logs_no_traceback(redis_pg, clip):

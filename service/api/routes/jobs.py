@@ -12,7 +12,7 @@ from kombu.exceptions import OperationalError
 from sqlalchemy.orm import Session
 
 from core.export import DETECTIONS_FILE, EXPORT_FILES
-from service import artifacts, crud
+from service import artifacts, crud, examples
 from service.api.deps import CurrentLab, Cursor, Limit, PathId, SessionDep, SettingsDep, StorageDep
 from service.archive import stream_zip
 from service.errors import NotFoundError, QueueUnavailableError
@@ -28,15 +28,23 @@ router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 RESULTS = {"angles.csv": "text/csv", "histograms.xml": "application/xml",
            "report.json": "application/json"}
+RESULT_EXAMPLES = {"report.json": {"example": examples.REPORT}}
+RESULT_DOCS = {
+    "angles.csv": "The fitted angles of every image (FORMATS §3), as `mocap fit` writes them.",
+    "histograms.xml": "The histograms after this job (FORMATS §4): its prior with its observations.",
+    "report.json": "Error statistics, re-analyses, detections and settings, and the job's, batch's, "
+                   "model's, rig's and videos' ids, names and metadata (upload names, never storage "
+                   "keys or server paths).",
+}
 
 
 def job_public(job: Job) -> JobPublic:
     """A job as the API shows it: every field from the job row alone (a poll is one read)."""
     return JobPublic(
         id=job.id, status=job.status, model_id=job.model_id, rig_id=job.rig_id, batch_id=job.batch_id,
-        trial=job.trial, histogram_version_id=job.histogram_version_id, options=job.options,
-        progress=progress(job), error=job.error, created_at=job.created_at, started_at=job.started_at,
-        fitted_at=job.fitted_at, finished_at=job.finished_at,
+        trial=job.trial, name=job.name, metadata=job.meta, histogram_version_id=job.histogram_version_id,
+        options=job.options, progress=progress(job), error=job.error, created_at=job.created_at,
+        started_at=job.started_at, fitted_at=job.fitted_at, finished_at=job.finished_at,
     )
 
 
@@ -71,6 +79,10 @@ def enqueue(session: Session, jobs: list[Job]) -> None:
              summary="Submit a job; poll the Location it returns")
 def submit(body: JobCreate, response: Response, session: SessionDep, settings: SettingsDep,
            lab: CurrentLab) -> JobPublic:
+    """Submit a fitting job (202): model, rig, one video per camera of the rig, options as
+    ``mocap fit`` takes them, and an optional ``name`` and ``metadata`` carried into report.json.
+    Poll the ``Location`` it returns. Example: ``POST /v1/jobs`` with
+    ``{"model_id": 1, "rig_id": 1, "video_ids": [1], "name": "walk-07"}``"""
     job = crud.submit_job(session, lab, settings, body)
     enqueue(session, [job])
     response.headers["Location"] = f"/v1/jobs/{job.id}"
@@ -80,18 +92,24 @@ def submit(body: JobCreate, response: Response, session: SessionDep, settings: S
 @router.get("", response_model=JobPage, summary="The lab's jobs, newest first")
 def list_jobs(session: SessionDep, lab: CurrentLab, status: JobStatus | None = None,
               cursor: Cursor = None, limit: Limit = 50) -> JobPage:
+    """The lab's jobs, newest first, optionally of one ``status``, ``limit`` per page; pass
+    ``next_cursor`` as ``?cursor=`` for the next page. Example: ``GET /v1/jobs?status=running``"""
     rows, next_cursor = crud.list_jobs(session, lab, status=status, cursor=cursor, limit=limit)
     return JobPage(items=[job_public(j) for j in rows], next_cursor=next_cursor)
 
 
 @router.get("/{job_id}", response_model=JobPublic)
 def get_job(job_id: PathId, session: SessionDep, lab: CurrentLab) -> JobPublic:
+    """One job: status, progress counters, options, name and metadata (one row read: poll it).
+    Example: ``GET /v1/jobs/7``"""
     return job_public(crud.owned(session, Job, job_id, lab))
 
 
 @router.post("/{job_id}/cancel", response_model=JobPublic,
              summary="Cancel a job; workers stop between images")
 def cancel(job_id: PathId, session: SessionDep, lab: CurrentLab) -> JobPublic:
+    """Cancel a job that has not ended: queued chunks are dropped, running ones stop between
+    images; an ended job is returned unchanged. Example: ``POST /v1/jobs/7/cancel``"""
     return job_public(crud.cancel_job(session, lab, job_id))
 
 
@@ -106,13 +124,21 @@ def _result(name: str):  # type: ignore[no-untyped-def]
 
 for _name in RESULTS:
     router.add_api_route(f"/{{job_id}}/{_name}", _result(_name), methods=["GET"], response_class=FileResponse,
-                         summary=f"Download {_name} of a succeeded job (409 before)")
+                         summary=f"Download {_name} of a succeeded job (409 before)",
+                         responses={200: {"content": {RESULTS[_name]: RESULT_EXAMPLES.get(_name, {})}}},
+                         description=f"{RESULT_DOCS[_name]} 409 until the job has succeeded. Example: "
+                                     f"``curl -H \"$H\" -O $API/jobs/7/{_name}``")
 
 
 @router.get("/{job_id}/archive.zip", response_class=StreamingResponse,
+            responses={200: {"content": {"application/zip": {}}}},
             summary="angles.csv, histograms.xml, report.json, angles.mot, markers.trc, markers.c3d, "
                     "detections.csv, model.xml, rig.json and the artifacts in one zip")
 def archive(job_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> StreamingResponse:
+    """Every result of a succeeded job in one zip, streamed: angles.csv, histograms.xml,
+    report.json, the exports (angles.mot, markers.trc, markers.c3d, detections.csv), the model.xml
+    and rig.json it used, and its artifacts. 409 before it has succeeded. Example:
+    ``curl -H "$H" -o job-7.zip $API/jobs/7/archive.zip``"""
     entries = list(job_entries(session, storage, lab, job_id, folder=""))
     return StreamingResponse(stream_zip(entries), media_type="application/zip",
                              headers={"Content-Disposition": f'attachment; filename="job-{job_id}.zip"'})
@@ -139,8 +165,11 @@ def job_entries(session: Session, storage: Storage, lab: Lab, job_id: int,
 
 
 @router.get("/{job_id}/artifacts", response_model=list[str],
+            responses={200: {"content": {"application/json": {"example": examples.ARTIFACTS}}}},
             summary="Names of a succeeded job's overlay and plot files (empty unless its options asked)")
 def list_artifacts(job_id: PathId, session: SessionDep, storage: StorageDep, lab: CurrentLab) -> list[str]:
+    """Names of a succeeded job's overlay and plot files (empty unless its options asked for
+    them). Example: ``GET /v1/jobs/7/artifacts``"""
     crud.result_key(session, lab, job_id, artifacts.INDEX)  # 404 another lab's, 409 before success
     return artifacts.listed(storage, job_id)
 
@@ -149,6 +178,8 @@ def list_artifacts(job_id: PathId, session: SessionDep, storage: StorageDep, lab
             summary="Download one artifact, e.g. overlay/contact_sheet.png or plots/angles.svg")
 def download_artifact(job_id: PathId, name: str, session: SessionDep, storage: StorageDep,
                       lab: CurrentLab) -> FileResponse:
+    """One artifact of a succeeded job, by a name ``GET /v1/jobs/{id}/artifacts`` lists. Example:
+    ``GET /v1/jobs/7/artifacts/plots/angles.svg``"""
     key = crud.result_key(session, lab, job_id, name)
     if not artifacts.NAME.match(name) or name not in artifacts.listed(storage, job_id):
         raise NotFoundError(f"job {job_id} has no artifact {name!r}: GET /v1/jobs/{job_id}/artifacts "
