@@ -16,10 +16,10 @@ Written for the SA inner loop, which evaluates Eq. 5 some 10^5 times a second:
   than the arithmetic it guards (measured: 166 → 77 ns for the locust FK, 160
   → 25 ns for an Eq. 6 proposal);
 - helpers that take arrays are inlined by numba (``inline='always'``), so the
-  loop is one function and arrays are not reference-counted at every call (called,
-  they made SA 3-4 times slower); numba types an inlined helper again at every call
-  site, so helpers of scalars alone (LLVM inlines them) and those called once per
-  refinement step are plain calls, compiled once;
+  loop is one function and arrays are not reference-counted at every call; numba
+  types an inlined helper again at every call site, so helpers of scalars alone
+  (LLVM inlines them) and those called once per refinement step or outside SA's
+  proposal loop are plain calls, compiled once;
 - random numbers come from an inlined xoshiro256** generator seeded from the
   caller's ``numpy.random.Generator`` (~1 ns a draw instead of ~7 ns).
 """
