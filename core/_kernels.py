@@ -15,8 +15,11 @@ Written for the SA inner loop, which evaluates Eq. 5 some 10^5 times a second:
   the nearest detection, which markers fuse. A mispredicted branch costs more
   than the arithmetic it guards (measured: 166 → 77 ns for the locust FK, 160
   → 25 ns for an Eq. 6 proposal);
-- small helpers are inlined by numba (``inline='always'``), so the loop is one
-  function and arrays are not reference-counted at every call;
+- helpers that take arrays are inlined by numba (``inline='always'``), so the
+  loop is one function and arrays are not reference-counted at every call; numba
+  types an inlined helper again at every call site, so helpers of scalars alone
+  (LLVM inlines them) and those called once per refinement step or outside SA's
+  proposal loop are plain calls, compiled once;
 - random numbers come from an inlined xoshiro256** generator seeded from the
   caller's ``numpy.random.Generator`` (~1 ns a draw instead of ~7 ns).
 """
@@ -32,6 +35,10 @@ DEG = math.pi / 180.0
 AFFINE, PINHOLE, MATRIX = 0, 1, 2
 BEHIND_CAMERA = 1.0e9  # pixel coordinate given to points behind a pinhole camera
 FRAME = 12  # numbers per joint frame: rotation (row-major 3×3), then origin (3)
+# For Python callers. Inside a kernel a global array is a read-only constant, another type: a
+# kernel passing one to another kernel would compile that one a second time (and everything
+# it calls), so kernels pass arrays of their own (:func:`_no_unseen`, :func:`_no_targets`). A
+# literal int is a type of its own too: kernels pass step counts as ``np.int64``.
 NO_TARGETS = np.zeros((0, 3))  # refine in image mode
 NO_UNSEEN = np.zeros((0, 0), dtype=np.bool_)  # every marker may be seen
 
@@ -62,7 +69,7 @@ _C1, _C2, _C3 = 4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015
 _C4, _C5, _C6 = -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def sincos_deg(angle):
     """(sin, cos) of an angle in degrees, to a few ulp, without libm and without branches.
 
@@ -83,7 +90,7 @@ def sincos_deg(angle):
     return sin_sign * sin, cos_sign * cos
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _mix(s, c, a0, a1, a2, b0, b1, b2):
     """Columns (a, b) of M·R for an elementary rotation R mixing them: (c·a + s·b, c·b − s·a).
 
@@ -487,17 +494,60 @@ def blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, 
 
 @njit(cache=True, nogil=True)
 def posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px=0.0):
-    """The objective (:func:`blob_error`) of one posture; plain Eq. 5 with ``fuse_px`` 0."""
+    """The objective (:func:`blob_error`) of one posture; plain Eq. 5 with ``fuse_px`` 0.
+
+    Python calls it with and without ``lost_px``, two signatures: each is a call of
+    :func:`_posture_error`, whose body is compiled once.
+    """
+    return _posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px)
+
+
+@njit(cache=True, nogil=True)
+def _posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px):
+    """:func:`posture_error` (``lost_px`` given)."""
     work = workspace(kin, views, q.shape[0], det.shape[0])
+    return _evaluate(q, kin, views, offset, det, start, penalty, fuse_px, lost_px, np.inf, unseen, work)
+
+
+@njit(cache=True, nogil=True)
+def _evaluate(q, kin, views, offset, det, start, penalty, fuse_px, lost_px, limit, unseen, work):
+    """The objective (:func:`blob_error`, summed up to ``limit``) of posture ``q``, projected
+    into ``work`` (:func:`workspace`): a plain call, as :func:`_objective`."""
+    _project(q, kin, views, offset, fuse_px, work)
+    return _objective(work[3], work[4], det, start, penalty, fuse_px, lost_px, limit, work[5], work[6],
+                      work[7], unseen)
+
+
+@njit(cache=True, nogil=True)
+def _project(q, kin, views, offset, fuse_px, work) -> None:
+    """:func:`project_posture` as a plain call, as :func:`_objective`."""
     project_posture(q, kin, views, offset, fuse_px, work)
-    return blob_error(work[3], work[4], det, start, penalty, fuse_px, lost_px, np.inf, work[5],
-                      work[6], work[7], unseen)
+
+
+@njit(cache=True, nogil=True)
+def _objective(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, dist, claims, unseen):
+    """:func:`blob_error` as a plain call, compiled once for the kernels that evaluate it
+    outside SA's inner loop (numba types an inlined helper again at every call site)."""
+    return blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, dist, claims,
+                      unseen)
+
+
+@njit(cache=True, nogil=True)
+def _no_unseen():
+    """No marker unseen: an empty (0, 0) mask of the type Python passes (``NO_UNSEEN``)."""
+    return np.zeros((0, 0), dtype=np.bool_)
+
+
+@njit(cache=True, nogil=True)
+def _no_targets():
+    """Image mode for :func:`refine`: empty (0, 3) targets of the type Python passes (``NO_TARGETS``)."""
+    return np.zeros((0, 3))
 
 
 # ---- random numbers -------------------------------------------------------------------------
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _rotl(x, k):
     return (x << np.uint64(k)) | (x >> np.uint64(64 - k))
 
@@ -568,7 +618,7 @@ def _norm(res, g):
     return math.sqrt(acc)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _huber_cost(res, valid, c):
     total = 0.0
     for g in range(res.shape[0]):
@@ -591,7 +641,7 @@ def solve_spd(A, b):
     return x
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _cholesky_solve(A, b, L, x) -> None:
     """x = A⁻¹·b by Cholesky into the caller's scratch ``L`` (n,n); ``x`` (n,) also holds y."""
     n = b.shape[0]
@@ -743,14 +793,14 @@ def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_
     out the markers :func:`_lost_markers` finds at ``q``: otherwise it pulls a lost
     marker onto the nearest other blob, the very pull the objective is there to stop.
     """
-    unseen = NO_UNSEEN
+    unseen = _no_unseen()
     if lost_px > 0.0:
         mask, lost = _lost_markers(q, kin, views, offset, det, start, lost_px, fuse_px)
         if lost:
             unseen = mask
     polished = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen,
-                      huber_c, _POLISH_STEPS, 1e-5, NO_TARGETS)
-    e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px, NO_UNSEEN,
+                      huber_c, np.int64(_POLISH_STEPS), 1e-5, _no_targets())
+    e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px, _no_unseen(),
                           lost_px)
     if e_pol < e_q:
         out[:] = polished
@@ -797,6 +847,7 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
         turns[i] = -1.0 if np.isnan(hist[i, 0]) else np.floor(lower[i] / 360.0)
     work = workspace(kin, views, D, det.shape[0])
     raw, fused, index, dist, claims = work[3], work[4], work[5], work[6], work[7]
+    no_unseen = _no_unseen()
     cur, cand, best, seed_q = q0.copy(), q0.copy(), q0.copy(), q0.copy()
     e_cur = e_best = np.inf  # the first pass evaluates q0 itself and always accepts it
     tau, step = tau0, l0
@@ -839,9 +890,8 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
                 e_seed = np.inf
                 for _ in range(draws):
                     draw_posture(lower, upper, hist, state, cand)
-                    project_posture(cand, kin, views, offset, fuse_px, work)
-                    e_new = blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, e_seed,
-                                       index, dist, claims, NO_UNSEEN)
+                    e_new = _evaluate(cand, kin, views, offset, det, start, penalty, fuse_px, lost_px,
+                                      e_seed, no_unseen, work)
                     if e_new < e_seed:
                         e_seed = e_new
                         seed_q[:] = cand
@@ -920,7 +970,7 @@ def _lost_markers(q, kin, views, offset, det, start, penalty, fuse_px):
     detection (what an unseen marker costs): (V, M) mask, and whether any was found."""
     V, M = views[0].shape[0], kin[6].shape[0]
     work = workspace(kin, views, q.shape[0], det.shape[0])
-    project_posture(q, kin, views, offset, fuse_px, work)
+    _project(q, kin, views, offset, fuse_px, work)
     raw, fused, index, dist, claims = work[3], work[4], work[5], work[6], work[7]
     unseen = np.zeros((V, M), dtype=np.bool_)
     lost = False
@@ -954,7 +1004,7 @@ def _refit_unseen(q, objective, lower, upper, kin, views, offset, det, start, pe
     if not lost:
         return objective
     refit = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen,
-                   huber_c, 50, 1e-5, NO_TARGETS)
+                   huber_c, np.int64(50), 1e-5, _no_targets())
     e_refit = posture_error(refit, kin, views, offset, det, start, penalty, fuse_px, unseen)
     if e_refit < objective:
         q[:] = refit
@@ -990,6 +1040,7 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
     ``fuse_px``.
     """
     q0, best = start_q.copy(), start_q.copy()
+    no_unseen = _no_unseen()
     objective, iterations = np.inf, 0
     for run in range(restarts + 1):
         if run > 0 and objective < eps:
@@ -1003,12 +1054,12 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
         iterations += its
         if refine_result:
             polished = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                              NO_UNSEEN, huber_c, 50, 1e-5, NO_TARGETS)
+                              no_unseen, huber_c, np.int64(50), 1e-5, _no_targets())
             e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px,
-                                  NO_UNSEEN, lost_px)
+                                  no_unseen, lost_px)
             if e_pol <= value:
                 q = polished
-        value = posture_error(q, kin, views, offset, det, start, penalty, fuse_px, NO_UNSEEN,
+        value = posture_error(q, kin, views, offset, det, start, penalty, fuse_px, no_unseen,
                               penalty)
         if refine_result:
             value = _refit_unseen(q, value, lower, upper, kin, views, offset, det, start, penalty,
@@ -1018,7 +1069,7 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
         if value < objective:
             best[:] = q
             objective = value
-    error = posture_error(best, kin, views, offset, det, start, penalty, 0.0, NO_UNSEEN)
+    error = posture_error(best, kin, views, offset, det, start, penalty, 0.0, no_unseen)
     return best, error, objective, iterations
 
 
@@ -1127,8 +1178,9 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
             joints[k, a] = fr[FRAME * k + 9 + a]
     targets, moved = np.empty((M, 3)), np.empty((J, 3))
     normal = np.empty(3)
+    no_unseen = _no_unseen()
     kind, P, K, dist = views
-    found = refined = 0
+    found = refined = np.int64(0)
     for v in range(V):
         for mask in masks:
             targets[:] = world
@@ -1149,17 +1201,17 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
             if fuse_px > 0.0:
                 fuse_projections(raw, fuse_px, fused)
             limit = objective + tolerance
-            if blob_error(raw, fused, det, start, penalty, fuse_px, 0.0, limit, work[5], work[6],
-                          work[7], NO_UNSEEN) > limit:
+            if _objective(raw, fused, det, start, penalty, fuse_px, 0.0, limit, work[5], work[6],
+                          work[7], no_unseen) > limit:
                 continue
             if refined == max_refined:
                 return found
             refined += 1
             reached = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                             NO_UNSEEN, 1e9, 30, 1e-5, targets)
+                             no_unseen, 1e9, np.int64(30), 1e-5, targets)
             cand = refine(reached, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                          NO_UNSEEN, huber_c, 50, 1e-5, NO_TARGETS)
-            e_cand = posture_error(cand, kin, views, offset, det, start, penalty, fuse_px, NO_UNSEEN)
+                          no_unseen, huber_c, np.int64(50), 1e-5, _no_targets())
+            e_cand = posture_error(cand, kin, views, offset, det, start, penalty, fuse_px, no_unseen)
             if e_cand > objective + tolerance or not _distinct(cand, q, out_q, found):
                 continue
             out_q[found] = cand

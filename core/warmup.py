@@ -5,7 +5,10 @@ caches the machine code next to the source. Worker processes that start cold
 would each compile the same kernels at their first image. A process that calls
 :func:`compile_kernels` before forking its workers (Celery's prefork pool, a
 process pool started with ``fork``) compiles once; the children inherit the
-compiled code, and later runs load it from the cache.
+compiled code, and later runs load it from the cache. On a first run (no cache yet) a
+second process meanwhile compiles the kernels SA's own compile reaches last into the
+cache, where this process loads them: the machine's second core shortens a first run
+(``bench/speed.py`` measures it).
 
 The warm-up goes through the same public functions as a real fit (detection,
 a single chain, a tree with a free root, fusion on), so the signatures match. It needs no
@@ -15,18 +18,31 @@ file: the models and the rig are written here.
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 import time
+from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
+from core import _kernels
+from core.ambiguity import Candidate, FlipGeometry, flip_alternatives
 from core.detect import detect
-from core.error import Detections
+from core.error import Detections, view_error, view_offsets
 from core.fit import FitParams, fit_sequence
 from core.histogram import Histograms
 from core.model import KinematicModel
+from core.refine import refine
 from core.rig import Rig
 
-__all__ = ["compile_kernels"]
+__all__ = ["compile_kernels", "compile_kernels_saying_so"]
+
+_ROOT = Path(__file__).resolve().parents[1]  # holds the package core
+
+FIRST_RUN = ("compiling the fitting kernels (on a fresh machine about half a minute, more if it is "
+             "busy; later runs load them from numba's cache in about a second)")
 
 _CHAIN = """<model name="warmup_chain" units="mm">
   <joint name="base"><dof axis="y" name="p" min="120" max="220"/>
@@ -57,19 +73,73 @@ _TREE = """<model name="warmup" units="mm">
 
 
 def compile_kernels() -> float:
-    """Run a few tiny fits so that every kernel is compiled or loaded; returns the seconds taken."""
+    """Run a few tiny fits so that every kernel is compiled or loaded; returns the seconds taken.
+
+    With an empty cache, a second process (:func:`_compile_aside`) compiles refinement, the
+    objective and depth flips into numba's cache while this one compiles SA, and this one
+    loads them from there: the machine's second core takes part of a first run.
+    """
     t0 = time.perf_counter()
-    rig = Rig.from_json(json.dumps({"views": [  # a mirror rig: two views of one frame
+    aside = None if _cache_filled() else subprocess.Popen(
+        [sys.executable, "-c", "from core.warmup import _compile_aside; _compile_aside()"],
+        env=os.environ | {"PYTHONPATH": os.pathsep.join([str(_ROOT), os.environ.get("PYTHONPATH", "")])},
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        rig = _rig()
+        _detect(rig)  # first: meanwhile the second process gets ahead with what SA's compile needs
+        for m in (KinematicModel.from_xml(_CHAIN), KinematicModel.from_xml(_TREE)):
+            params = FitParams(anneal=FitParams().anneal.with_iterations(300), fusion_px=8.0, max_attempts=2)
+            fit_sequence(_images(m, rig), model=m, rig=rig, histograms=Histograms.uniform(m), params=params,
+                         seed=0)
+    finally:
+        if aside is not None:
+            aside.wait()  # it only adds to the cache: its outcome changes nothing here
+    return time.perf_counter() - t0
+
+
+def _compile_aside() -> None:
+    """Into numba's cache: refinement and the objective (SA's polish calls them after the
+    lost-marker search, which the first process compiles itself), then depth flips and the
+    refit without lost markers, which a fit reaches after SA."""
+    rig, m = _rig(), KinematicModel.from_xml(_CHAIN)
+    det = _images(m, rig)[0]
+    q = m.lower + 0.35 * (m.upper - m.lower)
+    refine(q, det, model=m, rig=rig, fusion_px=8.0)
+    view_error(q, det, model=m, rig=rig, fusion_px=8.0)
+    flip_alternatives(Candidate(q, 1.0, 1.0), det, model=m, rig=rig, geometry=FlipGeometry.of(m, rig),
+                      tolerance_px=1e9, fusion_px=8.0, empty_view_penalty_px=1.0, huber_px=1.0)
+    _kernels._refit_unseen(q, np.inf, m.lower, m.upper, m.arrays, rig.arrays, view_offsets(None, rig),
+                           det.kernel_points, det.start, 1.0, 8.0, 1.0)
+
+
+def _cache_filled() -> bool:
+    """True if numba's cache holds the attempt kernel (not a first run; perhaps a stale one)."""
+    return any(Path(_kernels.fit_attempt.stats.cache_path).glob("*fit_attempt*.nbi"))
+
+
+def _rig() -> Rig:
+    return Rig.from_json(json.dumps({"views": [  # a mirror rig: two views of one frame
         {"name": "side", "video": 0, "roi": [0, 0, 720, 288],
          "projection": {"type": "affine", "matrix": [[3, 0, 0, 360], [0, -3, 0, 144]]}},
         {"name": "top", "video": 0, "roi": [0, 288, 720, 288],
          "projection": {"type": "affine", "matrix": [[3, 0, 0, 360], [0, 0, 3, 432]]}}]}))
+
+
+def _images(m: KinematicModel, rig: Rig) -> list[Detections]:
+    """Three images of ``m`` moving a little, rendered without noise."""
+    postures = np.linspace(m.lower + 0.3 * (m.upper - m.lower), m.lower + 0.4 * (m.upper - m.lower), 3)
+    return [Detections.from_views(list(p)) for p in rig.project(m.marker_positions(postures))]
+
+
+def _detect(rig: Rig) -> None:
     frame = np.zeros((576, 720), dtype=np.uint8)
     frame[100:104, 100:104] = 255
     detect([frame], rig=rig)
-    for m in (KinematicModel.from_xml(_CHAIN), KinematicModel.from_xml(_TREE)):
-        postures = np.linspace(m.lower + 0.3 * (m.upper - m.lower), m.lower + 0.4 * (m.upper - m.lower), 3)
-        images = [Detections.from_views(list(p)) for p in rig.project(m.marker_positions(postures))]
-        params = FitParams(anneal=FitParams().anneal.with_iterations(300), fusion_px=8.0, max_attempts=2)
-        fit_sequence(images, model=m, rig=rig, histograms=Histograms.uniform(m), params=params, seed=0)
-    return time.perf_counter() - t0
+
+
+def compile_kernels_saying_so(say: Callable[[str], object]) -> float:
+    """:func:`compile_kernels`, telling ``say`` (print, a log) before and after; returns the seconds."""
+    say(FIRST_RUN)
+    seconds = compile_kernels()
+    say(f"fitting kernels ready in {seconds:.1f} s")
+    return seconds

@@ -24,9 +24,6 @@ app.conf.include = ["worker.tasks", "worker.reaper"]
 @signals.worker_init.connect  # type: ignore[untyped-decorator]  # Celery has no types
 def compile_before_forking(**_: Any) -> None:
     """Compile (or load) the kernels in the worker's main process, before its pool forks."""
-    from core.warmup import compile_kernels  # flower imports this module too: not there
+    from core.warmup import compile_kernels_saying_so  # flower imports this module too: not there
 
-    log = logging.getLogger("mocap.worker")
-    log.warning("compiling the fitting kernels once for all worker processes "
-                "(minutes on a first run on a fresh machine, seconds afterwards)")
-    log.warning("fitting kernels ready in %.1f s", compile_kernels())
+    compile_kernels_saying_so(logging.getLogger("mocap.worker").warning)

@@ -73,6 +73,7 @@ def test_demo_command_prints_accuracy():
     assert result.exit_code == 0, result.output
     assert "RMSE against the truth" in result.output
     assert "phi" in result.output and "mean view error" in result.output
+    assert "fitting kernels ready in" in result.output  # the first run's compile is announced
 
 
 def test_demo_rejects_bad_option():

@@ -2,8 +2,27 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 from core import _kernels
 from core.warmup import compile_kernels
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# A new process runs the warm-up and counts, over every kernel, the signatures numba loaded
+# from its on-disk cache and those it had to compile.
+COUNT_LOADS = """
+from numba.core.registry import CPUDispatcher
+from core import _kernels
+from core.warmup import compile_kernels
+compile_kernels()
+kernels = [k for k in vars(_kernels).values() if isinstance(k, CPUDispatcher)]
+print(sum(sum(k.stats.cache_hits.values()) for k in kernels),
+      sum(sum(k.stats.cache_misses.values()) for k in kernels))
+"""
 
 
 def test_one_call_compiles_the_kernels_a_chain_and_a_tree_fit_run():
@@ -11,3 +30,13 @@ def test_one_call_compiles_the_kernels_a_chain_and_a_tree_fit_run():
     for kernel in (_kernels.fit_attempt, _kernels.refine, _kernels.posture_error,
                    _kernels.forward_kinematics, _kernels.flip_alternatives, _kernels.detect_regions):
         assert kernel.signatures, kernel.__name__
+
+
+def test_a_second_process_loads_every_kernel_from_the_cache_compiling_none():
+    compile_kernels()  # fills the cache, if this process compiled
+    env = os.environ | {"PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    result = subprocess.run([sys.executable, "-c", COUNT_LOADS], env=env, cwd=ROOT, capture_output=True,
+                            text=True, check=True, timeout=600)
+    loaded, compiled = (int(n) for n in result.stdout.split()[-2:])
+    assert loaded >= 10, result.stdout
+    assert compiled == 0, result.stdout
