@@ -229,7 +229,7 @@ def test_with_two_views_a_leg_on_the_wrong_blobs_is_replaced_by_its_triangulated
     params = FitParams()
     space = search_space(model, Histograms.uniform(model))
     off = view_offsets(None, rig)
-    rot, pos = treefit._frames(wrong, model)
+    rot, pos = treefit.world_frames(wrong, model)
     reach = treefit._within_reach(det, rig, pos[[b.base for b in tree.branches]],
                                   np.array([b.reach for b in tree.branches]), off)
     q = wrong.copy()
