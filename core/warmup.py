@@ -128,12 +128,16 @@ def _wait_for_cache(aside: subprocess.Popen[bytes], kernels: tuple[Dispatcher, .
 
 
 def _cached(kernel: Dispatcher) -> bool:
-    """True if numba's cache holds compiled code of ``kernel`` (a data file, written after its index)."""
-    return any(Path(kernel.stats.cache_path).glob(f"*.{kernel.py_func.__name__}-*.nbc"))
+    """True if numba's cache holds current compiled code of ``kernel``: an entry of its index
+    that numba does not drop as stale (older than the source), whose data file (written after
+    the index) is there."""
+    index = kernel._cache._cache_file._load_index()  # numba's own reading, stale check included
+    return any((Path(kernel.stats.cache_path) / name).exists() for name in index.values())
 
 
 def _cache_filled() -> bool:
-    """True if numba's cache holds the attempt kernel (not a first run; perhaps a stale one)."""
+    """True if numba's cache holds the attempt kernel, current (not a first run, nor a run after
+    ``core/_kernels.py`` changed)."""
     return _cached(_kernels.fit_attempt)
 
 
