@@ -99,7 +99,8 @@ def _build_geometry(model: KinematicModel, rig: Rig) -> FlipGeometry:
             below[:, k] |= below[:, parent[k]]
     marker_joint = model.arrays.marker_joint
     subtree_joints = below[flip_joints]
-    subtree_markers = subtree_joints[:, marker_joint].reshape(len(flip_joints), M)
+    # C order whatever the shapes (fancy indexing may give F order): one kernel signature
+    subtree_markers = np.ascontiguousarray(subtree_joints[:, marker_joint].reshape(len(flip_joints), M))
     depth, perspective = _view_depths(rig)
     return FlipGeometry(flip_joints, subtree_joints, subtree_markers, depth, perspective,
                         flip_masks(len(flip_joints)))

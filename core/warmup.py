@@ -6,9 +6,9 @@ would each compile the same kernels at their first image. A process that calls
 :func:`compile_kernels` before forking its workers (Celery's prefork pool, a
 process pool started with ``fork``) compiles once; the children inherit the
 compiled code, and later runs load it from the cache. On a first run (no cache yet) a
-second process meanwhile compiles the kernels SA's own compile reaches last into the
-cache, where this process loads them: the machine's second core shortens a first run
-(``bench/speed.py`` measures it).
+second process meanwhile compiles part of the kernels into the cache, where this process
+loads them (waiting for those SA's compile needs rather than compiling them twice): the
+machine's second core shortens a first run (``bench/speed.py`` measures it).
 
 The warm-up goes through the same public functions as a real fit (detection,
 a single chain, a tree with a free root, fusion on), so the signatures match. It needs no
@@ -26,6 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from numba.core.registry import CPUDispatcher as Dispatcher
 
 from core import _kernels
 from core.ambiguity import Candidate, FlipGeometry, flip_alternatives
@@ -75,9 +76,10 @@ _TREE = """<model name="warmup" units="mm">
 def compile_kernels() -> float:
     """Run a few tiny fits so that every kernel is compiled or loaded; returns the seconds taken.
 
-    With an empty cache, a second process (:func:`_compile_aside`) compiles refinement, the
-    objective and depth flips into numba's cache while this one compiles SA, and this one
-    loads them from there: the machine's second core takes part of a first run.
+    With an empty cache, a second process (:func:`_compile_aside`) compiles the objective and
+    the lost-marker search into numba's cache while this one compiles refinement; this one
+    waits for those two (SA's polish calls all three) and loads them, instead of compiling
+    them a second time, then compiles SA. The machine's second core takes part of a first run.
     """
     t0 = time.perf_counter()
     aside = None if _cache_filled() else subprocess.Popen(
@@ -85,12 +87,15 @@ def compile_kernels() -> float:
         env=os.environ | {"PYTHONPATH": os.pathsep.join([str(_ROOT), os.environ.get("PYTHONPATH", "")])},
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        rig = _rig()
-        _detect(rig)  # first: meanwhile the second process gets ahead with what SA's compile needs
-        for m in (KinematicModel.from_xml(_CHAIN), KinematicModel.from_xml(_TREE)):
+        rig, chain = _rig(), KinematicModel.from_xml(_CHAIN)
+        refine(_posture(chain), _blobs(), model=chain, rig=rig, fusion_px=8.0)  # aside renders meanwhile
+        if aside is not None:
+            _wait_for_cache(aside, (_kernels.posture_error, _kernels._lost_markers))
+        for m in (chain, KinematicModel.from_xml(_TREE)):
             params = FitParams(anneal=FitParams().anneal.with_iterations(300), fusion_px=8.0, max_attempts=2)
             fit_sequence(_images(m, rig), model=m, rig=rig, histograms=Histograms.uniform(m), params=params,
                          seed=0)
+        _detect(rig)
     finally:
         if aside is not None:
             aside.wait()  # it only adds to the cache: its outcome changes nothing here
@@ -98,23 +103,42 @@ def compile_kernels() -> float:
 
 
 def _compile_aside() -> None:
-    """Into numba's cache: refinement and the objective (SA's polish calls them after the
-    lost-marker search, which the first process compiles itself), then depth flips and the
-    refit without lost markers, which a fit reaches after SA."""
+    """Into numba's cache: the objective and the lost-marker search (SA's polish calls them,
+    the first process waits for them), then detection, depth flips and the refit without
+    lost markers, which the first process reaches last."""
     rig, m = _rig(), KinematicModel.from_xml(_CHAIN)
-    det = _images(m, rig)[0]
-    q = m.lower + 0.35 * (m.upper - m.lower)
-    refine(q, det, model=m, rig=rig, fusion_px=8.0)
+    det, q = _images(m, rig)[0], _posture(m)
     view_error(q, det, model=m, rig=rig, fusion_px=8.0)
+    _kernels._lost_markers(q, m.arrays, rig.arrays, view_offsets(None, rig), det.kernel_points, det.start,
+                           1.0, 8.0)
+    _detect(rig)
     flip_alternatives(Candidate(q, 1.0, 1.0), det, model=m, rig=rig, geometry=FlipGeometry.of(m, rig),
                       tolerance_px=1e9, fusion_px=8.0, empty_view_penalty_px=1.0, huber_px=1.0)
     _kernels._refit_unseen(q, np.inf, m.lower, m.upper, m.arrays, rig.arrays, view_offsets(None, rig),
                            det.kernel_points, det.start, 1.0, 8.0, 1.0)
 
 
+def _wait_for_cache(aside: subprocess.Popen[bytes], kernels: tuple[Dispatcher, ...],
+                    timeout_s: float = 300.0) -> None:
+    """Until ``aside`` has written a cache entry of every one of ``kernels`` (or has ended, or
+    ``timeout_s`` has passed): loading an entry costs far less than compiling the kernel again."""
+    deadline = time.monotonic() + timeout_s
+    while aside.poll() is None and time.monotonic() < deadline and not all(map(_cached, kernels)):
+        time.sleep(0.1)
+
+
+def _cached(kernel: Dispatcher) -> bool:
+    """True if numba's cache holds current compiled code of ``kernel``: an entry of its index
+    that numba does not drop as stale (older than the source), whose data file (written after
+    the index) is there."""
+    index = kernel._cache._cache_file._load_index()  # numba's own reading, stale check included
+    return any((Path(kernel.stats.cache_path) / name).exists() for name in index.values())
+
+
 def _cache_filled() -> bool:
-    """True if numba's cache holds the attempt kernel (not a first run; perhaps a stale one)."""
-    return any(Path(_kernels.fit_attempt.stats.cache_path).glob("*fit_attempt*.nbi"))
+    """True if numba's cache holds the attempt kernel, current (not a first run, nor a run after
+    ``core/_kernels.py`` changed)."""
+    return _cached(_kernels.fit_attempt)
 
 
 def _rig() -> Rig:
@@ -123,6 +147,17 @@ def _rig() -> Rig:
          "projection": {"type": "affine", "matrix": [[3, 0, 0, 360], [0, -3, 0, 144]]}},
         {"name": "top", "video": 0, "roi": [0, 288, 720, 288],
          "projection": {"type": "affine", "matrix": [[3, 0, 0, 360], [0, 0, 3, 432]]}}]}))
+
+
+def _posture(m: KinematicModel) -> np.ndarray:
+    """A posture inside ``m``'s limits, (D,) degrees."""
+    return m.lower + 0.35 * (m.upper - m.lower)
+
+
+def _blobs() -> Detections:
+    """Three blobs in each view of :func:`_rig`, placed by hand: rendering them would compile
+    the kernels of projection, which the second process compiles meanwhile."""
+    return Detections.from_views([[(360, 144), (390, 150), (420, 160)], [(360, 432), (390, 440), (420, 450)]])
 
 
 def _images(m: KinematicModel, rig: Rig) -> list[Detections]:
