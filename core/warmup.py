@@ -131,7 +131,11 @@ def _cached(kernel: Dispatcher) -> bool:
     """True if numba's cache holds current compiled code of ``kernel``: an entry of its index
     that numba does not drop as stale (older than the source), whose data file (written after
     the index) is there."""
-    index = kernel._cache._cache_file._load_index()  # numba's own reading, stale check included
+    try:  # numba's own reading, stale check included; private, so a numba that moved it reads as
+        # "not cached": a second process more on a first run, never a failed warm-up
+        index = kernel._cache._cache_file._load_index()
+    except (AttributeError, OSError):
+        return False
     return any((Path(kernel.stats.cache_path) / name).exists() for name in index.values())
 
 

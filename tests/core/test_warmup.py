@@ -40,3 +40,13 @@ def test_a_second_process_loads_every_kernel_from_the_cache_compiling_none():
     loaded, compiled = (int(n) for n in result.stdout.split()[-2:])
     assert loaded >= 10, result.stdout
     assert compiled == 0, result.stdout
+
+
+def test_a_kernel_whose_cache_numba_keeps_elsewhere_counts_as_not_cached():
+    """``_cached`` reads numba's private cache index; where a numba release moved it, the
+    warm-up must read "not cached" (one more compiling process), not fail."""
+    from types import SimpleNamespace
+
+    from core.warmup import _cached
+
+    assert _cached(SimpleNamespace(_cache=object(), stats=None)) is False
