@@ -13,8 +13,7 @@ Written for the SA inner loop, which evaluates Eq. 5 some 10^5 times a second:
   and the sines and cosines of every DOF are computed first, independently;
 - data-dependent choices are selects, not branches: the quadrant of a sine,
   the nearest detection, which markers fuse. A mispredicted branch costs more
-  than the arithmetic it guards (measured: 166 → 77 ns for the locust FK, 160
-  → 25 ns for an Eq. 6 proposal);
+  than the arithmetic it guards (docs/ENGINE_NOTES.md);
 - helpers that take arrays are inlined by numba (``inline='always'``), so the
   loop is one function and arrays are not reference-counted at every call; numba
   types an inlined helper again at every call site, so helpers of scalars alone
@@ -421,8 +420,8 @@ def _unexplained(raw, proj, v, det, a, b, index, claims, reach2) -> float:
 def _lose_worst(total, dist, lost_px):
     """``total`` with the largest of ``dist`` charged ``lost_px`` instead, if that is less.
 
-    A plain loop, after the ``lost_px`` test: ``np.max`` here cost 100 ns a view in SA's
-    inner loop (measured), most of it when no marker may be lost at all.
+    A plain loop, after the ``lost_px`` test: cheaper than ``np.max`` in SA's inner loop,
+    most of all when no marker may be lost.
     """
     if not lost_px > 0.0:
         return total
@@ -444,7 +443,7 @@ def _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, lost_px, unseen, i
     ``lost_px`` > 0 either reading may lose its worst marker, charged ``lost_px``
     instead of its distance (an occluded marker). ``index``, ``dist``, ``claims``: scratch
     (:func:`workspace`'s last three), passed apart: taking them out of the tuple in SA's
-    inner loop cost ~60 ns an iteration (reference counting, measured).
+    inner loop costs reference counting at every iteration.
     """
     reach2 = fuse_px * fuse_px
     apart = _lose_worst(_match_view(raw, v, det, a, b, index, dist, unseen, penalty), dist, lost_px)
@@ -778,8 +777,8 @@ def _propose(cur, cand, step, sigma, lower, upper, hist, turns, bins_per_degree,
 # LM steps of a polish. A polish tests a basin (is its bottom below eps?); the attempt's
 # final refinement (50 steps) reads off the bottom. LM needs 4-5 steps from a degree or two
 # away; polishes of SA's current posture and of drawn postures start farther and ran all of
-# 20 steps for little: 10 fits the DV benchmark (seeds 2004, 1, 2, 3) 16 % faster than 20
-# with the same SA iterations and RMSE (6: as fast as 10).
+# 20 steps for little: 10 gives the same SA iterations and accuracy, faster
+# (docs/ENGINE_NOTES.md).
 _POLISH_STEPS = 10
 
 
@@ -1026,8 +1025,7 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
     fit keep it above ``eps``), and ends the restarts, unless the best still costs
     ``penalty`` or more, a whole lost marker's charge: there, SA is likely in a basin
     that puts a hidden marker on another blob while the true posture scores the
-    penalty alone (measured: a tarsus marker hidden from the top view for 6 frames,
-    found in 3 of 6 frames with the early stop, 6 of 6 with 6 restarts). Each run's result is refit
+    penalty alone (docs/ENGINE_NOTES.md: a hidden tarsus marker). Each run's result is refit
     without a marker that looks lost (:func:`_refit_unseen`). Restarts search an
     objective that lets every view lose one marker (charged ``penalty``): an
     image that stays above ``eps`` is where a marker may be occluded, and its
