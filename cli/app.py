@@ -23,8 +23,8 @@ from rich.progress import Progress
 from typer.exceptions import TyperException
 
 from core.anneal import AnnealParams
+from core.benchmark import FUSION_PX, locust_benchmark
 from core.cost import check_fit_cost, estimate_fit_cost
-from core.demo import FUSION_PX, locust_benchmark
 from core.detect import DetectorParams
 from core.error import fusion_distance
 from core.export import EXPORTS, unit_scale

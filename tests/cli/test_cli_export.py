@@ -12,7 +12,7 @@ import pytest
 from test_export import read_mot, read_trc
 from typer.testing import CliRunner
 
-from core.cli import app
+from cli.app import app
 from core.examples import LOCUST
 from core.export import marker_trajectories
 from core.model import KinematicModel
