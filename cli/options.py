@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import json
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Annotated, Any
@@ -23,7 +24,7 @@ from core.options import FitOptions
 
 __all__ = [
     "detector_options", "detector_parameters", "fit_options", "fit_parameters", "flag", "flags_in_errors",
-    "with_options",
+    "markdown_table", "with_options",
 ]
 
 _DETECTOR = "detector"
@@ -128,3 +129,17 @@ def fit_options(values: dict[str, Any]) -> FitOptions:
 def detector_parameters() -> list[inspect.Parameter]:
     """The detector's options alone (``mocap detect``)."""
     return _parameters(DetectorParams)
+
+
+
+def markdown_table() -> str:
+    """The options as the Markdown table of docs/OPTIONS.md (a test keeps the two equal)."""
+    rows = ["| option (API JSON) | `mocap fit` | default | values | what it does |",
+            "|---|---|---|---|---|"]
+    options = [(name, bounds, _defaults(FitOptions)[name]) for name, bounds in bounds_of(FitOptions).items()]
+    detector = [(f"{_DETECTOR}.{name}", bounds, _defaults(DetectorParams)[name])
+                for name, bounds in bounds_of(DetectorParams).items()]
+    for name, bounds, default in options + detector:
+        rows.append(f"| `{name}` | `{flag(name.split('.')[-1])}` | `{json.dumps(default)}` | "
+                    f"{bounds.describe()} | {bounds.help} |")
+    return "\n".join(rows) + "\n"

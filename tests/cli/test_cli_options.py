@@ -4,6 +4,7 @@ core.options.FitOptions: every option in all three, with one default."""
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import pytest
 import typer.main
@@ -11,6 +12,7 @@ from typer.core import TyperGroup, TyperOption
 from typer.testing import CliRunner
 
 from cli.app import app
+from cli.options import markdown_table
 from core.bounds import bounds_of
 from core.detect import DetectorParams
 from core.examples import LOCUST
@@ -98,3 +100,10 @@ def test_an_option_out_of_its_bounds_is_one_line_naming_the_flag(tmp_path, args,
     assert result.exit_code == 2, result.output
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"mocap: error: {message}"), result.output
+
+
+def test_the_options_table_of_the_docs_is_the_generated_one():
+    text = (Path(__file__).parents[2] / "docs" / "OPTIONS.md").read_text()
+    table = text.split("<!-- generated: markdown_table() -->\n")[1]
+    table = table.split("<!-- end of generated table -->")[0]
+    assert table == markdown_table()
