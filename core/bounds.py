@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import operator
 from dataclasses import dataclass
 from typing import Any
 
@@ -63,13 +64,11 @@ class Bounds:
         return text + (" (or none)" if self.optional else "")
 
     def _range(self) -> str:
-        low = self.ge if self.ge is not None else self.gt
-        high = self.le if self.le is not None else self.lt
         if self.ge is not None and self.le is not None:
             return f" in {_num(self.ge)}..{_num(self.le)}"
         parts = [f"{op} {_num(v)}" for op, v in ((">=", self.ge), (">", self.gt), ("<=", self.le),
                                                  ("<", self.lt)) if v is not None]
-        return " " + " and ".join(parts) if low is not None or high is not None else ""
+        return " " + " and ".join(parts) if parts else ""
 
     def check(self, name: str, value: Any) -> None:
         """Raise :class:`OptionError` naming ``name`` unless ``value`` is allowed."""
@@ -91,10 +90,10 @@ class Bounds:
         if isinstance(value, bool) or not isinstance(value, numbers.Integral if self.kind is int
                                                      else numbers.Real):
             return False
-        return math.isfinite(value) and all(
-            bound is None or test(value, bound) for bound, test in (
-                (self.ge, lambda v, b: v >= b), (self.gt, lambda v, b: v > b),
-                (self.le, lambda v, b: v <= b), (self.lt, lambda v, b: v < b)))
+        if not isinstance(value, numbers.Integral) and not math.isfinite(value):  # an int is finite
+            return False
+        return all(bound is None or holds(value, bound) for bound, holds in (
+            (self.ge, operator.ge), (self.gt, operator.gt), (self.le, operator.le), (self.lt, operator.lt)))
 
 
 def _num(value: float) -> str:

@@ -109,6 +109,7 @@ class FitOptions:
         return RootTracking(self.root_marker, start, self.root_max_jump_px)
 
     def uniform_prior(self, model: KinematicModel) -> Histograms:
+        """The uniform prior of ``model`` worth ``prior_weight`` counts (a fit's default start)."""
         return Histograms.uniform(model, prior_weight=self.prior_weight)
 
 

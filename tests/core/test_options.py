@@ -60,6 +60,7 @@ def test_the_resolved_parameters_share_the_options_defaults():
     ({"max_attempts": 101}, "max_attempts must be an integer in 1..100"),
     ({"max_attempts": 2.0}, "max_attempts"),
     ({"iterations": 0}, "iterations must be an integer in 1..10000000"),
+    ({"iterations": 10**400}, "iterations must be an integer in 1..10000000"),
     ({"seed": -1}, "seed must be an integer >= 0 and < 9223372036854775808"),
     ({"chunk_size": 0}, "chunk_size must be an integer in 1..1000000 (or none)"),
     ({"field_order": "odd"}, "field_order must be one of even-first, odd-first"),
