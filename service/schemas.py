@@ -147,15 +147,14 @@ def _options_model(name: str, options: type, example: dict[str, Any], doc: str,
                    **more: Any) -> type[BaseModel]:
     """A model of the options of the dataclass ``options`` (its defaults, bounds and help as
     descriptions), refusing unknown fields; ``more``: fields of other kinds, in their place."""
-    defaults = {f.name: f for f in dataclasses.fields(options)}
     bounds = bounds_of(options)
     fields: dict[str, Any] = {}
-    for field_name, spec in defaults.items():
-        if field_name in more:
-            fields[field_name] = more[field_name]
+    for spec in dataclasses.fields(options):
+        if spec.name in more:
+            fields[spec.name] = more[spec.name]
         else:
-            fields[field_name] = (_annotation(bounds[field_name]),
-                                  Field(default=spec.default, description=bounds[field_name].help))
+            fields[spec.name] = (_annotation(bounds[spec.name]),
+                                 Field(default=spec.default, description=bounds[spec.name].help))
     model: type[BaseModel] = create_model(
         name, __config__=ConfigDict(extra="forbid", json_schema_extra=ex.example(example)), __doc__=doc,
         __module__=__name__, **fields)
