@@ -33,7 +33,7 @@ from core.pipeline import FitJob, VideoSource, estimate_marker_diameter
 from core.rig import MAX_VIEWS, Rig
 from core.track import RootTracking, root_reference
 
-__all__ = ["DetectorParams", "Fit", "FitOptions", "OptionError", "build_fit"]
+__all__ = ["Fit", "FitOptions", "build_fit"]
 
 MAX_ITERATIONS = 10_000_000
 MAX_CHUNK_SIZE = 1_000_000
