@@ -33,9 +33,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.subjects import NAMES, Subject, load
 from core.detect import detect, marker_diameter
 from core.error import Detections, fusion_distance
-from core.fit import FitParams, ImageFit, SequenceResult, Status, fit_sequence
+from core.fit import FitParams, ImageFit, Status
 from core.histogram import Histograms
 from core.results import SampleClock, write_angles_csv
+from core.sequence import SequenceResult, fit_sequence
 from core.synth import render_frames
 
 OUT = Path(__file__).resolve().parent / "out"

@@ -33,11 +33,12 @@ from core.demo import single_view
 from core.detect import detect
 from core.error import Detections
 from core.examples import EXAMPLES
-from core.fit import FitParams, SequenceResult, Status, fit_sequence
+from core.fit import FitParams, Status
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.results import read_angles_csv
 from core.rig import Rig
+from core.sequence import SequenceResult, fit_sequence
 from core.synth import natural_movements, read_truth_csv, render_frames, write_video
 
 LOCUST, STICK_INSECT = "locust_hind_leg", "stick_insect_front_leg"
