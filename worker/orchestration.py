@@ -223,7 +223,7 @@ def _crash_if_told(job_id: int, index: int, when: str = "") -> None:
 
 
 def _canceled_check(job_id: int) -> Callable[[], bool]:
-    """``should_stop`` for ``fit_range``: reads the job's status at most every cancel_check_s."""
+    """``should_stop`` for ``fit_chunk``: reads the job's status at most every cancel_check_s."""
     interval, state = get_settings().cancel_check_s, {"at": time.monotonic(), "stop": False}
 
     def should_stop() -> bool:
@@ -327,13 +327,13 @@ def run_attempt(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
         if job.status != JobStatus.REANALYSING or row.attempts != attempt - 1:
             return
         loaded = _load(session, job_id)
-        typical = job.typical_objective if job.typical_objective is not None else float("nan")
+        typical = _typical(job)
         previous = ImageFit.from_record(row.record)
     merged = histstore.load(get_storage(), f"jobs/{job_id}/merged.npz", loaded.fit.model)
-    job_fit = loaded.fit
-    fit = reanalyse_image(job_fit.source[sample], previous, model=job_fit.model, rig=job_fit.source.rig,
-                          histograms=merged, params=job_fit.params, seed=job_fit.seed, typical=typical)
-    again = needs_reanalysis(fit, loaded.fit.params, typical)
+    fit_job = loaded.fit
+    fit = reanalyse_image(fit_job.source[sample], previous, model=fit_job.model, rig=fit_job.source.rig,
+                          histograms=merged, params=fit_job.params, seed=fit_job.seed, typical=typical)
+    again = needs_reanalysis(fit, fit_job.params, typical)
     over = int(fit.status is Status.OVER_THRESHOLD) - int(previous.status is Status.OVER_THRESHOLD)
     with session_scope() as session:
         stored = rows_changed(session,
@@ -361,8 +361,12 @@ def pending_reanalyses(session: Session, job_id: int) -> list[tuple[int, int]]:
     from the stored fits with the rule that queued them, so lost messages can be sent again."""
     job = session.get_one(Job, job_id)
     params = _load(session, job_id).fit.params
-    typical = job.typical_objective if job.typical_objective is not None else float("nan")
-    return images_to_reanalyse(_fits(session, job_id), params, typical)
+    return images_to_reanalyse(_fits(session, job_id), params, _typical(job))
+
+
+def _typical(job: Job) -> float:
+    """The typical objective step 3 stored on the job (NaN when no image had detections)."""
+    return job.typical_objective if job.typical_objective is not None else float("nan")
 
 
 def resume(job_id: int) -> None:

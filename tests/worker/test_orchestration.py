@@ -152,6 +152,18 @@ def test_a_reanalysis_delivered_twice_is_stored_once(queue: Recorder, job_id: in
     assert sent == [] and job["reanalyses_pending"] == len(MISFIT) - 1
 
 
+def test_the_reaper_finds_pending_reanalyses_by_the_rule_that_queued_them(
+    queue: Recorder, job_id: int
+) -> None:
+    sent = _fit_all_chunks(queue, job_id)
+    with session_scope() as session:
+        pending = orchestration.pending_reanalyses(session, job_id)
+    assert [(REANALYSE_IMAGE, (job_id, sample, attempt)) for sample, attempt in pending] == sent
+    orchestration.run_attempt(job_id, MISFIT[0], 2, worker=WORKER)  # max_attempts 2: settled
+    with session_scope() as session:
+        assert orchestration.pending_reanalyses(session, job_id) == [(MISFIT[1], 2)]
+
+
 def test_a_job_finishes_exactly_once(queue: Recorder, job_id: int) -> None:
     orchestration.plan_job(job_id)
     assert _drain(queue) == IMAGES // CHUNK_SIZE + len(MISFIT)
