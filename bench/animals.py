@@ -6,7 +6,7 @@
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
 is rendered by ``core.synth`` (5 px markers, ``--ghosts`` ghost blobs per view and image:
 2, or 0 with soft tissue),
-detected by ``core.detect`` and fitted by ``core.fit.fit_sequence`` with the settings
+detected by ``core.detect`` and fitted by ``core.sequence.fit_sequence`` with the settings
 ``mocap fit`` uses by default (marker diameter estimated from the blobs). With
 ``--soft-tissue`` every marker slides by a slowly varying 3D offset whose image displacement
 is 2 px RMS, and one marker the model lacks is drawn in every view. Prints, per subject,

@@ -1,4 +1,5 @@
-"""The fit of images and sequences (core.fit): chunks, merge, re-analysis, restarts, outliers."""
+"""Fitting images (core.fit) and sequences (core.sequence): chunks, merge, re-analysis, restarts,
+outliers."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Robustness of the whole chain (render → detect → fit) with asserted, measured bounds.
 
 Every test renders frames with ``core.synth.render_frames``, detects them with
-``core.detect.detect``, fits them with ``core.fit.fit_sequence`` with the default
+``core.detect.detect``, fits them with ``core.sequence.fit_sequence`` with the default
 ``FitParams`` apart from ``fusion_px = 8`` (twice the 4 px markers' diameter, as
 ``bench/accuracy.py``), and
 compares to the truth; interlaced footage and frames without markers go through files
