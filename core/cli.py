@@ -28,7 +28,7 @@ from core.demo import FUSION_PX, locust_benchmark
 from core.detect import DetectorParams
 from core.error import fusion_distance
 from core.export import EXPORTS, unit_scale
-from core.fit import FitParams, Status, fit_sequence
+from core.fit import FitParams, Status
 from core.histogram import HistogramError, Histograms
 from core.model import KinematicModel, ModelError
 from core.overlay import OVERLAY_DIR, job_from_report, overlay_job
@@ -37,6 +37,7 @@ from core.plots import PLOTS_DIR, write_plots
 from core.preview import preview_frame
 from core.results import read_angles_csv
 from core.rig import Rig, RigError
+from core.sequence import fit_sequence
 from core.synth import natural_movements, read_truth_csv, render_frames, write_truth_csv, write_video
 from core.track import RootTracking
 from core.video import VideoError, VideoSet
