@@ -231,7 +231,7 @@ def run_fit(
     else:
         # The processes fork from this one: a collection in a child walks every inherited
         # object and so copies every page of the heap (copy-on-write). Frozen objects are
-        # not walked (measured, bench/speed.py's process: --jobs 2 x1.77-1.80 -> x1.83-1.86).
+        # not walked (docs/ENGINE_NOTES.md, "The pipeline").
         gc.freeze()
         try:
             with ProcessPoolExecutor(max_workers=jobs) as pool:
