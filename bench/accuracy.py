@@ -26,9 +26,10 @@ from core.benchmark import (
     locust_benchmark,
     single_view,
 )
-from core.fit import FitParams, Status, fit_sequence
+from core.fit import FitParams, Status
 from core.histogram import Histograms
 from core.results import SampleClock, write_angles_csv
+from core.sequence import fit_sequence
 
 OUT = Path(__file__).resolve().parent / "out"
 

@@ -6,7 +6,7 @@
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
 is rendered by ``core.synth`` (5 px markers, ``--ghosts`` ghost blobs per view and image:
 2, or 0 with soft tissue),
-detected by ``core.detect`` and fitted by ``core.fit.fit_sequence`` with the settings
+detected by ``core.detect`` and fitted by ``core.sequence.fit_sequence`` with the settings
 ``mocap fit`` uses by default (marker diameter estimated from the blobs). With
 ``--soft-tissue`` every marker slides by a slowly varying 3D offset whose image displacement
 is 2 px RMS, and one marker the model lacks is drawn in every view. Prints, per subject,
@@ -33,9 +33,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.subjects import NAMES, Subject, load
 from core.detect import detect, marker_diameter
 from core.error import Detections, fusion_distance
-from core.fit import FitParams, ImageFit, SequenceResult, Status, fit_sequence
+from core.fit import FitParams, ImageFit, Status
 from core.histogram import Histograms
 from core.results import SampleClock, write_angles_csv
+from core.sequence import SequenceResult, fit_sequence
 from core.synth import render_frames
 
 OUT = Path(__file__).resolve().parent / "out"

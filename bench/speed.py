@@ -43,11 +43,12 @@ from core.anneal import AnnealParams
 from core.benchmark import FUSION_PX, MARKER_DIAMETER_PX, locust_benchmark
 from core.detect import detect
 from core.examples import LOCUST
-from core.fit import FitParams, fit_sequence
+from core.fit import FitParams
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.pipeline import FitJob, VideoSource, run_fit, write_outputs
 from core.rig import Rig
+from core.sequence import fit_sequence
 from core.synth import natural_movements, render_frames, write_video
 from core.video import VideoSet
 

@@ -10,7 +10,7 @@ docs/BENCH_SUBJECTS.md). Prints, per camera count: how many true markers have a 
 candidates per image, the share of leg starts with every DOF within 5° of the truth, the
 share whose Eq. 5 error is below the leg's SA stop ε (and how many of those are wrong), and
 the CPU time per image of triangulation and of the starts. With ``--fit``, also fits the
-images (``core.fit.fit_sequence``, ``mocap fit``'s defaults, which try these starts itself:
+images (``core.sequence.fit_sequence``, ``mocap fit``'s defaults, which try these starts itself:
 ``core.treefit``) and counts the legs the fit gets wrong (a DOF > 5° off) that the start
 gets right.
 """

@@ -33,7 +33,7 @@ from core.benchmark import FUSION_PX, locust_benchmark
 from core.bounds import bounds_of
 from core.cost import check_fit_cost, estimate_fit_cost
 from core.export import EXPORTS, unit_scale
-from core.fit import FitParams, Status, fit_sequence
+from core.fit import FitParams, Status
 from core.histogram import HistogramError, Histograms
 from core.model import KinematicModel, ModelError
 from core.options import FitOptions, build_fit
@@ -43,6 +43,7 @@ from core.plots import PLOTS_DIR, write_plots
 from core.preview import preview_frame
 from core.results import read_angles_csv
 from core.rig import Rig, RigError
+from core.sequence import fit_sequence
 from core.synth import natural_movements, read_truth_csv, render_frames, write_truth_csv, write_video
 from core.video import VideoError, VideoSet
 from core.warmup import compile_kernels_saying_so

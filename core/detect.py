@@ -44,8 +44,7 @@ __all__ = [
 # OpenCV's threads per process, set when this module is imported. One: the filters run on
 # a view's roi (a few hundred kB), where OpenCV's thread pool costs more than it saves, and
 # processes are the unit of parallelism (`mocap fit --jobs N`, one service worker per core),
-# as for decoding (``core.video.DECODE_THREADS``). Measured, DV benchmark end to end on one
-# core: analysis 0.83-0.93 ms per field with OpenCV's default pool, 0.66 with one thread.
+# as for decoding (``core.video.DECODE_THREADS``; docs/ENGINE_NOTES.md, "Threads").
 # OpenCV has no per-call setting; a program embedding core that wants OpenCV's pool for
 # its own work calls cv2.setNumThreads after importing core.
 OPENCV_THREADS = 1

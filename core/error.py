@@ -38,9 +38,8 @@ __all__ = ["DEFAULT_EMPTY_VIEW_PENALTY_PX", "Detections", "fusion_distance", "vi
 
 DEFAULT_EMPTY_VIEW_PENALTY_PX = 5.0
 # fusion_px in marker diameters: reading every view both ways makes a generous distance
-# safe, and it must cover what the detector merges (up to ~1.3 diameters). Measured on
-# the locust benchmark (668 images): 1 diameter, 3 frames 1.0-1.6 deg off (merged pairs
-# read apart); 1.5, one frame 4.7 deg; 2, every frame within 0.13 deg.
+# safe, and it must cover what the detector merges (up to ~1.3 diameters; smaller distances
+# read merged pairs apart: docs/ENGINE_NOTES.md, "Fusion distance").
 FUSION_DIAMETERS = 2.0
 
 

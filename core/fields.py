@@ -36,8 +36,8 @@ __all__ = ["FIELD_ORDERS", "FIELD_ROW_PITCH", "detect_fields", "field_rig"]
 FIELD_ORDERS = ("even-first", "odd-first")
 FIELD_ROW_PITCH = 2.0  # a field's rows are this many frame rows apart
 # A detection's pixels fit by a sharp disc to within this share of their energy take the
-# disc's centre: measured 0.0000-0.0018 on rendered discs (noise σ 0-2), 0.005-0.010 once
-# blurred by σ 0.5 px, 0.02-0.03 by 0.7 px (or no fit), where the centroid is the better guess.
+# disc's centre; a larger misfit means a blurred marker, whose centroid is the better guess
+# (docs/ENGINE_NOTES.md, "Field centres").
 DISC_MISFIT_MAX = 0.003
 
 

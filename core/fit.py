@@ -1,37 +1,20 @@
-"""Fitting images and sequences: SA + refinement per image, histograms adapted per frame.
+"""Fitting one image: SA + refinement, its alternatives, and its re-analysis (paper §3, §4).
 
-Every image is fitted on its own (paper §4): its random stream depends only on
-``(seed, sample, attempt)``, and within a chunk the parts of a tree-shaped model start
-from the predecessor's posture (a warm start, :func:`fit_chunk`), so any chunk of a
-sequence can be fitted by any worker, in any order, and give the same postures as a
-single process fitting the same chunks.
-
-The sequence flow, shared by ``mocap fit`` and the distributed workers (each step a
-public function, so that a worker calls the same code as a local run):
-
-1. :func:`plan_chunks` splits the images into contiguous chunks.
-2. :func:`fit_chunk` fits a chunk's images once each, starting from the given
-   histograms and updating a working copy after every image whose error is
-   within the threshold (Eq. 4). It returns the fits and the *observed*
-   histograms of its images alone.
-3. :func:`merge_chunks`: the prior merged with every chunk's observed histograms
-   (count-weighted; exactly the sequential Eq. 4 update when there is one chunk).
-4. Images for which :func:`needs_reanalysis` holds (over the threshold, or far above
-   the sequence's :func:`typical_objective`) are re-analysed (paper §3.2)
-   with the merged histograms as constraints, one :func:`reanalyse_image`
-   attempt at a time, up to ``max_attempts``, keeping each image's best posture;
-   attempts after the first start from a posture drawn from the histograms.
-5. :func:`finish_sequence` gives the final histograms: the prior updated by the
-   final posture of every image that is within the threshold.
+Every image is fitted on its own (paper §4): an attempt's random stream depends only on
+``(seed, sample, attempt)`` (:func:`image_stream`), so an image fitted by any worker, in
+any order, gives the same posture. :func:`first_attempt` is an image's first fit (from
+the histograms' means, or from warm starts its chunk gives), :func:`needs_reanalysis`
+decides whether it needs another, and :func:`reanalyse_image` is one more attempt from a
+posture drawn from the histograms, keeping the better. How a sequence's images go through
+these steps (chunks, merge, re-analysis, finish) is ``core.sequence``.
 """
 
 from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field, replace
-from functools import partial
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,7 +23,6 @@ from core.ambiguity import (
     Candidate,
     FlipGeometry,
     angle_gaps,
-    choose_candidates,
     flip_alternatives,
 )
 from core.anneal import AnnealParams, SearchSpace, search_space
@@ -63,20 +45,16 @@ from core.treefit import (
 from core.undetermined import residual_tolerance, undetermined_alternative
 
 __all__ = [
-    "ChunkResult",
     "FitParams",
     "ImageFit",
-    "SequenceResult",
     "Status",
-    "finish_sequence",
-    "fit_chunk",
+    "alternative_tolerance",
+    "first_attempt",
     "fit_image",
-    "fit_sequence",
-    "merge_chunks",
+    "image_status",
+    "image_stream",
     "needs_reanalysis",
-    "plan_chunks",
     "reanalyse_image",
-    "typical_objective",
 ]
 
 
@@ -255,27 +233,6 @@ class ImageFit:
         )
 
 
-@dataclass(frozen=True)
-class ChunkResult:
-    """Fits of a chunk, in sample order, and the histograms of its accepted angles alone."""
-
-    fits: list[ImageFit]
-    observed: Histograms
-
-
-@dataclass(frozen=True)
-class SequenceResult:
-    """Fits of a sequence in sample order, and the prior updated by every accepted image.
-
-    observed : the histograms of the accepted images alone (``histograms`` is the
-        prior merged with it), to fold a job into an archive that has moved on.
-    """
-
-    fits: list[ImageFit]
-    histograms: Histograms
-    observed: Histograms
-
-
 _UINT64 = (1 << 64) - 1
 DISTINCT_DEG = 5.0  # an alternative differs from the fit by more than this in some angle
 
@@ -315,11 +272,11 @@ def fit_image(
     ----------
     stream : the attempt's random state from :func:`image_stream`; advanced in place.
     offsets : (V, 2) per-view pixel offsets (root tracking), optional.
-    warm : (k, D) warm starts, optional (:func:`_warm_starts`): for a tree, refined on this
-        image first per part, the first that reaches twice the part's ε replaces its SA
-        (``core.treefit.warm_start``). A single chain always runs SA: it costs about a
-        millisecond there, and a warm start that reaches ε in a wrong minimum would carry
-        that minimum on to the next images.
+    warm : (k, D) warm starts, optional (the chunk's previous postures,
+        ``core.sequence.fit_chunk``): for a tree, refined on this image first per part, the
+        first that reaches twice the part's ε replaces its SA (``core.treefit.warm_start``).
+        A single chain always runs SA: it costs about a millisecond there, and a warm start
+        that reaches ε in a wrong minimum would carry that minimum on to the next images.
 
     Returns
     -------
@@ -337,58 +294,26 @@ def fit_image(
     return dofs, float(error), float(objective), int(iterations)
 
 
-def fit_chunk(
-    images: Iterable[Detections],
+def first_attempt(
+    det: Detections,
+    sample: int,
     *,
     model: KinematicModel,
     rig: Rig,
     histograms: Histograms,
     params: FitParams,
     seed: int,
-    first_sample: int = 0,
-    offsets: Iterable[np.ndarray | None] | None = None,
-    should_stop: Callable[[], bool] | None = None,
-    progress: Callable[[ImageFit], None] | None = None,
-) -> ChunkResult:
-    """Fit a contiguous run of images once each (step 1 of the module's flow).
+    geometry: FlipGeometry,
+    offsets: np.ndarray | None = None,
+    warm: np.ndarray | None = None,
+) -> ImageFit:
+    """Image ``sample``'s first fit (attempt 1, stream :func:`image_stream` ``(seed, sample,
+    1)``) under ``histograms``, with its alternatives; ``no_detections`` without any point.
 
-    Parameters
-    ----------
-    images : iterable of Detections, samples ``first_sample, first_sample + 1, …``.
-    histograms : the constraints at the start of the chunk; not modified.
-    seed : the job's seed; image ``s`` uses :func:`image_stream` ``(seed, s, 1)``.
-        Each image after the chunk's first starts from the previous image's posture (a
-        warm start) and tries it as an alternative (:func:`_attempt`); the chunk's first
-        image starts cold, so a chunk's fits depend on its first sample and nothing
-        before it: fitted anywhere, the same chunks give the same fits.
-    offsets : optional per-image (V, 2) view offsets (root tracking), same length as images.
-    should_stop : checked between images; returning True ends the chunk early (cancel).
-    progress : called with every finished image.
+    geometry : ``FlipGeometry.of(model, rig)``, computed once per chunk.
+    offsets : this image's (V, 2) view offsets (root tracking), optional.
+    warm : (k, D) warm starts from the chunk's previous images (:func:`fit_image`), optional.
     """
-    working = histograms.copy()
-    observed = Histograms.empty(model, bins=histograms.bins)
-    rot = model.rotational
-    geometry = FlipGeometry.of(model, rig)
-    offset_iter = iter(offsets) if offsets is not None else None
-    fits = []
-    for k, det in enumerate(images):
-        if should_stop is not None and should_stop():
-            break
-        sample = first_sample + k
-        off = next(offset_iter) if offset_iter is not None else None
-        warm = _warm_starts(fits, model)
-        fit = _first_attempt(det, sample, off, model, rig, working, params, seed, geometry, warm)
-        if fit.status is Status.OK:
-            working.update(fit.dofs[rot])
-            observed.update(fit.dofs[rot])
-        fits.append(fit)
-        if progress is not None:
-            progress(fit)
-    return ChunkResult(fits, observed)
-
-
-def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed, geometry,
-                   warm=None) -> ImageFit:
     counts = tuple(det.counts.tolist())
     if not any(counts):
         nan = np.full(len(model.dofs), np.nan)
@@ -397,7 +322,7 @@ def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed, g
         det, model, rig, search_space(model, histograms), params, image_stream(seed, sample, 1),
         False, offsets, geometry, warm,
     )
-    status = _status(best.error, counts, len(model.markers), params)
+    status = image_status(best.error, counts, len(model.markers), params)
     return ImageFit(sample, best.dofs, best.error, best.objective, 1, status, its, counts,
                     alternatives)
 
@@ -405,15 +330,15 @@ def _first_attempt(det, sample, offsets, model, rig, histograms, params, seed, g
 def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None):
     """fit_image, then its alternatives: (best candidate, the others, SA iterations).
 
-    ``warm`` (:func:`_warm_starts`) holds warm starts (:func:`fit_image`): at 50-200 Hz
-    the previous image's posture is usually near the truth, and where it reaches twice ε
-    SA is skipped. Alternatives are the depth flips of the fit (``core.ambiguity``) and, where
-    SA ran and left its basin, the previous posture refined on this image, when it lands in a
-    distinct minimum scoring within the tolerance: a fit that jumped into another
-    minimum that explains the image as well (the paper's Fig. 9) gets the truth as its
-    alternative, and the choice by continuity can take it. A warm-started fit keeps its
-    depth flips as alternatives, so a previous posture in a wrong minimum that this
-    image still supports can be corrected by that choice too.
+    ``warm`` holds warm starts (:func:`fit_image`; the chunk's previous postures,
+    ``core.sequence.fit_chunk``): at 50-200 Hz the previous image's posture is usually near
+    the truth, and where it reaches twice ε SA is skipped. Alternatives are the depth flips
+    of the fit (``core.ambiguity``) and, where SA ran and left its basin, the previous
+    posture refined on this image, when it lands in a distinct minimum scoring within the
+    tolerance: a fit that jumped into another minimum that explains the image as well (the
+    paper's Fig. 9) gets the truth as its alternative, and the choice by continuity can take
+    it. A warm-started fit keeps its depth flips as alternatives, so a previous posture in a
+    wrong minimum that this image still supports can be corrected by that choice too.
     Without any other minimum, a posture at least ``core.undetermined.UNDETERMINED_DEG``
     away in a DOF the image does not determine (``core.undetermined``) is the alternative.
     """
@@ -447,29 +372,6 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
         )
         ranked += [witness] if witness is not None else []
     return ranked[0], tuple(ranked[1:]), its
-
-
-def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:
-    """Warm starts of the image after ``fits`` (the chunk's so far), (k, D), best guess first:
-    the last posture moved on by its last step (constant velocity, within the ranges), then
-    the last posture itself; None at a chunk's first image and after an image without a
-    posture, so that a chunk's fits depend on nothing before it.
-
-    >>> from core.examples import LOCUST
-    >>> from core.model import KinematicModel
-    >>> model = KinematicModel.from_xml(LOCUST / "model.xml")
-    >>> fit = ImageFit(0, model.lower + 10.0, 0.1, 0.1, 1, Status.OK, 1, (4, 4))
-    >>> _warm_starts([], model) is None, _warm_starts([fit], model).shape
-    (True, (1, 5))
-    >>> moved = replace(fit, sample=1, dofs=model.lower + 12.0)
-    >>> (_warm_starts([fit, moved], model)[:, 0] - model.lower[0]).tolist()
-    [14.0, 12.0]
-    """
-    if not fits or not np.all(np.isfinite(last := fits[-1].dofs)):
-        return None
-    if len(fits) < 2 or not np.all(np.isfinite(before := fits[-2].dofs)):
-        return last[None]
-    return np.vstack([np.clip(2.0 * last - before, model.lower, model.upper), last])
 
 
 def alternative_tolerance(params: FitParams, det: Detections, model: KinematicModel,
@@ -548,7 +450,7 @@ def reanalyse_image(
     typical: float = math.nan,
 ) -> ImageFit:
     """One more attempt on an image :func:`needs_reanalysis` picks (paper §3.2), keeping the
-    better posture (``typical``: the sequence's :func:`typical_objective`).
+    better posture (``typical``: the sequence's ``core.sequence.typical_objective``).
 
     The attempt starts from a posture drawn from ``histograms`` (the merged
     constraints), so that it does not retrace the first attempt's path, and
@@ -565,35 +467,15 @@ def reanalyse_image(
     if not best.objective < previous.objective:
         best = Candidate(previous.dofs, previous.error, previous.objective)
         alternatives = previous.alternatives
-    status = _status(best.error, previous.detections, len(model.markers), params)
+    status = image_status(best.error, previous.detections, len(model.markers), params)
     return ImageFit(previous.sample, best.dofs, best.error, best.objective, attempt, status,
                     previous.iterations + its, previous.detections, alternatives)
-
-
-def plan_chunks(n_images: int, chunk_size: int | None) -> list[tuple[int, int]]:
-    """Contiguous ``[first, last)`` sample ranges covering ``n_images``; one chunk for ``None``."""
-    if chunk_size is not None and (isinstance(chunk_size, bool) or chunk_size < 1):
-        raise ValueError(f"chunk_size must be at least 1, got {chunk_size!r}")
-    size = max(n_images, 1) if chunk_size is None else chunk_size
-    return [(a, min(a + size, n_images)) for a in range(0, n_images, size)]
-
-
-def merge_chunks(prior: Histograms, observed: Iterable[Histograms]) -> Histograms:
-    """Step 3: the constraints for re-analysis, prior and chunks' observations by counts."""
-    return prior.merge(*observed)
-
-
-def typical_objective(fits: Iterable[ImageFit]) -> float:
-    """The median objective of a sequence's fitted images (NaN without any): what a good fit
-    of this footage scores, for :func:`needs_reanalysis` (step 4)."""
-    values = [f.objective for f in fits if f.status is not Status.NO_DETECTIONS]
-    return float(np.median(values)) if values else math.nan
 
 
 def needs_reanalysis(fit: ImageFit, params: FitParams, typical: float = math.nan) -> bool:
     """True while an image has attempts left and is over the error threshold (paper §3.2), or
     its objective is an outlier: above ``params.outlier_factor`` times ``typical`` (the
-    sequence's :func:`typical_objective`) and above ε.
+    sequence's ``core.sequence.typical_objective``) and above ε.
 
     The paper's 10 px threshold was "clearly larger than the expected analysis
     result" (2.9 px); clean footage now fits at ~0.1 px, so a local minimum at
@@ -609,106 +491,6 @@ def needs_reanalysis(fit: ImageFit, params: FitParams, typical: float = math.nan
     return params.outlier_factor > 0 and math.isfinite(limit) and fit.objective > limit
 
 
-def finish_sequence(
-    prior: Histograms, fits: Sequence[ImageFit], *, model: KinematicModel, params: FitParams
-) -> SequenceResult:
-    """Step 5: the fits in sample order and the prior updated by every image within the threshold.
-
-    With ``params.choose_by_continuity``, each image's posture is first chosen
-    among its alternatives (``core.ambiguity.choose_candidates``). Eq. 4 counts
-    do not depend on the order of the measurements, so the histograms equal
-    updating the prior image by image with the final postures.
-    """
-    ordered = sorted(fits, key=lambda f: f.sample)
-    if params.choose_by_continuity:
-        ordered = _chosen_by_continuity(ordered, len(model.markers), params)
-    observed = Histograms.empty(model, bins=prior.bins)
-    for fit in ordered:
-        if fit.status is Status.OK:
-            observed.update(fit.dofs[model.rotational])
-    return SequenceResult(ordered, prior.merge(observed), observed)
-
-
-def _chosen_by_continuity(fits: list[ImageFit], n_markers: int, params: FitParams) -> list[ImageFit]:
-    candidates = [
-        [] if f.status is Status.NO_DETECTIONS
-        else [Candidate(f.dofs, f.error, f.objective), *f.alternatives]
-        for f in fits
-    ]
-    out = []
-    for fit, cands, k in zip(fits, candidates, choose_candidates(candidates), strict=True):
-        if k:
-            chosen = cands[k]
-            fit = replace(fit, dofs=chosen.dofs, error=chosen.error, objective=chosen.objective,
-                          status=_status(chosen.error, fit.detections, n_markers, params),
-                          alternatives=tuple(c for i, c in enumerate(cands) if i != k))
-        out.append(fit)
-    return out
-
-
-def fit_sequence(
-    images: Sequence[Detections],
-    *,
-    model: KinematicModel,
-    rig: Rig,
-    histograms: Histograms,
-    params: FitParams,
-    seed: int,
-    chunk_size: int | None = None,
-    offsets: Sequence[np.ndarray | None] | None = None,
-    progress: Callable[[ImageFit], None] | None = None,
-    map_chunks: Callable[..., Iterable[ChunkResult]] = map,
-) -> SequenceResult:
-    """Fit every image of a sequence: the module's five steps.
-
-    Parameters
-    ----------
-    images : sequence of Detections; slicing ``images[a:b]`` may return any iterable
-        (a video source decodes that range lazily), ``images[i]`` one image.
-    chunk_size : images per chunk; ``None`` fits the sequence as one chunk (histograms
-        adapt over the whole sequence, as in the paper). A chunked fit reproduces exactly
-        what workers fitting those chunks in parallel produce.
-    progress : called with every image fitted in this process.
-    map_chunks : ``map`` or an executor's ``map``, to fit chunks, then re-analyse images, in
-        other processes.
-    """
-    n = len(images)
-    if offsets is not None and len(offsets) != n:
-        raise ValueError(f"offsets has {len(offsets)} entries for {n} images")
-    run = partial(_fit_range, images, model, rig, histograms, params, seed, offsets, progress)
-    chunks = list(map_chunks(run, plan_chunks(n, chunk_size)))
-    merged = merge_chunks(histograms, (c.observed for c in chunks))
-    fits = [f for c in chunks for f in c.fits]
-    typical = typical_objective(fits)
-    todo = [i for i, fit in enumerate(fits) if needs_reanalysis(fit, params, typical)]
-    redo = partial(_reanalyse, images, model, rig, merged, params, seed, offsets, typical)
-    for i, fit in zip(todo, map_chunks(redo, [fits[i] for i in todo]), strict=True):
-        fits[i] = fit
-    return finish_sequence(histograms, fits, model=model, params=params)
-
-
-def _reanalyse(images, model, rig, histograms, params, seed, offsets, typical, fit) -> ImageFit:
-    """Step 4 for one image of :func:`fit_sequence`: attempts while it needs them (a
-    module-level function, so that the processes fitting the chunks share the re-analyses;
-    an image's attempts depend on nothing but itself and ``histograms``)."""
-    det = images[fit.sample]
-    while needs_reanalysis(fit, params, typical):
-        fit = reanalyse_image(
-            det, fit, model=model, rig=rig, histograms=histograms, params=params, seed=seed,
-            offsets=None if offsets is None else offsets[fit.sample], typical=typical,
-        )
-    return fit
-
-
-def _fit_range(images, model, rig, histograms, params, seed, offsets, progress, bounds) -> ChunkResult:
-    """One chunk of :func:`fit_sequence` (a module-level function, so processes can run it)."""
-    a, b = bounds
-    return fit_chunk(
-        images[a:b], model=model, rig=rig, histograms=histograms, params=params, seed=seed,
-        first_sample=a, offsets=None if offsets is None else offsets[a:b], progress=progress,
-    )
-
-
 def _json_float(value: float) -> float | None:
     return None if not math.isfinite(value) else float(value)
 
@@ -721,8 +503,9 @@ def _float_array(values: Sequence[float | None]) -> np.ndarray:
     return np.array([_float(v) for v in values], dtype=np.float64)
 
 
-def _status(error: float, detections: tuple[int, ...], n_markers: int, params: FitParams) -> Status:
-    """ok or over_threshold, from the error per compared marker projection."""
+def image_status(error: float, detections: tuple[int, ...], n_markers: int, params: FitParams) -> Status:
+    """ok or over_threshold, from the Eq. 5 ``error`` (px) per compared marker projection
+    (``detections``: points per view)."""
     limit = params.error_threshold_px * _compared(detections, n_markers)
     return Status.OK if error <= limit else Status.OVER_THRESHOLD
 

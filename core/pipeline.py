@@ -1,4 +1,4 @@
-"""From video files to fitted angles: the job steps shared by ``mocap fit`` and the workers.
+"""From video files to fitted angles: a video job, its plan, its run and its result files.
 
 A :class:`VideoSource` is a lazy sequence of per-image detections: slicing it
 decodes and detects only that range of frames (seeking into the video), and
@@ -6,21 +6,21 @@ indexing it decodes one frame, so memory is bounded by one frame whatever the
 video's length, and a chunk can start in the middle of a long video. With
 de-interlacing every frame gives two images (its fields, in time order).
 
-A :class:`FitJob` is everything that decides a result. Its steps, which a
-local run (:func:`run_fit`) and the distributed workers both call:
+A :class:`FitJob` is everything that decides a result. ``mocap fit`` and the service's
+workers run it with the same steps (``core.sequence``) and these two ends:
 
-- :func:`plan`: the number of images, the chunks, and the root-tracking offsets
-  (tracking is sequential, so it runs once over the whole sequence here);
-- :func:`fit_range`: fit one chunk (``core.fit.fit_chunk`` on its frames);
-- :func:`reanalyse`: one more attempt on one image picked for re-analysis;
-- :func:`finish`: the final histograms of the sequence.
+- :func:`plan`: the number of images, the chunks (``core.sequence.plan_chunks``), and the
+  root-tracking offsets (tracking is sequential, so it runs once over the whole sequence);
+- :func:`outputs`: the contents of ``angles.csv``, ``histograms.xml`` and ``report.json``
+  (:func:`write_outputs` writes them into a directory, the workers into their storage).
 
-:func:`write_outputs` writes ``angles.csv``, ``histograms.xml`` and ``report.json``.
+:func:`run_fit` runs a job in this process or a pool of processes (``core.sequence.fit_sequence``).
 """
 
 from __future__ import annotations
 
 import gc
+import io
 import json
 import math
 import time
@@ -36,28 +36,18 @@ import numpy as np
 from core.detect import DetectorParams, detect, marker_diameter
 from core.error import Detections
 from core.fields import detect_fields, field_parities, field_rig
-from core.fit import (
-    ChunkResult,
-    FitParams,
-    ImageFit,
-    SequenceResult,
-    Status,
-    finish_sequence,
-    fit_chunk,
-    fit_sequence,
-    plan_chunks,
-    reanalyse_image,
-)
+from core.fit import FitParams, ImageFit, Status
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.results import SampleClock, write_angles_csv
 from core.rig import Rig
+from core.sequence import SequenceResult, fit_sequence, plan_chunks
 from core.track import RootTracking, root_reference, track_root
 from core.video import VideoSet
 
 __all__ = [
-    "FitJob", "FitOutcome", "Plan", "VideoSource", "estimate_marker_diameter", "finish", "fit_range",
-    "plan", "reanalyse", "run_fit", "write_outputs",
+    "OUTPUT_FILES", "FitJob", "FitOutcome", "Outputs", "Plan", "VideoSource", "build_report",
+    "estimate_marker_diameter", "outputs", "plan", "run_fit", "write_outputs",
 ]
 
 
@@ -197,64 +187,6 @@ def plan(job: FitJob) -> Plan:
     return Plan(n, plan_chunks(n, job.chunk_size), offsets)
 
 
-def fit_range(
-    job: FitJob,
-    histograms: Histograms,
-    first: int,
-    last: int,
-    *,
-    offsets: np.ndarray | None = None,
-    should_stop: Callable[[], bool] | None = None,
-    progress: Callable[[ImageFit], None] | None = None,
-    seen: Callable[[Detections], None] | None = None,
-) -> ChunkResult:
-    """Fit images ``[first, last)`` once each from ``histograms`` (a chunk; ``core.fit`` step 2).
-
-    offsets : the plan's offsets of these images, (last - first, V, 2), or None.
-    should_stop : checked between images (cancel); the result then holds the images done.
-    seen : called with each image's detections before it is fitted (``detections.csv``).
-    """
-    images = job.source[first:last]
-    if seen is not None:
-        images = _tap(images, seen)
-    return fit_chunk(
-        images, model=job.model, rig=job.source.rig, histograms=histograms,
-        params=job.params, seed=job.seed, first_sample=first, offsets=offsets,
-        should_stop=should_stop, progress=progress,
-    )
-
-
-def _tap(images: Iterator[Detections], seen: Callable[[Detections], None]) -> Iterator[Detections]:
-    for det in images:
-        seen(det)
-        yield det
-
-
-def reanalyse(
-    job: FitJob,
-    previous: ImageFit,
-    histograms: Histograms,
-    *,
-    typical: float,
-    offsets: np.ndarray | None = None,
-) -> ImageFit:
-    """One more attempt on an image ``core.fit.needs_reanalysis`` picks, against the merged
-    ``histograms``.
-
-    typical : the sequence's ``core.fit.typical_objective`` of the first attempts.
-    offsets : this image's (V, 2) offsets from the plan, or None.
-    """
-    return reanalyse_image(
-        job.source[previous.sample], previous, model=job.model, rig=job.source.rig,
-        histograms=histograms, params=job.params, seed=job.seed, offsets=offsets, typical=typical,
-    )
-
-
-def finish(job: FitJob, prior: Histograms, fits: Sequence[ImageFit]) -> SequenceResult:
-    """The fits in sample order and the prior updated by every image within the threshold."""
-    return finish_sequence(prior, fits, model=job.model, params=job.params)
-
-
 CHUNKS_PER_PROCESS = 4
 
 
@@ -299,7 +231,7 @@ def run_fit(
     else:
         # The processes fork from this one: a collection in a child walks every inherited
         # object and so copies every page of the heap (copy-on-write). Frozen objects are
-        # not walked (measured, bench/speed.py's process: --jobs 2 x1.77-1.80 -> x1.83-1.86).
+        # not walked (docs/ENGINE_NOTES.md, "The pipeline").
         gc.freeze()
         try:
             with ProcessPoolExecutor(max_workers=jobs) as pool:
@@ -309,15 +241,40 @@ def run_fit(
     return FitOutcome(result, time.perf_counter() - t0, jobs)
 
 
+OUTPUT_FILES = ("angles.csv", "histograms.xml", "report.json")
+
+
+@dataclass(frozen=True)
+class Outputs:
+    """The contents of a fit's result files (FORMATS §3, §4, §5).
+
+    report : a dict until :meth:`files`, so that the service adds what only it knows.
+    """
+
+    angles_csv: str
+    histograms_xml: str
+    report: dict[str, Any]
+
+    def files(self) -> dict[str, str]:
+        """Each of :data:`OUTPUT_FILES` and its text."""
+        report = json.dumps(self.report, indent=2) + "\n"
+        return dict(zip(OUTPUT_FILES, (self.angles_csv, self.histograms_xml, report), strict=True))
+
+
+def outputs(job: FitJob, outcome: FitOutcome) -> Outputs:
+    """``angles.csv``, ``histograms.xml`` and ``report.json`` of a fitted job (:func:`build_report`)."""
+    angles = io.StringIO()
+    write_angles_csv(angles, job.model, outcome.result.fits, job.clock)
+    return Outputs(angles.getvalue(), outcome.result.histograms.to_xml(), build_report(job, outcome))
+
+
 def write_outputs(out: Path, job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
-    """Write ``angles.csv``, ``histograms.xml`` and ``report.json`` into ``out``; return the report."""
+    """Write :func:`outputs` into the directory ``out`` (made if missing); return the report."""
     out.mkdir(parents=True, exist_ok=True)
-    fits = outcome.result.fits
-    write_angles_csv(out / "angles.csv", job.model, fits, job.clock)
-    (out / "histograms.xml").write_text(outcome.result.histograms.to_xml())
-    report = build_report(job, outcome)
-    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
-    return report
+    results = outputs(job, outcome)
+    for name, text in results.files().items():
+        (out / name).write_bytes(text.encode())
+    return results.report
 
 
 def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:

@@ -24,8 +24,8 @@ from core.rig import Rig
 __all__ = ["render_frames"]
 
 # Background noise: a uniform 16-bit draw mapped through the inverse CDF of the
-# rounded, clipped Gaussian (exact up to a CDF step of 2**-16), ~5x faster than
-# drawing 414 720 normals per frame. Marker pixels get exact Gaussian noise.
+# rounded, clipped Gaussian (exact up to a CDF step of 2**-16), far cheaper than drawing
+# a normal per pixel of every frame. Marker pixels get exact Gaussian noise.
 _NOISE_LEVELS = 1 << 16
 # Samples per projection chunk: memory stays bounded for any trajectory length.
 _CHUNK = 256

@@ -46,8 +46,7 @@ MAX_FRAME_PIXELS = 4096 * 4096
 _FPS_TOLERANCE = 1e-3
 # FFmpeg decoding threads per open file. One: `mocap fit --jobs N` and the service's workers
 # run one process per core, and FFmpeg's own threads would put more than a core under each
-# (measured, PAL DV on 2 cores: 795 frames/s on 1.6 CPUs with FFmpeg's default, 490 on one
-# CPU with one thread, 460 with the default pinned to one CPU). More cores: more processes.
+# (docs/ENGINE_NOTES.md, "Threads"). More cores: more processes.
 DECODE_THREADS = 1
 
 

@@ -32,11 +32,12 @@ from core import _kernels
 from core.ambiguity import Candidate, FlipGeometry, flip_alternatives
 from core.detect import detect
 from core.error import Detections, view_error, view_offsets
-from core.fit import FitParams, fit_sequence
+from core.fit import FitParams
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.refine import refine
 from core.rig import Rig
+from core.sequence import fit_sequence
 
 __all__ = ["compile_kernels", "compile_kernels_saying_so"]
 

@@ -19,12 +19,12 @@ from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
-from core.fit import SequenceResult
 from core.histogram import Histograms
 from core.overlay import OVERLAY_DIR, overlay_job
 from core.pipeline import FitJob
 from core.plots import PLOTS_DIR, write_plots
 from core.results import read_angles_csv, write_angles_csv
+from core.sequence import SequenceResult
 from service.storage import Storage
 
 __all__ = ["INDEX", "MEDIA_TYPES", "NAME", "listed", "render"]

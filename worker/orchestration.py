@@ -1,24 +1,25 @@
 """The whole life of a job, driven by database state: plan → chunks → merge → re-analysis → finish.
 
-Every step calls the same ``core.pipeline`` functions as ``mocap fit``:
+Every step of the fit is a ``core`` function, the one ``mocap fit`` calls (``core.sequence``,
+``core.pipeline``); this module adds the database, the queue, claiming, heartbeats and
+idempotence:
 
 1. :func:`plan_job` (``core.pipeline.plan``): chunk rows, one ``fit_chunk`` task each.
-2. :func:`run_chunk` (``core.pipeline.fit_range``): the chunk's image rows (attempt 1)
+2. :func:`run_chunk` (``core.sequence.fit_chunk``): the chunk's image rows (attempt 1)
    and its observed histogram counts, stored exactly (``.npz``). Marking the chunk
    done and counting it on the job is one guarded UPDATE; the chunk whose UPDATE
    brings ``chunks_done`` to ``chunks_total`` is the last, and only it goes on:
    A thread writes the chunk's heartbeat meanwhile; ``worker.reaper`` sends again a
    chunk whose heartbeat stops (its worker died as a whole).
-3. :func:`_after_chunks` (``core.fit.merge_chunks``, ``typical_objective``,
-   ``needs_reanalysis``): merged histograms, one ``reanalyse_image`` task per image
-   to re-fit, ``reanalyses_pending`` on the job.
-4. :func:`reanalyse` (``core.pipeline.reanalyse``): one attempt, keeping the best;
+3. :func:`_after_chunks` (``core.sequence.plan_reanalysis``): merged histograms, one
+   ``reanalyse_image`` task per image to re-fit, ``reanalyses_pending`` on the job.
+4. :func:`run_attempt` (``core.fit.reanalyse_image``): one attempt, keeping the best;
    the next attempt is queued while the image still needs one; the task that brings
    ``reanalyses_pending`` to 0 finishes the job.
-5. :func:`_finish` (``core.pipeline.finish``, ``build_report``): angles.csv,
-   histograms.xml, report.json, the exports for other tools (``core.export``: .mot, .trc,
-   .c3d, and detections.csv joined from the chunks'), and the job's observations folded into
-   the model's histogram archive as a new version.
+5. :func:`_finish` (``core.sequence.finish_sequence``, ``core.pipeline.outputs``):
+   angles.csv, histograms.xml, report.json, the exports for other tools (``core.export``:
+   .mot, .trc, .c3d, and detections.csv joined from the chunks'), and the job's
+   observations folded into the model's histogram archive as a new version.
 
 :func:`resume` runs step 3 or 5 again for a job whose worker died just before it (the
 reaper sends it once the job has stopped moving).
@@ -32,7 +33,6 @@ it changed a row. Tasks are queued only after the transaction that needs them co
 from __future__ import annotations
 
 import io
-import json
 import logging
 import os
 import shutil
@@ -55,12 +55,12 @@ from sqlalchemy.orm import Session
 
 from core.error import Detections
 from core.export import DETECTIONS_FILE, DETECTIONS_HEADER, EXPORT_FILES, export, write_detections_csv
-from core.fit import ImageFit, Status, merge_chunks, needs_reanalysis, typical_objective
+from core.fit import ImageFit, Status, needs_reanalysis, reanalyse_image
 from core.histogram import Histograms
 from core.model import KinematicModel
-from core.pipeline import FitJob, FitOutcome, build_report, finish, fit_range, plan
-from core.pipeline import reanalyse as reanalyse_step
-from core.results import read_angles_csv, write_angles_csv
+from core.pipeline import FitJob, FitOutcome, Outputs, outputs, plan
+from core.results import read_angles_csv
+from core.sequence import SequenceResult, finish_sequence, fit_chunk, images_to_reanalyse, plan_reanalysis
 from service import artifacts, broker, histstore
 from service.broker import FIT_CHUNK, REANALYSE_IMAGE
 from service.crud import add_histogram_version, histogram_version, missing_frames
@@ -185,8 +185,11 @@ def run_chunk(chunk_id: int, *, worker: str) -> None:
             loaded = _load(session, job_id)
         _crash_if_told(job_id, index)
         seen: list[Detections] = []
-        result = fit_range(loaded.fit, loaded.prior, first, last, should_stop=_canceled_check(job_id),
-                           seen=seen.append, offsets=_root_offsets(job_id, loaded.fit, first, last))
+        fit = loaded.fit
+        result = fit_chunk(_kept(fit.source[first:last], seen), model=fit.model, rig=fit.source.rig,
+                           histograms=loaded.prior, params=fit.params, seed=fit.seed, first_sample=first,
+                           offsets=_root_offsets(job_id, fit, first, last),
+                           should_stop=_canceled_check(job_id))
     if len(result.fits) < last - first:
         _set_chunk(chunk_id, ChunkStatus.CANCELED)
         logger.info("chunk %s of job %s stopped: job canceled", index, job_id)
@@ -197,6 +200,13 @@ def run_chunk(chunk_id: int, *, worker: str) -> None:
     if _complete_chunk(chunk_id, job_id, key, result.fits, worker):
         _crash_if_told(job_id, index, "done")
         _after_chunks(job_id)
+
+
+def _kept(images: Iterable[Detections], seen: list[Detections]) -> Iterator[Detections]:
+    """``images``, each appended to ``seen`` before it is fitted (the chunk's ``detections.csv``)."""
+    for det in images:
+        seen.append(det)
+        yield det
 
 
 def _claim(session: Session, chunk: Chunk, worker: str) -> bool:
@@ -236,7 +246,7 @@ def _crash_if_told(job_id: int, index: int, when: str = "") -> None:
 
 
 def _canceled_check(job_id: int) -> Callable[[], bool]:
-    """``should_stop`` for ``fit_range``: reads the job's status at most every cancel_check_s."""
+    """``should_stop`` for ``fit_chunk``: reads the job's status at most every cancel_check_s."""
     interval, state = get_settings().cancel_check_s, {"at": time.monotonic(), "stop": False}
 
     def should_stop() -> bool:
@@ -312,29 +322,27 @@ def _after_chunks(job_id: int) -> None:
         keys = session.scalars(select(Chunk.observed_key).where(Chunk.job_id == job_id)
                                .order_by(Chunk.index)).all()
         observed = [histstore.load(storage, k, loaded.fit.model) for k in keys if k]
-        merged = merge_chunks(loaded.prior, observed)
-        histstore.save(storage, f"jobs/{job_id}/merged.npz", merged)
-        fits = _fits(session, job_id)
-        typical = typical_objective(fits)
-        pending = [f.sample for f in fits if needs_reanalysis(f, loaded.fit.params, typical)]
+        todo = plan_reanalysis(loaded.prior, observed, _fits(session, job_id), loaded.fit.params)
+        histstore.save(storage, f"jobs/{job_id}/merged.npz", todo.histograms)
         moved = rows_changed(session,
             update(Job).where(Job.id == job_id, Job.status == JobStatus.RUNNING, Job.fitted_at.is_(None))
-            .values(typical_objective=typical, reanalyses_pending=len(pending), fitted_at=utcnow(),
-                    progress_at=utcnow(),
-                    status=JobStatus.REANALYSING if pending else JobStatus.RUNNING)
+            .values(typical_objective=todo.typical, reanalyses_pending=len(todo.images),
+                    fitted_at=utcnow(), progress_at=utcnow(),
+                    status=JobStatus.REANALYSING if todo.images else JobStatus.RUNNING)
         )
     if not moved:
         return
-    logger.info("job %s: all chunks done, %d images to re-analyse", job_id, len(pending))
-    for sample in pending:
-        broker.enqueue(REANALYSE_IMAGE, job_id, sample, 2)
-    if not pending:
+    logger.info("job %s: all chunks done, %d images to re-analyse", job_id, len(todo.images))
+    for sample, attempt in todo.images:
+        broker.enqueue(REANALYSE_IMAGE, job_id, sample, attempt)
+    if not todo.images:
         _finish(job_id)
 
 
 # ---- 4. re-analysis -----------------------------------------------------------------------------
-def reanalyse(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
-    """Attempt ``attempt`` on image ``sample``: skipped unless it is the image's next attempt."""
+def run_attempt(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
+    """Attempt ``attempt`` on image ``sample`` of a re-analysing job, stored and counted:
+    skipped unless it is the image's next attempt."""
     with session_scope() as session:
         job = session.get_one(Job, job_id)
         row = session.scalars(select(ImageResult).where(ImageResult.job_id == job_id,
@@ -342,13 +350,15 @@ def reanalyse(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
         if job.status != JobStatus.REANALYSING or row.attempts != attempt - 1:
             return
         loaded = _load(session, job_id)
-        typical = job.typical_objective if job.typical_objective is not None else float("nan")
+        typical = _typical(job)
         previous = ImageFit.from_record(row.record)
     merged = histstore.load(get_storage(), f"jobs/{job_id}/merged.npz", loaded.fit.model)
-    offsets = _root_offsets(job_id, loaded.fit, sample, sample + 1)
-    fit = reanalyse_step(loaded.fit, previous, merged, typical=typical,
-                         offsets=None if offsets is None else offsets[0])
-    again = needs_reanalysis(fit, loaded.fit.params, typical)
+    fit_job = loaded.fit
+    offsets = _root_offsets(job_id, fit_job, sample, sample + 1)
+    fit = reanalyse_image(fit_job.source[sample], previous, model=fit_job.model, rig=fit_job.source.rig,
+                          histograms=merged, params=fit_job.params, seed=fit_job.seed, typical=typical,
+                          offsets=None if offsets is None else offsets[0])
+    again = needs_reanalysis(fit, fit_job.params, typical)
     over = int(fit.status is Status.OVER_THRESHOLD) - int(previous.status is Status.OVER_THRESHOLD)
     with session_scope() as session:
         stored = rows_changed(session,
@@ -376,9 +386,12 @@ def pending_reanalyses(session: Session, job_id: int) -> list[tuple[int, int]]:
     from the stored fits with the rule that queued them, so lost messages can be sent again."""
     job = session.get_one(Job, job_id)
     params = _load(session, job_id).fit.params
-    typical = job.typical_objective if job.typical_objective is not None else float("nan")
-    return [(f.sample, f.attempts + 1) for f in _fits(session, job_id)
-            if needs_reanalysis(f, params, typical)]
+    return images_to_reanalyse(_fits(session, job_id), params, _typical(job))
+
+
+def _typical(job: Job) -> float:
+    """The typical objective step 3 stored on the job (NaN when no image had detections)."""
+    return job.typical_objective if job.typical_objective is not None else float("nan")
 
 
 def resume(job_id: int) -> None:
@@ -405,19 +418,16 @@ def _finish(job_id: int) -> None:
     with session_scope() as session:
         loaded = _load(session, job_id)
         fits = _fits(session, job_id)
-        result = finish(loaded.fit, loaded.prior, fits)
-        text = io.StringIO()
-        write_angles_csv(text, loaded.fit.model, result.fits, loaded.fit.clock)
-        storage.put(f"jobs/{job_id}/angles.csv", [text.getvalue().encode()])
-        _put_exports(storage, job_id, text.getvalue(), loaded.fit.model)
+        result = finish_sequence(loaded.prior, fits, model=loaded.fit.model, params=loaded.fit.params)
+        results = _outputs(session, loaded, result, fits)
+        _put_exports(storage, job_id, results.angles_csv, loaded.fit.model)
         _join_detections(session, storage, job_id)
-        storage.put(f"jobs/{job_id}/histograms.xml", [result.histograms.to_xml().encode()])
-        report = _report(session, loaded, result, fits)
         model_id, options = loaded.job.model_id, JobOptions.model_validate(loaded.job.options)
     if options.overlay or options.plots:
-        report["artifacts"] = artifacts.render(storage, job_id, loaded.fit, loaded.prior, result,
-                                               overlay=options.overlay, plots=options.plots)
-    storage.put(f"jobs/{job_id}/report.json", [(json.dumps(report, indent=2) + "\n").encode()])
+        results.report["artifacts"] = artifacts.render(storage, job_id, loaded.fit, loaded.prior, result,
+                                                       overlay=options.overlay, plots=options.plots)
+    for name, text in results.files().items():  # report.json last
+        storage.put(f"jobs/{job_id}/{name}", [text.encode()])
     with session_scope() as session:
         model = session.scalars(select(Model).where(Model.id == model_id)
                                 .with_for_update()).one()  # one fold at a time per model
@@ -462,12 +472,13 @@ def _join_detections(session: Session, storage: Storage, job_id: int) -> None:
                 shutil.copyfileobj(src, out)
 
 
-def _report(session: Session, loaded: _Loaded, result: Any, fits: list[ImageFit]) -> dict[str, Any]:
-    """``core.pipeline.build_report`` for the distributed run, plus what only the service knows."""
+def _outputs(session: Session, loaded: _Loaded, result: SequenceResult, fits: list[ImageFit]) -> Outputs:
+    """``core.pipeline.outputs`` of the distributed run, the report with what only the service knows."""
     job = loaded.job
     seconds = ((utcnow() - _aware(job.started_at)).total_seconds() if job.started_at else 0.0)
     workers = session.scalars(select(Chunk.worker).where(Chunk.job_id == job.id).distinct()).all()
-    report = build_report(loaded.fit, FitOutcome(result, seconds, max(len(workers), 1)))
+    results = outputs(loaded.fit, FitOutcome(result, seconds, max(len(workers), 1)))
+    report = results.report
     report["videos"] = [  # as the lab knows them, never server paths or storage keys
         {"id": v.id, "filename": v.filename, "name": v.name, "metadata": v.meta, "frames": v.frames,
          "announced_frames": v.announced_frames, "warning": missing_frames(v)}
@@ -476,7 +487,7 @@ def _report(session: Session, loaded: _Loaded, result: Any, fits: list[ImageFit]
     report["service"] = {"job_id": job.id, "chunks": job.chunks_total, "workers": sorted(workers),
                          "histogram_version_id": job.histogram_version_id,
                          "attempts_total": sum(f.attempts for f in fits)}
-    return report
+    return results
 
 
 def _labels(session: Session, job: Job) -> dict[str, Any]:

@@ -91,4 +91,4 @@ def reanalyse_image(self: Task, job_id: int, sample: int, attempt: int) -> None:
     """One more attempt on one image; the last one pending finishes the job."""
     job_id = int(job_id)
     with _recorded(f"job {job_id} image {sample}", lambda msg: orchestration.fail_job(job_id, msg)):
-        orchestration.reanalyse(job_id, int(sample), int(attempt), worker=self.request.hostname or "")
+        orchestration.run_attempt(job_id, int(sample), int(attempt), worker=self.request.hostname or "")

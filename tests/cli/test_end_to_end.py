@@ -11,10 +11,11 @@ from typer.testing import CliRunner
 from cli.app import app
 from core.detect import detect
 from core.examples import EXAMPLES
-from core.fit import FitParams, Status, fit_sequence
+from core.fit import FitParams, Status
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
+from core.sequence import fit_sequence
 from core.synth import natural_movements, render_frames, write_video
 
 

@@ -10,10 +10,11 @@ import pytest
 from core.ambiguity import Candidate, FlipGeometry, choose_candidates, flip_alternatives
 from core.error import Detections, view_error
 from core.examples import LOCUST
-from core.fit import FitParams, ImageFit, Status, fit_sequence
+from core.fit import FitParams, ImageFit, Status
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
+from core.sequence import fit_sequence
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,5 @@
-"""The fit of images and sequences (core.fit): chunks, merge, re-analysis, restarts, outliers."""
+"""Fitting images (core.fit) and sequences (core.sequence): chunks, merge, re-analysis, restarts,
+outliers."""
 
 from __future__ import annotations
 
@@ -15,13 +16,11 @@ from core.fit import (
     FitParams,
     ImageFit,
     Status,
-    fit_chunk,
-    fit_sequence,
     needs_reanalysis,
     reanalyse_image,
-    typical_objective,
 )
 from core.histogram import Histograms
+from core.sequence import fit_chunk, fit_sequence, plan_reanalysis, typical_objective
 
 
 def test_fit_sequence_recovers_postures(locust):
@@ -206,3 +205,22 @@ def test_outliers_are_reanalysed_as_if_over_the_threshold():
     assert not needs_reanalysis(replace(fit, attempts=params.max_attempts), params, typical=0.1)
     assert needs_reanalysis(replace(fit, status=Status.OVER_THRESHOLD), params)
 
+
+
+def test_the_reanalysis_plan_merges_by_counts_and_picks_each_image_with_its_next_attempt(locust):
+    """Step 3, as fit_sequence and the workers both take it: merged constraints, the typical
+    objective of the images with detections, and (sample, next attempt) of the misfits."""
+    model, _ = locust
+    prior = Histograms.uniform(model, prior_weight=20)
+    chunk_a, chunk_b = Histograms.empty(model), Histograms.empty(model)
+    chunk_a.update(np.array([150.0, 20.0, 0.0, 20.0, 90.0]))
+    chunk_b.update(np.array([140.0, 30.0, 5.0, 10.0, 80.0]))
+    good = ImageFit(0, np.zeros(5), 0.2, 0.2, 1, Status.OK, 500, (4, 4))
+    fits = [good, replace(good, sample=1, objective=0.1), replace(good, sample=2, objective=6.0),
+            replace(good, sample=3, status=Status.OVER_THRESHOLD, attempts=2),
+            ImageFit(4, np.full(5, np.nan), math.nan, math.nan, 0, Status.NO_DETECTIONS, 0, (0, 0))]
+    plan = plan_reanalysis(prior, [chunk_a, chunk_b], fits, FitParams())
+    assert plan.typical == pytest.approx(0.2)  # the median of 0.2, 0.1, 6.0 and 0.2
+    assert plan.images == [(2, 2), (3, 3)]  # an outlier, and an image over the threshold
+    np.testing.assert_allclose(plan.histograms.counts, prior.counts + 2)
+    np.testing.assert_allclose(plan.histograms.probs, prior.merge(chunk_a, chunk_b).probs, atol=1e-12)

@@ -10,7 +10,7 @@ import pytest
 
 from core.error import Detections
 from core.examples import LOCUST
-from core.fit import FitParams, ImageFit, Status, fit_sequence
+from core.fit import FitParams, ImageFit, Status
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.results import (
@@ -22,6 +22,7 @@ from core.results import (
     write_truth_csv,
 )
 from core.rig import Rig
+from core.sequence import fit_sequence
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,7 @@
 """Robustness of the whole chain (render → detect → fit) with asserted, measured bounds.
 
 Every test renders frames with ``core.synth.render_frames``, detects them with
-``core.detect.detect``, fits them with ``core.fit.fit_sequence`` with the default
+``core.detect.detect``, fits them with ``core.sequence.fit_sequence`` with the default
 ``FitParams`` apart from ``fusion_px = 8`` (twice the 4 px markers' diameter, as
 ``bench/accuracy.py``), and
 compares to the truth; interlaced footage and frames without markers go through files
@@ -33,11 +33,12 @@ from core.benchmark import single_view
 from core.detect import detect
 from core.error import Detections
 from core.examples import EXAMPLES
-from core.fit import FitParams, SequenceResult, Status, fit_sequence
+from core.fit import FitParams, Status
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.results import read_angles_csv
 from core.rig import Rig
+from core.sequence import SequenceResult, fit_sequence
 from core.synth import natural_movements, read_truth_csv, render_frames, write_video
 
 LOCUST, STICK_INSECT = "locust_hind_leg", "stick_insect_front_leg"

@@ -8,10 +8,11 @@ import pytest
 from core.detect import detect
 from core.error import Detections
 from core.examples import LOCUST
-from core.fit import FitParams, fit_sequence
+from core.fit import FitParams
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
+from core.sequence import fit_sequence
 from core.synth import render_frames
 from core.track import RootTracking, root_reference, track_root
 

@@ -8,10 +8,11 @@ from tree_subjects import FREE_ROOT, angle_errors, detections, insect, movement,
 
 from core import _kernels
 from core.examples import EXAMPLES
-from core.fit import FitParams, fit_sequence
+from core.fit import FitParams
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
+from core.sequence import fit_sequence
 from core.treefit import two_sided_error
 
 # ---- decomposition ---------------------------------------------------------------------------

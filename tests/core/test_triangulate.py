@@ -10,9 +10,10 @@ from core.anneal import AnnealParams, search_space
 from core.epipolar_start import branch_start
 from core.error import Detections, view_offsets
 from core.examples import EXAMPLES
-from core.fit import FitParams, fit_sequence
+from core.fit import FitParams
 from core.histogram import Histograms
 from core.rig import Rig
+from core.sequence import fit_sequence
 from core.tree import decompose
 from core.triangulate import MAX_BLOBS_PER_VIEW, MAX_CANDIDATES, Candidates, triangulate
 from tests.core.tree_subjects import insect, movement, ring_rig

@@ -15,11 +15,12 @@ import pytest
 from core.ambiguity import Candidate, angle_gaps
 from core.error import Detections, view_error
 from core.examples import EXAMPLES
-from core.fit import FitParams, alternative_tolerance, fit_sequence
+from core.fit import FitParams, alternative_tolerance
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.refine import refine
 from core.rig import Rig
+from core.sequence import fit_sequence
 from core.undetermined import (
     UNDETERMINED_DEG,
     confidence_chi2,

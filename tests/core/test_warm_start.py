@@ -16,13 +16,13 @@ from core.fit import (
     ImageFit,
     Status,
     fit_image,
-    fit_sequence,
     image_stream,
     reanalyse_image,
 )
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
+from core.sequence import fit_sequence
 from core.treefit import shared_projections
 
 SEED = 1  # with this seed the locust's side view lands on the mirror in 11 of 24 images (checked below)

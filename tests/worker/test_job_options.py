@@ -29,7 +29,7 @@ OPTIONS = {"chunk_size": CHUNK_SIZE, "marker_diameter_px": 4.0, "max_attempts": 
 def _drain(queue: Recorder) -> None:
     while messages := queue.take():
         for name, args in messages:
-            run = {FIT_CHUNK: orchestration.run_chunk, REANALYSE_IMAGE: orchestration.reanalyse}[name]
+            run = {FIT_CHUNK: orchestration.run_chunk, REANALYSE_IMAGE: orchestration.run_attempt}[name]
             run(*args, worker="test-worker")
 
 

@@ -43,7 +43,7 @@ def _run(name: str, args: tuple[int, ...]) -> None:
     if name == FIT_CHUNK:
         orchestration.run_chunk(*args, worker=WORKER)
     elif name == REANALYSE_IMAGE:
-        orchestration.reanalyse(*args, worker=WORKER)
+        orchestration.run_attempt(*args, worker=WORKER)
     else:
         raise AssertionError(f"unexpected message {name}{args}")
 
@@ -140,16 +140,28 @@ def test_merging_twice_queues_the_reanalysis_once(queue: Recorder, job_id: int) 
 def test_a_reanalysis_delivered_twice_is_stored_once(queue: Recorder, job_id: int) -> None:
     _fit_all_chunks(queue, job_id)
     sample = MISFIT[0]
-    orchestration.reanalyse(job_id, sample, 2, worker=WORKER)
+    orchestration.run_attempt(job_id, sample, 2, worker=WORKER)
     job, sent = _job(job_id), queue.take()
     attempts = _count(Attempt, job_id)
     assert attempts == IMAGES + 1
-    orchestration.reanalyse(job_id, sample, 2, worker=WORKER)
+    orchestration.run_attempt(job_id, sample, 2, worker=WORKER)
     assert queue.take() == []
     assert _job(job_id) == job
     assert _count(Attempt, job_id) == attempts
     # max_attempts is 2: this image needs no third attempt, one re-analysis is left pending.
     assert sent == [] and job["reanalyses_pending"] == len(MISFIT) - 1
+
+
+def test_the_reaper_finds_pending_reanalyses_by_the_rule_that_queued_them(
+    queue: Recorder, job_id: int
+) -> None:
+    sent = _fit_all_chunks(queue, job_id)
+    with session_scope() as session:
+        pending = orchestration.pending_reanalyses(session, job_id)
+    assert [(REANALYSE_IMAGE, (job_id, sample, attempt)) for sample, attempt in pending] == sent
+    orchestration.run_attempt(job_id, MISFIT[0], 2, worker=WORKER)  # max_attempts 2: settled
+    with session_scope() as session:
+        assert orchestration.pending_reanalyses(session, job_id) == [(MISFIT[1], 2)]
 
 
 def test_a_job_finishes_exactly_once(queue: Recorder, job_id: int) -> None:
@@ -162,7 +174,7 @@ def test_a_job_finishes_exactly_once(queue: Recorder, job_id: int) -> None:
 
     orchestration._finish(job_id)
     orchestration.resume(job_id)
-    orchestration.reanalyse(job_id, MISFIT[-1], 2, worker=WORKER)
+    orchestration.run_attempt(job_id, MISFIT[-1], 2, worker=WORKER)
     assert queue.take() == []
     assert _job(job_id) == job
     assert _archive_versions(job_id) == 2

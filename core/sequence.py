@@ -1,0 +1,305 @@
+"""A sequence's steps: chunks → merge and pick → re-analysis → finish, each defined once.
+
+``mocap fit`` (:func:`fit_sequence`, in this process or a pool of processes) and the
+service's workers (``worker.orchestration``, one task per chunk and per attempt) call
+these same functions; the workers add only the database, the queue and idempotence.
+
+1. :func:`plan_chunks` splits the images into contiguous chunks (``core.pipeline.plan``
+   adds the root tracking of a video job).
+2. :func:`fit_chunk` fits a chunk's images once each (``core.fit.first_attempt``), starting
+   from the given histograms and updating a working copy after every image whose error is
+   within the threshold (Eq. 4). It returns the fits and the *observed* histograms of its
+   images alone.
+3. :func:`plan_reanalysis`: the prior merged with every chunk's observed histograms
+   (count-weighted; exactly the sequential Eq. 4 update when there is one chunk), the
+   sequence's :func:`typical_objective`, and the images ``core.fit.needs_reanalysis``
+   picks (over the threshold, or far above the typical objective), with their next attempt.
+4. Each picked image is re-analysed (paper §3.2) with the merged histograms as constraints,
+   one ``core.fit.reanalyse_image`` attempt at a time, up to ``max_attempts``, keeping its
+   best posture; the attempts start from postures drawn from the histograms.
+5. :func:`finish_sequence`: each image's posture chosen among its alternatives by
+   continuity, and the prior updated by the final posture of every image within the
+   threshold. ``core.pipeline.outputs`` then gives the result files' contents.
+
+An image's random stream depends only on ``(seed, sample, attempt)`` and a chunk's first
+image starts cold, so any chunk can be fitted by any worker, in any order, and give the
+same postures as a single process fitting the same chunks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, replace
+from functools import partial
+
+import numpy as np
+
+from core.ambiguity import Candidate, FlipGeometry, choose_candidates
+from core.error import Detections
+from core.fit import (
+    FitParams,
+    ImageFit,
+    Status,
+    first_attempt,
+    image_status,
+    needs_reanalysis,
+    reanalyse_image,
+)
+from core.histogram import Histograms
+from core.model import KinematicModel
+from core.rig import Rig
+
+__all__ = [
+    "ChunkResult",
+    "Reanalysis",
+    "SequenceResult",
+    "finish_sequence",
+    "fit_chunk",
+    "fit_sequence",
+    "images_to_reanalyse",
+    "plan_chunks",
+    "plan_reanalysis",
+    "typical_objective",
+]
+
+
+@dataclass(frozen=True)
+class ChunkResult:
+    """Fits of a chunk, in sample order, and the histograms of its accepted angles alone."""
+
+    fits: list[ImageFit]
+    observed: Histograms
+
+
+@dataclass(frozen=True)
+class Reanalysis:
+    """What step 3 decided once every chunk is fitted.
+
+    histograms : the prior merged with every chunk's observations: the re-analyses' constraints.
+    typical : the sequence's :func:`typical_objective` of the first attempts.
+    images : (sample, next attempt) of every image to re-analyse, in sample order.
+    """
+
+    histograms: Histograms
+    typical: float
+    images: list[tuple[int, int]]
+
+
+@dataclass(frozen=True)
+class SequenceResult:
+    """Fits of a sequence in sample order, and the prior updated by every accepted image.
+
+    observed : the histograms of the accepted images alone (``histograms`` is the
+        prior merged with it), to fold a job into an archive that has moved on.
+    """
+
+    fits: list[ImageFit]
+    histograms: Histograms
+    observed: Histograms
+
+
+def plan_chunks(n_images: int, chunk_size: int | None) -> list[tuple[int, int]]:
+    """Step 1: contiguous ``[first, last)`` sample ranges covering ``n_images``; one chunk for ``None``."""
+    if chunk_size is not None and (isinstance(chunk_size, bool) or chunk_size < 1):
+        raise ValueError(f"chunk_size must be at least 1, got {chunk_size!r}")
+    size = max(n_images, 1) if chunk_size is None else chunk_size
+    return [(a, min(a + size, n_images)) for a in range(0, n_images, size)]
+
+
+def fit_chunk(
+    images: Iterable[Detections],
+    *,
+    model: KinematicModel,
+    rig: Rig,
+    histograms: Histograms,
+    params: FitParams,
+    seed: int,
+    first_sample: int = 0,
+    offsets: Iterable[np.ndarray | None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+    progress: Callable[[ImageFit], None] | None = None,
+) -> ChunkResult:
+    """Step 2: fit a contiguous run of images once each.
+
+    Parameters
+    ----------
+    images : iterable of Detections, samples ``first_sample, first_sample + 1, …``.
+    histograms : the constraints at the start of the chunk; not modified.
+    seed : the job's seed; image ``s`` uses ``core.fit.image_stream`` ``(seed, s, 1)``.
+        Each image after the chunk's first starts from the previous images' postures
+        (warm starts, :func:`_warm_starts`) and tries the previous one as an alternative;
+        the chunk's first image starts cold, so a chunk's fits depend on its first sample
+        and nothing before it: fitted anywhere, the same chunks give the same fits.
+    offsets : optional per-image (V, 2) view offsets (root tracking), same length as images.
+    should_stop : checked between images; returning True ends the chunk early (cancel).
+    progress : called with every finished image.
+    """
+    working = histograms.copy()
+    observed = Histograms.empty(model, bins=histograms.bins)
+    rot = model.rotational
+    geometry = FlipGeometry.of(model, rig)
+    offset_iter = iter(offsets) if offsets is not None else None
+    fits: list[ImageFit] = []
+    for k, det in enumerate(images):
+        if should_stop is not None and should_stop():
+            break
+        fit = first_attempt(
+            det, first_sample + k, model=model, rig=rig, histograms=working, params=params,
+            seed=seed, geometry=geometry, offsets=next(offset_iter) if offset_iter is not None else None,
+            warm=_warm_starts(fits, model),
+        )
+        if fit.status is Status.OK:
+            working.update(fit.dofs[rot])
+            observed.update(fit.dofs[rot])
+        fits.append(fit)
+        if progress is not None:
+            progress(fit)
+    return ChunkResult(fits, observed)
+
+
+def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:
+    """Warm starts of the image after ``fits`` (the chunk's so far), (k, D), best guess first:
+    the last posture moved on by its last step (constant velocity, within the ranges), then
+    the last posture itself; None at a chunk's first image and after an image without a
+    posture, so that a chunk's fits depend on nothing before it.
+
+    >>> from core.examples import LOCUST
+    >>> from core.model import KinematicModel
+    >>> model = KinematicModel.from_xml(LOCUST / "model.xml")
+    >>> fit = ImageFit(0, model.lower + 10.0, 0.1, 0.1, 1, Status.OK, 1, (4, 4))
+    >>> _warm_starts([], model) is None, _warm_starts([fit], model).shape
+    (True, (1, 5))
+    >>> moved = replace(fit, sample=1, dofs=model.lower + 12.0)
+    >>> (_warm_starts([fit, moved], model)[:, 0] - model.lower[0]).tolist()
+    [14.0, 12.0]
+    """
+    if not fits or not np.all(np.isfinite(last := fits[-1].dofs)):
+        return None
+    if len(fits) < 2 or not np.all(np.isfinite(before := fits[-2].dofs)):
+        return last[None]
+    return np.vstack([np.clip(2.0 * last - before, model.lower, model.upper), last])
+
+
+def typical_objective(fits: Iterable[ImageFit]) -> float:
+    """The median objective of a sequence's fitted images (NaN without any): what a good fit
+    of this footage scores, for ``core.fit.needs_reanalysis``."""
+    values = [f.objective for f in fits if f.status is not Status.NO_DETECTIONS]
+    return float(np.median(values)) if values else math.nan
+
+
+def images_to_reanalyse(fits: Iterable[ImageFit], params: FitParams,
+                        typical: float) -> list[tuple[int, int]]:
+    """(sample, next attempt) of every fit ``core.fit.needs_reanalysis`` picks, in the order given."""
+    return [(f.sample, f.attempts + 1) for f in fits if needs_reanalysis(f, params, typical)]
+
+
+def plan_reanalysis(prior: Histograms, observed: Iterable[Histograms], fits: Sequence[ImageFit],
+                    params: FitParams) -> Reanalysis:
+    """Step 3, once every chunk is fitted: ``observed`` (each chunk's) merged into ``prior`` by
+    counts, the typical objective of ``fits`` (the chunks' first attempts, in sample order)
+    and the images to re-analyse."""
+    typical = typical_objective(fits)
+    return Reanalysis(prior.merge(*observed), typical, images_to_reanalyse(fits, params, typical))
+
+
+def finish_sequence(
+    prior: Histograms, fits: Sequence[ImageFit], *, model: KinematicModel, params: FitParams
+) -> SequenceResult:
+    """Step 5: the fits in sample order and the prior updated by every image within the threshold.
+
+    With ``params.choose_by_continuity``, each image's posture is first chosen
+    among its alternatives (``core.ambiguity.choose_candidates``). Eq. 4 counts
+    do not depend on the order of the measurements, so the histograms equal
+    updating the prior image by image with the final postures.
+    """
+    ordered = sorted(fits, key=lambda f: f.sample)
+    if params.choose_by_continuity:
+        ordered = _chosen_by_continuity(ordered, len(model.markers), params)
+    observed = Histograms.empty(model, bins=prior.bins)
+    for fit in ordered:
+        if fit.status is Status.OK:
+            observed.update(fit.dofs[model.rotational])
+    return SequenceResult(ordered, prior.merge(observed), observed)
+
+
+def _chosen_by_continuity(fits: list[ImageFit], n_markers: int, params: FitParams) -> list[ImageFit]:
+    candidates = [
+        [] if f.status is Status.NO_DETECTIONS
+        else [Candidate(f.dofs, f.error, f.objective), *f.alternatives]
+        for f in fits
+    ]
+    out = []
+    for fit, cands, k in zip(fits, candidates, choose_candidates(candidates), strict=True):
+        if k:
+            chosen = cands[k]
+            fit = replace(fit, dofs=chosen.dofs, error=chosen.error, objective=chosen.objective,
+                          status=image_status(chosen.error, fit.detections, n_markers, params),
+                          alternatives=tuple(c for i, c in enumerate(cands) if i != k))
+        out.append(fit)
+    return out
+
+
+def fit_sequence(
+    images: Sequence[Detections],
+    *,
+    model: KinematicModel,
+    rig: Rig,
+    histograms: Histograms,
+    params: FitParams,
+    seed: int,
+    chunk_size: int | None = None,
+    offsets: Sequence[np.ndarray | None] | None = None,
+    progress: Callable[[ImageFit], None] | None = None,
+    map_chunks: Callable[..., Iterable[ChunkResult]] = map,
+) -> SequenceResult:
+    """Fit every image of a sequence: the module's five steps, in this process or, through
+    ``map_chunks``, in others.
+
+    Parameters
+    ----------
+    images : sequence of Detections; slicing ``images[a:b]`` may return any iterable
+        (a video source decodes that range lazily), ``images[i]`` one image.
+    chunk_size : images per chunk; ``None`` fits the sequence as one chunk (histograms
+        adapt over the whole sequence, as in the paper). A chunked fit reproduces exactly
+        what workers fitting those chunks in parallel produce.
+    progress : called with every image fitted in this process.
+    map_chunks : ``map`` or an executor's ``map``, to fit chunks, then re-analyse images, in
+        other processes.
+    """
+    n = len(images)
+    if offsets is not None and len(offsets) != n:
+        raise ValueError(f"offsets has {len(offsets)} entries for {n} images")
+    run = partial(_fit_range, images, model, rig, histograms, params, seed, offsets, progress)
+    chunks = list(map_chunks(run, plan_chunks(n, chunk_size)))
+    fits = [f for c in chunks for f in c.fits]  # fits[s] is sample s: the chunks cover 0..n-1
+    todo = plan_reanalysis(histograms, [c.observed for c in chunks], fits, params)
+    samples = [sample for sample, _ in todo.images]
+    redo = partial(_attempts_while_needed, images, model, rig, todo.histograms, params, seed,
+                   offsets, todo.typical)
+    for sample, fit in zip(samples, map_chunks(redo, [fits[s] for s in samples]), strict=True):
+        fits[sample] = fit
+    return finish_sequence(histograms, fits, model=model, params=params)
+
+
+def _attempts_while_needed(images, model, rig, histograms, params, seed, offsets, typical,
+                           fit) -> ImageFit:
+    """Step 4 for one image of :func:`fit_sequence`: attempts while it needs them (a
+    module-level function, so that the processes fitting the chunks share the re-analyses;
+    an image's attempts depend on nothing but itself and ``histograms``)."""
+    det = images[fit.sample]
+    while needs_reanalysis(fit, params, typical):
+        fit = reanalyse_image(
+            det, fit, model=model, rig=rig, histograms=histograms, params=params, seed=seed,
+            offsets=None if offsets is None else offsets[fit.sample], typical=typical,
+        )
+    return fit
+
+
+def _fit_range(images, model, rig, histograms, params, seed, offsets, progress, bounds) -> ChunkResult:
+    """One chunk of :func:`fit_sequence` (a module-level function, so processes can run it)."""
+    a, b = bounds
+    return fit_chunk(
+        images[a:b], model=model, rig=rig, histograms=histograms, params=params, seed=seed,
+        first_sample=a, offsets=None if offsets is None else offsets[a:b], progress=progress,
+    )
