@@ -8,6 +8,7 @@ RUN apt-get update && apt-get install -y --no-install-recommends libglib2.0-0 \
 WORKDIR /app
 COPY pyproject.toml README.md alembic.ini ./
 COPY core core
+COPY cli cli
 COPY service service
 COPY worker worker
 COPY migrations migrations

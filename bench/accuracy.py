@@ -19,7 +19,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core.demo import (
+from core.benchmark import (
     FPS,
     FUSION_PX,
     detection_rms_px,

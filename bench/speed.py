@@ -3,7 +3,7 @@
     python bench/speed.py [--samples 668] [--long-frames 10000] [--repeats 3]
 
 Renders the locust benchmark of paper §3.2 (668 images of natural movement,
-``core/demo.py``) and prints, with the ratio to each target:
+``core/benchmark.py``) and prints, with the ratio to each target:
 
 - one core (the process pinned to one CPU), Table 1 parameters plus refinement:
   marker detection (720×576 frames, two rois, frames already decoded), fitting
@@ -40,7 +40,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from core.anneal import AnnealParams
-from core.demo import FUSION_PX, MARKER_DIAMETER_PX, locust_benchmark
+from core.benchmark import FUSION_PX, MARKER_DIAMETER_PX, locust_benchmark
 from core.detect import detect
 from core.examples import LOCUST
 from core.fit import FitParams
@@ -163,7 +163,7 @@ def jobs_speedup(model, rig, workdir: Path, samples: int, repeats: int) -> None:
 # this benchmark's own peak (it holds the rendered frames).
 PEAK_RSS = """
 import sys
-from core.cli import run
+from cli.app import run
 try:
     run()
 finally:

@@ -24,7 +24,6 @@ pixels (FORMATS §2).
 from __future__ import annotations
 
 import functools
-import numbers
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -32,6 +31,7 @@ import cv2
 import numpy as np
 
 from core import _kernels
+from core.bounds import OptionError, check_options, option
 from core.error import Detections
 from core.rig import Rig
 from core.video import MAX_FRAME_PIXELS
@@ -60,11 +60,6 @@ MAX_MORPHOLOGY_ITERATIONS = 20
 MAX_BLUR = 99
 
 
-def _check_int(name: str, value: object, minimum: int, maximum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not minimum <= value <= maximum:
-        raise ValueError(f"{name} must be an integer in {minimum}..{maximum}, got {value!r}")
-
-
 @dataclass(frozen=True)
 class DetectorParams:
     """Parameters of the detection filter chain (paper Fig. 1), validated on creation.
@@ -88,34 +83,26 @@ class DetectorParams:
         Pixels of a region (after erosion and dilation) for it to count as a marker.
     """
 
-    channel: str = "grey"
-    threshold: float | str = 100
-    erode: int = 0
-    dilate: int = 0
-    blur: int = 0
-    min_area: int = 2
-    max_area: int = 2000
+    channel: str = option("grey", kind=str, words=CHANNELS, help="intensity used (colour frames: BGR)")
+    threshold: float | str = option(100.0, ge=0, le=255, words=("otsu",),
+                                    help="a pixel brighter than this grey level is a marker's; 'otsu': "
+                                         "picked per view and image")
+    erode: int = option(0, kind=int, ge=0, le=MAX_MORPHOLOGY_ITERATIONS,
+                        help="erosion iterations after the threshold")
+    dilate: int = option(0, kind=int, ge=0, le=MAX_MORPHOLOGY_ITERATIONS,
+                         help="dilation iterations after erosion")
+    blur: int = option(0, kind=int, ge=0, le=MAX_BLUR,
+                       help="Gaussian blur kernel before the threshold (0: none, else odd)")
+    min_area: int = option(2, kind=int, ge=1, le=MAX_FRAME_PIXELS, help="smallest marker region, pixels")
+    max_area: int = option(2000, kind=int, ge=1, le=MAX_FRAME_PIXELS,
+                           help="largest marker region, pixels (>= min_area)")
 
     def __post_init__(self) -> None:
-        if self.channel not in CHANNELS:
-            raise ValueError(f"channel must be one of {', '.join(CHANNELS)}, got {self.channel!r}")
-        t = self.threshold
-        if isinstance(t, str):
-            if t != "otsu":
-                raise ValueError(f"threshold must be a number 0..255 or 'otsu', got {t!r}")
-        elif isinstance(t, bool) or not isinstance(t, numbers.Real) or not (0 <= t <= 255):
-            raise ValueError(f"threshold must be a number 0..255 or 'otsu', got {t!r}")
-        for name in ("erode", "dilate"):
-            _check_int(name, getattr(self, name), 0, MAX_MORPHOLOGY_ITERATIONS)
-        _check_int("blur", self.blur, 0, MAX_BLUR)
+        check_options(self)
         if self.blur and self.blur % 2 == 0:
-            raise ValueError(f"blur must be 0 (none) or an odd kernel size, got {self.blur!r}")
-        _check_int("min_area", self.min_area, 1, MAX_FRAME_PIXELS)
-        _check_int("max_area", self.max_area, 1, MAX_FRAME_PIXELS)
+            raise OptionError("blur", f"must be 0 (none) or an odd kernel size, got {self.blur!r}")
         if self.max_area < self.min_area:
-            raise ValueError(
-                f"max_area must be >= min_area ({self.min_area}), got {self.max_area!r}"
-            )
+            raise OptionError("max_area", f"must be >= min_area ({self.min_area}), got {self.max_area!r}")
 
 
 def detect(

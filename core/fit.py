@@ -70,6 +70,10 @@ class Status(enum.StrEnum):
 class FitParams:
     """Everything that decides a fit besides the data, the model, the rig and the seed.
 
+    The resolved internal parameters: fit from Python with ``core.options.FitOptions`` and
+    ``build_fit``, which give what ``mocap fit`` and the API minimise (their defaults are the
+    user-facing ones; these defaults are the paper's plain Eq. 5, ``fusion_px`` 0).
+
     error_threshold_px : an image whose Eq. 5 error per compared marker projection
         (:meth:`ImageFit.error_per_marker`) is above this is re-analysed and, if it stays
         above, reported ``over_threshold``; per projection, so that it means the same for

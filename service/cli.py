@@ -1,11 +1,11 @@
 """``mocap``'s service commands (``serve``, ``worker``, ``reap``, ``admin create-lab``,
 ``list-labs``, ``revoke-key``, ``rotate-key``,
-``demo --service``, ``remote …``) added to core's CLI.
+``demo --service``, ``remote …``) added to the CLI of ``cli.app`` (fit, synth, demo …).
 
-This is the console script: it registers the commands below on ``core.cli.app``
+This is the console script: it registers the commands below on ``cli.app.app``
 and runs it. Service code is imported inside the commands, so ``mocap fit``,
 ``synth`` and ``demo`` work where the service's dependencies are not installed;
-``core`` never imports this package.
+neither ``core`` nor ``cli`` imports this package.
 
 It is the composition root, the one module of ``service`` that may import ``worker``
 (``serve`` and ``reap`` run the reaper, ``worker.reaper``): ``worker`` depends on
@@ -28,9 +28,9 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from core.cli import app, user_errors
-from core.cli import demo as local_demo
-from core.cli import run as run_core
+from cli.app import app, user_errors
+from cli.app import demo as local_demo
+from cli.app import run as run_core
 from service.remote import remote
 
 if TYPE_CHECKING:

@@ -21,7 +21,6 @@ from core.video import VideoError, check_synchronised, probe
 from service import histstore, limits
 from service.db import rows_changed
 from service.errors import ConflictError, InvalidError, NotFoundError
-from service.fitjob import detector_params, fit_params, marker_diameter
 from service.models import (
     TERMINAL,
     Batch,
@@ -37,7 +36,7 @@ from service.models import (
     Video,
 )
 from service.redact import redact, stored_names, video_label
-from service.schemas import BatchCreate, JobCreate, JobOptions
+from service.schemas import BatchCreate, JobCreate, JobOptions, fit_options
 from service.settings import Settings
 from service.storage import LocalStorage, Storage
 
@@ -286,9 +285,11 @@ def _new_job(
     # Videos that cannot be read as one set (as `mocap fit` reads them) → 422 now, not in a worker.
     check_synchronised([video_label(v) for v in videos], [v.frames for v in videos], [v.fps for v in videos])
     limits.check_frames(videos, settings)
-    params = fit_params(options, marker_diameter(options, None))  # ValueError naming the option → 422
-    detector_params(options)
-    limits.check_cost(model, rig, params, videos, 2 if options.deinterlace else 1, settings)
+    fit = fit_options(options)  # OptionError (ValueError) naming the option → 422
+    if fit.root_marker is not None:
+        fit.root_tracking(KinematicModel.from_xml(model.xml), rig)  # its marker and views → 422 now
+    # The cost with the diameter not yet estimated: the fusion distance does not change it.
+    limits.check_cost(model, rig, fit.fit_params(0.0), videos, 2 if fit.deinterlace else 1, settings)
     start = histogram_version(session, model, options.histogram_version)
     job = Job(lab_id=lab.id, model_id=model.id, rig_id=rig_id, options=options.model_dump(),
               histogram_version_id=start.id, batch_id=None if batch is None else batch.id, trial=trial,

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from core.demo import FPS, MARKER_DIAMETER_PX
+from core.benchmark import FPS, MARKER_DIAMETER_PX
 from core.examples import LOCUST
 from core.model import KinematicModel
 from core.results import AnglesTable, read_angles_csv

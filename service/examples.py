@@ -9,9 +9,11 @@ CREATED = "2026-11-24T09:30:00Z"
 METADATA = {"subject": "locust 7", "condition": "walking", "temperature_c": 24.5}
 DETECTOR = {"threshold": 100.0, "channel": "grey", "blur": 0, "erode": 0, "dilate": 0, "min_area": 2,
             "max_area": 2000}
-OPTIONS = {"deinterlace": False, "field_order": "even-first", "error_threshold_px": 1.25, "max_attempts": 5,
-           "iterations": 35000, "seed": 0, "chunk_size": None, "marker_diameter_px": 4.0,
-           "histogram_version": None, "detector": DETECTOR, "overlay": False, "plots": False}
+FIT_OPTIONS = {"deinterlace": False, "field_order": "even-first", "error_threshold_px": 1.25,
+               "max_attempts": 5, "iterations": 35000, "seed": 0, "chunk_size": None,
+               "marker_diameter_px": 4.0, "detector": DETECTOR, "prior_weight": 100.0,
+               "root_marker": None, "root_start": None, "root_max_jump_px": 20.0}
+OPTIONS = {**FIT_OPTIONS, "histogram_version": None, "overlay": False, "plots": False}
 PROGRESS = {"images_total": 200, "images_done": 120, "images_over_threshold": 2, "reanalyses_pending": 0,
             "chunks_total": 4, "chunks_done": 2}
 RIG = {"views": [

@@ -23,7 +23,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, DownloadColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn
 
-from core.cli import user_errors
+from cli.app import user_errors
 
 if TYPE_CHECKING:
     from service.client import Client

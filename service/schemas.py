@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from datetime import UTC, datetime
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, create_model
 
-from core.detect import MAX_BLUR, MAX_MORPHOLOGY_ITERATIONS
-from core.video import MAX_FRAME_PIXELS
+from core.bounds import Bounds, bounds_of
+from core.detect import DetectorParams
+from core.options import FitOptions
 from service import examples as ex
 from service.errors import InvalidError
 
@@ -121,49 +123,81 @@ def labels_from_query(name: str | None, metadata: str | None) -> tuple[str | Non
         raise InvalidError(f"metadata: {exc.errors()[0]['msg']}") from None
 
 
-class DetectorOptions(BaseModel):
-    """Marker detection (``core.detect.DetectorParams``)."""
+# ---- a job's options: core.options.FitOptions' fields, generated from them -----------------
+def _annotation(bounds: Bounds) -> Any:
+    """The pydantic type of an option of ``core.options`` with its bounds."""
+    kind: Any
+    if bounds.kind is bool:
+        kind = bool
+    elif bounds.kind is str:
+        kind = (Literal[bounds.words] if bounds.words
+                else Annotated[str, Field(min_length=1, max_length=bounds.max_length)])
+    elif bounds.kind is tuple:
+        finite = Annotated[float, Field(allow_inf_nan=False)]
+        kind = Annotated[list[tuple[finite, finite]], Field(min_length=1, max_length=bounds.max_length)]
+    else:
+        limits = {k: v for k in ("ge", "gt", "le", "lt") if (v := getattr(bounds, k)) is not None}
+        kind = Annotated[bounds.kind, Field(**limits, allow_inf_nan=False)]
+        if bounds.words:
+            kind = kind | Literal[bounds.words]
+    return kind | None if bounds.optional else kind
 
-    model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.DETECTOR))
-    threshold: Annotated[float, Field(ge=0, le=255)] | Literal["otsu"] = 100.0
-    channel: Literal["grey", "red", "green", "blue"] = "grey"
-    blur: int = Field(default=0, ge=0, le=MAX_BLUR)
-    erode: int = Field(default=0, ge=0, le=MAX_MORPHOLOGY_ITERATIONS)
-    dilate: int = Field(default=0, ge=0, le=MAX_MORPHOLOGY_ITERATIONS)
-    min_area: int = Field(default=2, ge=1, le=MAX_FRAME_PIXELS)  # pixels of a region: at most a frame
-    max_area: int = Field(default=2000, ge=1, le=MAX_FRAME_PIXELS)
+
+def _options_model(name: str, options: type, example: dict[str, Any], doc: str,
+                   **more: Any) -> type[BaseModel]:
+    """A model of the options of the dataclass ``options`` (its defaults, bounds and help as
+    descriptions), refusing unknown fields; ``more``: fields of other kinds, in their place."""
+    bounds = bounds_of(options)
+    fields: dict[str, Any] = {}
+    for spec in dataclasses.fields(options):
+        if spec.name in more:
+            fields[spec.name] = more[spec.name]
+        else:
+            fields[spec.name] = (_annotation(bounds[spec.name]),
+                                 Field(default=spec.default, description=bounds[spec.name].help))
+    model: type[BaseModel] = create_model(
+        name, __config__=ConfigDict(extra="forbid", json_schema_extra=ex.example(example)), __doc__=doc,
+        __module__=__name__, **fields)
+    return model
 
 
-class JobOptions(BaseModel):
-    """Everything besides model, rig and videos that decides a job's result (as ``mocap fit``).
+if TYPE_CHECKING:  # mypy sees BaseModel; the fields are generated (service code reads FitOptions)
+    DetectorOptions = BaseModel
+    _FitOptionsFields = BaseModel
+else:
+    DetectorOptions = _options_model(
+        "DetectorOptions", DetectorParams, ex.DETECTOR, "Marker detection (``core.detect.DetectorParams``).")
+    _FitOptionsFields = _options_model(
+        "FitOptionsFields", FitOptions, ex.FIT_OPTIONS, "``core.options.FitOptions`` as JSON.",
+        detector=(DetectorOptions, Field(default_factory=DetectorOptions,
+                                         description="marker detection (as `mocap detect` previews it)")))
 
-    histogram_version : the model archive version to start from; None: the latest.
-    chunk_size : images per chunk task; None: the server's default.
+
+class JobOptions(_FitOptionsFields):
+    """Everything besides model, rig and videos that decides a job's result (as ``mocap fit``):
+    the fields of ``core.options.FitOptions`` (generated from it: defaults, bounds, help) and the
+    service's own below. Read the fit's with :func:`fit_options`.
     """
 
     model_config = ConfigDict(extra="forbid", json_schema_extra=ex.example(ex.OPTIONS))
-    deinterlace: bool = False
-    field_order: Literal["even-first", "odd-first"] = "even-first"
-    error_threshold_px: float = Field(
-        default=1.25, gt=0, allow_inf_nan=False,
-        description="Eq. 5 error per compared marker projection (markers x views with any "
-                    "detection) above which an image is re-analysed and reported over_threshold; "
-                    "the paper's 10 px over 4 markers x 2 views is 1.25 px.")
-    max_attempts: int = Field(default=5, ge=1, le=100)
-    iterations: int = Field(default=35000, ge=1, le=10_000_000)
-    seed: int = Field(default=0, ge=0, lt=2**63)
-    chunk_size: int | None = Field(default=None, ge=1, le=1_000_000)
-    marker_diameter_px: Annotated[float, Field(ge=0, le=1000)] | Literal["auto"] = Field(
-        default="auto", description="markers' diameter in pixels, closer markers may image as one "
-        "blob: a number >= 0 (0: the paper's plain Eq. 5) or 'auto' (from the blobs of the first "
-        "images, as `mocap fit` does)")
-    histogram_version: DbId | None = None
-    detector: DetectorOptions = Field(default_factory=DetectorOptions)
+    histogram_version: DbId | None = Field(
+        default=None, description="the version of the model's histogram archive to start from (the "
+        "service's starting histograms); null: the latest. prior_weight applies to a version that is "
+        "the uniform prior (version 1 until a job is folded in)")
     # ---- seeing the fit (service/artifacts.py, docs/SEEING_THE_FIT.md) ----
     overlay: bool = Field(default=False, description="also draw the fit over the video: "
                           "GET /v1/jobs/{id}/artifacts/overlay/... (as `mocap fit --overlay`)")
     plots: bool = Field(default=False, description="also plot angles and histograms: "
                         "GET /v1/jobs/{id}/artifacts/plots/... (as `mocap fit --plots`)")
+
+
+def fit_options(options: JobOptions) -> FitOptions:
+    """A job's options as ``core.options.FitOptions`` (OptionError, a ValueError: 422)."""
+    data = options.model_dump(include={f.name for f in dataclasses.fields(FitOptions)})
+    detector = DetectorParams(**data.pop("detector"))
+    if data["root_start"] is not None:
+        data["root_start"] = tuple((u, v) for u, v in data["root_start"])
+    return FitOptions(**data, detector=detector)
 
 
 class ModelPublic(BaseModel):

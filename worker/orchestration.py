@@ -47,6 +47,8 @@ from datetime import UTC
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
 from sqlalchemy import select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
@@ -70,7 +72,6 @@ from service.models import (
     Batch,
     Chunk,
     ChunkStatus,
-    HistogramVersion,
     ImageResult,
     Job,
     JobStatus,
@@ -110,9 +111,8 @@ def _load(session: Session, job_id: int) -> _Loaded:
     job = session.get_one(Job, job_id)
     if job_id not in _core_cache:
         storage = get_storage()
-        fit = build_fit_job(session, job, storage, get_settings().default_chunk_size)
-        start = session.get_one(HistogramVersion, job.histogram_version_id)
-        _core_cache[job_id] = (fit, histstore.load(storage, start.storage_key, fit.model))
+        built = build_fit_job(session, job, storage, get_settings().default_chunk_size)
+        _core_cache[job_id] = (built.job, built.start)
         while len(_core_cache) > _CACHE_SIZE:
             _core_cache.popitem(last=False)
     _core_cache.move_to_end(job_id)
@@ -134,6 +134,8 @@ def plan_job(job_id: int) -> None:
             logger.info("job %s is %s: nothing to plan", job_id, job.status)
             return
         steps = plan(_load(session, job_id).fit)
+        if steps.offsets is not None:  # root tracking runs once, over the whole sequence
+            get_storage().put(_offsets_key(job_id), [_npy(steps.offsets)])
         # Guarded: with SQLite (no row locks) a cancel may have come in while the videos were probed.
         if not rows_changed(session, update(Job).where(Job.id == job_id, Job.status == JobStatus.QUEUED)
                         .values(status=JobStatus.RUNNING, started_at=utcnow(), images_total=steps.images,
@@ -148,6 +150,26 @@ def plan_job(job_id: int) -> None:
     logger.info("job %s: %d images in %d chunks", job_id, steps.images, len(ids))
     for chunk_id in ids:
         broker.enqueue(FIT_CHUNK, chunk_id)
+
+
+def _offsets_key(job_id: int) -> str:
+    return f"jobs/{job_id}/root_offsets.npy"
+
+
+def _npy(array: NDArray[np.float64]) -> bytes:
+    buffer = io.BytesIO()
+    np.save(buffer, array, allow_pickle=False)
+    return buffer.getvalue()
+
+
+def _root_offsets(job_id: int, fit: FitJob, first: int, last: int) -> NDArray[np.float64] | None:
+    """The planned root-tracking offsets of images ``[first, last)``, (last - first, V, 2), or
+    None without root tracking."""
+    if fit.root is None:
+        return None
+    with get_storage().open(_offsets_key(job_id)) as f:
+        offsets: NDArray[np.float64] = np.load(f, allow_pickle=False)
+    return offsets[first:last]
 
 
 # ---- 2. chunks --------------------------------------------------------------------------------
@@ -166,6 +188,7 @@ def run_chunk(chunk_id: int, *, worker: str) -> None:
         fit = loaded.fit
         result = fit_chunk(_kept(fit.source[first:last], seen), model=fit.model, rig=fit.source.rig,
                            histograms=loaded.prior, params=fit.params, seed=fit.seed, first_sample=first,
+                           offsets=_root_offsets(job_id, fit, first, last),
                            should_stop=_canceled_check(job_id))
     if len(result.fits) < last - first:
         _set_chunk(chunk_id, ChunkStatus.CANCELED)
@@ -331,8 +354,10 @@ def run_attempt(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
         previous = ImageFit.from_record(row.record)
     merged = histstore.load(get_storage(), f"jobs/{job_id}/merged.npz", loaded.fit.model)
     fit_job = loaded.fit
+    offsets = _root_offsets(job_id, fit_job, sample, sample + 1)
     fit = reanalyse_image(fit_job.source[sample], previous, model=fit_job.model, rig=fit_job.source.rig,
-                          histograms=merged, params=fit_job.params, seed=fit_job.seed, typical=typical)
+                          histograms=merged, params=fit_job.params, seed=fit_job.seed, typical=typical,
+                          offsets=None if offsets is None else offsets[0])
     again = needs_reanalysis(fit, fit_job.params, typical)
     over = int(fit.status is Status.OVER_THRESHOLD) - int(previous.status is Status.OVER_THRESHOLD)
     with session_scope() as session:

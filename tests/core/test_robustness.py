@@ -28,8 +28,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from core.cli import app
-from core.demo import single_view
+from cli.app import app
+from core.benchmark import single_view
 from core.detect import detect
 from core.error import Detections
 from core.examples import EXAMPLES

@@ -85,6 +85,11 @@ def test_invalid_model_or_rig_is_422_naming_the_problem(redis_pg, path, body, pr
     ({"detector": {"threshold": float("nan")}}, "detector.threshold"),
     ({"marker_diameter_px": float("inf")}, "marker_diameter_px"),
     ({"seed": -1}, "seed"),
+    ({"prior_weight": 0}, "prior_weight"),
+    ({"root_start": [[240, 184], [240, 438]]}, "root_start needs root_marker"),
+    ({"root_marker": "M0", "root_start": [[240, 184]]}, "root_start has 1 (u, v) pair(s) for a rig of 2"),
+    ({"root_marker": "M9"}, "root marker 'M9' is not a marker"),
+    ({"root_marker": "M0", "root_max_jump_px": 0}, "root_max_jump_px"),
 ])
 def test_absurd_options_are_422_naming_the_option(owner_job, options, problem):
     """NaN and Infinity are sent as the JSON tokens Python's json module writes and reads."""

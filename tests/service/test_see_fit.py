@@ -13,7 +13,7 @@ import pytest
 from svc_helpers import submit, upload_inputs, wait_for
 from typer.testing import CliRunner
 
-from core.cli import app
+from cli.app import app
 from core.detect import DetectorParams, detect
 from core.video import VideoSet
 

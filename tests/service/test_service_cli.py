@@ -22,7 +22,7 @@ def test_the_console_script_loads_no_service_dependency_until_a_service_command_
 
 
 def test_core_never_imports_the_service():
-    loaded = _modules_after("import core, core.cli, core.pipeline")
+    loaded = _modules_after("import core, cli.app, core.pipeline")
     assert "service" not in loaded and "worker" not in loaded
 
 

@@ -10,8 +10,9 @@ folder; the process-wide caches of settings, engine and sessions are cleared aro
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -73,19 +74,30 @@ def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture
-def job_id(queue: Recorder, clip: Path) -> int:
+def submit(queue: Recorder, clip: Path) -> Callable[..., int]:
+    """Submit a queued job on ``clip`` with these options through the service layer, as the API
+    does; its id."""
+
+    def submit_job(**options: Any) -> int:
+        config = settings.get_settings()
+        storage = get_storage()
+        with db.session_scope() as session:
+            lab, _ = create_lab(session, "lab")
+            session.commit()
+            model = crud.create_model(session, storage, lab, (LOCUST / "model.xml").read_bytes())
+            rig = crud.create_rig(session, lab, json.loads((LOCUST / "rig.json").read_text()))
+            storage.put("videos/clip.avi", [clip.read_bytes()])
+            video = crud.register_video(session, storage, lab, config, key="videos/clip.avi",
+                                        filename="clip.avi", size=clip.stat().st_size, sha256="0" * 64)
+            body = JobCreate(model_id=model.id, rig_id=rig.id, video_ids=[video.id],
+                             options=JobOptions.model_validate(options))
+            job = crud.submit_job(session, session.get_one(Lab, lab.id), config, body)
+            return job.id
+
+    return submit_job
+
+
+@pytest.fixture
+def job_id(submit: Callable[..., int]) -> int:
     """A queued job on ``clip`` submitted through the service layer, as the API does."""
-    config = settings.get_settings()
-    storage = get_storage()
-    with db.session_scope() as session:
-        lab, _ = create_lab(session, "lab")
-        session.commit()
-        model = crud.create_model(session, storage, lab, (LOCUST / "model.xml").read_bytes())
-        rig = crud.create_rig(session, lab, json.loads((LOCUST / "rig.json").read_text()))
-        storage.put("videos/clip.avi", [clip.read_bytes()])
-        video = crud.register_video(session, storage, lab, config, key="videos/clip.avi",
-                                    filename="clip.avi", size=clip.stat().st_size, sha256="0" * 64)
-        options = JobOptions(chunk_size=CHUNK_SIZE, marker_diameter_px=4.0, max_attempts=2)
-        body = JobCreate(model_id=model.id, rig_id=rig.id, video_ids=[video.id], options=options)
-        job = crud.submit_job(session, session.get_one(Lab, lab.id), config, body)
-        return job.id
+    return submit(chunk_size=CHUNK_SIZE, marker_diameter_px=4.0, max_attempts=2)

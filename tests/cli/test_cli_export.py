@@ -4,19 +4,25 @@ from __future__ import annotations
 
 import csv
 import json
+import sys
 from pathlib import Path
 
 import ezc3d
 import numpy as np
 import pytest
-from test_export import read_mot, read_trc
 from typer.testing import CliRunner
 
-from core.cli import app
+from cli.app import app
 from core.examples import LOCUST
 from core.export import marker_trajectories
 from core.model import KinematicModel
 from core.results import read_angles_csv
+
+# The MOT and TRC readers of core's export tests (tests/core/test_export.py), whichever
+# directory pytest collects first.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
+
+from test_export import read_mot, read_trc
 
 MODEL = KinematicModel.from_xml(LOCUST / "model.xml")
 

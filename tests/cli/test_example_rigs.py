@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from cli.app import app
 from core.calibration import from_dlt
-from core.cli import app
 from core.examples import LOCUST
 from core.model import KinematicModel
 from core.results import read_angles_csv

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from core.cli import app
+from cli.app import app
 from core.error import fusion_distance
 from core.examples import LOCUST
 from core.histogram import Histograms
@@ -168,8 +168,8 @@ def test_bad_input_exits_2_with_one_line(clip, tmp_path, case, match):
      (["fit", "v.avi", "--model", "m.xml", "--rig", "r.json", "--out", "o"], "cannot read model")],
 )
 def test_the_console_script_turns_usage_errors_into_one_line_and_exit_2(tmp_path, args, match):
-    """The installed entry point (core.cli:run), not typer's test runner: what a user sees."""
-    result = subprocess.run([sys.executable, "-c", "from core.cli import run; run()", *args],
+    """The installed entry point (cli.app:run), not typer's test runner: what a user sees."""
+    result = subprocess.run([sys.executable, "-c", "from cli.app import run; run()", *args],
                             capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert result.returncode == 2
     assert result.stdout == ""

@@ -7,14 +7,13 @@ line on stderr saying what is wrong.
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import cv2
 import numpy as np
@@ -22,26 +21,34 @@ import typer
 from rich.progress import Progress
 from typer.exceptions import TyperException
 
-from core.anneal import AnnealParams
+from cli.options import (
+    detector_options,
+    detector_parameters,
+    fit_options,
+    fit_parameters,
+    flags_in_errors,
+    with_options,
+)
+from core.benchmark import FUSION_PX, locust_benchmark
+from core.bounds import bounds_of
 from core.cost import check_fit_cost, estimate_fit_cost
-from core.demo import FUSION_PX, locust_benchmark
-from core.detect import DetectorParams
-from core.error import fusion_distance
 from core.export import EXPORTS, unit_scale
 from core.fit import FitParams, Status
 from core.histogram import HistogramError, Histograms
 from core.model import KinematicModel, ModelError
+from core.options import FitOptions, build_fit
 from core.overlay import OVERLAY_DIR, job_from_report, overlay_job
-from core.pipeline import FitJob, VideoSource, estimate_marker_diameter, run_fit, write_outputs
+from core.pipeline import FitJob, run_fit, write_outputs
 from core.plots import PLOTS_DIR, write_plots
 from core.preview import preview_frame
 from core.results import read_angles_csv
 from core.rig import Rig, RigError
 from core.sequence import fit_sequence
 from core.synth import natural_movements, read_truth_csv, render_frames, write_truth_csv, write_video
-from core.track import RootTracking
 from core.video import VideoError, VideoSet
 from core.warmup import compile_kernels_saying_so
+
+PRIOR_WEIGHT = bounds_of(FitOptions)["prior_weight"]
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0])
 
@@ -107,85 +114,43 @@ def demo(
 
 Opt = typer.Option
 
-# Detector options (core.detect.DetectorParams), shared by `fit` and `detect`.
-ThresholdOpt = Annotated[str, Opt(help="detection threshold: grey level 0..255 or 'otsu'")]
-ChannelOpt = Annotated[str, Opt(help="grey, red, green or blue")]
-BlurOpt = Annotated[int, Opt(help="Gaussian blur kernel before the threshold (0: none, odd)")]
-ErodeOpt = Annotated[int, Opt(help="erosion iterations after the threshold")]
-DilateOpt = Annotated[int, Opt(help="dilation iterations after erosion")]
-MinAreaOpt = Annotated[int, Opt(help="smallest marker region, pixels")]
-MaxAreaOpt = Annotated[int, Opt(help="largest marker region, pixels")]
-
 
 @app.command()
+@with_options(fit_parameters)
 def fit(
     videos: Annotated[list[Path], typer.Argument(help="video file(s), one per camera of the rig")],
     model: Annotated[Path, Opt("--model", help="model.xml (FORMATS §1)")],
     rig: Annotated[Path, Opt("--rig", help="rig.json (FORMATS §2)")],
     out: Annotated[Path, Opt("--out", help="output directory")],
-    deinterlace: Annotated[bool, Opt("--deinterlace", help="fit both fields of every frame")] = False,
-    field_order: Annotated[str, Opt(help="even-first or odd-first (DV is odd-first)")] = "even-first",
-    error_threshold_px: Annotated[float, Opt(
-        help="re-analyse images whose error per compared marker projection is above this "
-             "(the paper's 10 px over 4 markers x 2 views is 1.25)")] = 1.25,
-    max_attempts: Annotated[int, Opt(help="fits per image at most")] = 5,
-    iterations: Annotated[int, Opt(help="SA iterations N_end (N_l, N_tau scale along)")] = 35000,
-    seed: Annotated[int, Opt(help="random seed: same seed, same result")] = 0,
-    histograms: Annotated[Path | None, Opt("--histograms", help="starting histograms.xml")] = None,
+    histograms: Annotated[Path | None, Opt("--histograms", help="starting histograms.xml "
+                                           "(default: uniform, --prior-weight counts)")] = None,
     jobs: Annotated[int, Opt(min=1, max=256, help="processes fitting chunks in parallel, one core each")] = 1,
-    chunk_size: Annotated[
-        int | None, Opt(min=1, help="images per chunk (default: 4 per process with --jobs)")] = None,
-    marker_diameter_px: Annotated[
-        str, Opt(help="marker diameter in pixels, close markers may image as one blob: a number, "
-                 "'auto' (from the detected blobs of the first images) or 0 (the paper's plain "
-                 "Eq. 5)")] = "auto",
-    threshold: ThresholdOpt = "100",
-    channel: ChannelOpt = "grey",
-    blur: BlurOpt = 0,
-    erode: ErodeOpt = 0,
-    dilate: DilateOpt = 0,
-    min_area: MinAreaOpt = 2,
-    max_area: MaxAreaOpt = 2000,
-    prior_weight: Annotated[float, Opt(help="counts of the uniform prior histograms")] = 100.0,
-    root_marker: Annotated[
-        str | None, Opt(help="track this marker (at the root's origin) to move the root")] = None,
-    root_start: Annotated[
-        str | None, Opt(help="its position in every view of the first image: 'u,v;u,v'")] = None,
-    root_max_jump_px: Annotated[float, Opt(help="largest move of the root marker per image")] = 20.0,
     export: Annotated[str | None, Opt(help="also write some of mot,trc,c3d,detections "
                                       "(docs/INTERCHANGE.md)")] = None,
     export_units: Annotated[str, Opt(help="trc/c3d positions, mot translations: model or m")] = "model",
     # ---- seeing the fit (core.overlay, core.plots; docs/SEEING_THE_FIT.md) ----
     overlay: Annotated[bool, Opt("--overlay", help="then draw the fit over the videos: OUT/overlay")] = False,
     plots: Annotated[bool, Opt("--plots", help="then plot angles and histograms: OUT/plots/")] = False,
+    **options: Any,
 ) -> None:
-    """Detect markers in VIDEO(s) and fit the model to every image: angles, histograms, report."""
+    """Detect markers in VIDEO(s) and fit the model to every image: angles, histograms, report.
+
+    The options after --plots are the fit's (core.options.FitOptions, as the API's JobOptions).
+    """
     with user_errors():
         exports = _export_kinds(export, EXPORTS)
+        fit_opts = fit_options(options)
         kinematic = KinematicModel.from_xml(model)
         if exports:
             unit_scale(kinematic, export_units)
         camera_rig = Rig.from_json(rig)
-        if len(videos) != camera_rig.n_videos:
-            raise ValueError(f"the rig expects {camera_rig.n_videos} video(s), got {len(videos)}")
-        start = (Histograms.from_xml(histograms, kinematic) if histograms is not None
-                 else Histograms.uniform(kinematic, prior_weight=prior_weight))
-        diameter = _diameter(marker_diameter_px)
-        detector = _detector(threshold, channel, blur, erode, dilate, min_area, max_area)
-        source = VideoSource(tuple(videos), camera_rig, detector, deinterlace, field_order)
-        params = FitParams(
-            anneal=AnnealParams().with_iterations(iterations), error_threshold_px=error_threshold_px,
-            max_attempts=max_attempts,
-        )
-        check_fit_cost(estimate_fit_cost(kinematic, camera_rig, params, images=len(source)))
-        if diameter is None:
-            diameter = estimate_marker_diameter(source) or 0.0
-        params = replace(params, fusion_px=fusion_distance(diameter))
-        root = None if root_marker is None else RootTracking(
-            root_marker, _positions(root_start), root_max_jump_px)
-        job = FitJob(source, kinematic, params, seed, chunk_size, root)
-        with progress_bar(len(source)) as advance:
-            outcome = run_fit(job, start, jobs=jobs, progress=advance)
+        start = None if histograms is None else Histograms.from_xml(histograms, kinematic)
+        with flags_in_errors():
+            built = build_fit(fit_opts, kinematic, camera_rig, videos, start)
+        job = built.job
+        check_fit_cost(estimate_fit_cost(kinematic, camera_rig, job.params, images=len(job.source)))
+        with progress_bar(len(job.source)) as advance:
+            outcome = run_fit(job, built.start, jobs=jobs, progress=advance)
         report = write_outputs(out, job, outcome)
         exported = _export_fit(out, exports, export_units, job)
     print(f"{report['images']} images in {report['seconds']} s ({report['images_per_s']} images/s); "
@@ -195,50 +160,7 @@ def fit(
         if overlay:
             _draw_overlay(job, out, OVERLAY_WORST)
         if plots:
-            _draw_plots(out, kinematic, start, outcome.result.histograms)
-
-
-def _detector(threshold: str, channel: str, blur: int, erode: int, dilate: int, min_area: int,
-              max_area: int) -> DetectorParams:
-    """The detector options of `fit` and `detect` as DetectorParams (ValueError naming the option)."""
-    return DetectorParams(channel=channel, threshold=_threshold(threshold), erode=erode,
-                          dilate=dilate, blur=blur, min_area=min_area, max_area=max_area)
-
-
-def _positions(text: str | None) -> tuple[tuple[float, float], ...] | None:
-    """--root-start: 'u,v;u,v' (one pair per view) → ((u, v), (u, v))."""
-    if text is None:
-        return None
-    try:
-        pairs = tuple(tuple(float(x) for x in pair.split(",")) for pair in text.split(";"))
-    except ValueError:
-        raise ValueError(f"--root-start must be 'u,v;u,v' (numbers), got {text!r}") from None
-    if any(len(p) != 2 for p in pairs):
-        raise ValueError(f"--root-start must be 'u,v;u,v', one pair per view, got {text!r}")
-    return pairs  # type: ignore[return-value]
-
-
-def _diameter(text: str) -> float | None:
-    """--marker-diameter-px: 'auto' (None) or a number of pixels >= 0."""
-    if text == "auto":
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"--marker-diameter-px must be 'auto' or a number >= 0, got {text!r}")
-    return value
-
-
-def _threshold(text: str) -> float | str:
-    """--threshold: 'otsu' or a grey level."""
-    if text == "otsu":
-        return text
-    try:
-        return float(text)
-    except ValueError:
-        raise ValueError(f"--threshold must be a grey level 0..255 or 'otsu', got {text!r}") from None
+            _draw_plots(out, kinematic, built.start, outcome.result.histograms)
 
 
 @contextmanager
@@ -406,35 +328,30 @@ def plots(
     model: Annotated[Path | None, Opt("--model", help="model.xml (default: RESULTS/model.xml)")] = None,
     histograms: Annotated[Path | None, Opt("--histograms", help="the fit's starting histograms.xml "
                                            "(default: uniform, --prior-weight counts)")] = None,
-    prior_weight: Annotated[float, Opt(help="counts of the uniform starting histograms")] = 100.0,
+    prior_weight: Annotated[float, Opt(help=PRIOR_WEIGHT.help)] = FitOptions.prior_weight,
 ) -> None:
     """Plot a computed fit: RESULTS/plots/angles.{png,svg} and histograms.{png,svg}."""
     with user_errors():
         kinematic = KinematicModel.from_xml(_in_results(model, results, "model.xml", "--model"))
         start = (Histograms.from_xml(histograms, kinematic) if histograms is not None
-                 else Histograms.uniform(kinematic, prior_weight=prior_weight))
+                 else _uniform_prior(kinematic, prior_weight))
         final = Histograms.from_xml(_in_results(None, results, "histograms.xml", ""), kinematic)
         _draw_plots(results, kinematic, start, final)
 
 
 @app.command()
+@with_options(detector_parameters)
 def detect(
     videos: Annotated[list[Path], typer.Argument(help="video file(s), one per camera of the rig")],
     rig: Annotated[Path, Opt("--rig", help="rig.json (FORMATS §2)")],
     out: Annotated[Path, Opt("--out", help="output directory for the preview images")],
     frames: Annotated[str, Opt(help="frame indices, comma-separated")] = "0",
-    threshold: ThresholdOpt = "100",
-    channel: ChannelOpt = "grey",
-    blur: BlurOpt = 0,
-    erode: ErodeOpt = 0,
-    dilate: DilateOpt = 0,
-    min_area: MinAreaOpt = 2,
-    max_area: MaxAreaOpt = 2000,
+    **options: Any,
 ) -> None:
     """Preview detection on a few frames: each view's roi, thresholded mask and centroids; counts."""
     with user_errors():
         camera_rig = Rig.from_json(rig)
-        detector = _detector(threshold, channel, blur, erode, dilate, min_area, max_area)
+        detector = detector_options(options)
         indices = _frame_indices(frames)
         video_set = VideoSet(videos)
         camera_rig.check_videos([(i.width, i.height) for i in video_set.infos])
@@ -452,6 +369,11 @@ def detect(
         (out / "counts.json").write_text(json.dumps({"detector": asdict(detector), "counts": counts},
                                                     indent=2) + "\n")
     print(f"wrote {len(indices) * camera_rig.n_videos} image(s) and counts.json to {out}")
+
+
+def _uniform_prior(model: KinematicModel, prior_weight: float) -> Histograms:
+    with flags_in_errors():
+        return FitOptions(prior_weight=prior_weight).uniform_prior(model)
 
 
 def _draw_overlay(job: FitJob, results: Path, worst: int) -> None:

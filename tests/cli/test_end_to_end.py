@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 from typer.testing import CliRunner
 
-from core.cli import app
+from cli.app import app
 from core.detect import detect
 from core.examples import EXAMPLES
 from core.fit import FitParams, Status

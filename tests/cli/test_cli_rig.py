@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 from typer.testing import CliRunner
 
+from cli.app import app
 from core.calibration import from_anipose
-from core.cli import app
 from core.rig import Rig
 
 DATA = Path(__file__).parents[1] / "data"

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from core.cli import app
+from cli.app import app
 from core.detect import DetectorParams, detect
 from core.examples import LOCUST
 from core.model import KinematicModel
