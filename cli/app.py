@@ -145,10 +145,11 @@ def fit(
             unit_scale(kinematic, export_units)
         camera_rig = Rig.from_json(rig)
         start = None if histograms is None else Histograms.from_xml(histograms, kinematic)
+        # Per image, before any video is decoded: the fusion distance does not change the cost.
+        check_fit_cost(estimate_fit_cost(kinematic, camera_rig, fit_opts.fit_params(0.0), images=1))
         with flags_in_errors():
             built = build_fit(fit_opts, kinematic, camera_rig, videos, start)
         job = built.job
-        check_fit_cost(estimate_fit_cost(kinematic, camera_rig, job.params, images=len(job.source)))
         with progress_bar(len(job.source)) as advance:
             outcome = run_fit(job, built.start, jobs=jobs, progress=advance)
         report = write_outputs(out, job, outcome)

@@ -128,7 +128,9 @@ def test_marker_diameter_is_estimated_in_frame_pixels_by_default(request, name, 
     [("missing_model", "cannot read model"), ("bad_rig", "rig"), ("text_video", "video"),
      ("two_videos", "expects 1 video"), ("bad_histograms", "histogram"),
      ("bad_diameter", "--marker-diameter-px"),
-     ("model_of_1000_joints", "one attempt on one image is estimated to take up to")],
+     ("model_of_1000_joints", "one attempt on one image is estimated to take up to"),
+     # refused before any video is read: the 'auto' diameter decodes up to 50 images
+     ("model_of_1000_joints_and_a_text_video", "one attempt on one image is estimated to take up to")],
 )
 def test_bad_input_exits_2_with_one_line(clip, tmp_path, case, match):
     model, rig, video = LOCUST / "model.xml", LOCUST / "rig.json", clip / "video0.avi"
@@ -146,9 +148,12 @@ def test_bad_input_exits_2_with_one_line(clip, tmp_path, case, match):
         videos = [video, video]
     elif case == "bad_diameter":
         extra = ["--marker-diameter-px", "-3"]
-    elif case == "model_of_1000_joints":  # issue 12: one image's fit ran for hours
+    elif case.startswith("model_of_1000_joints"):  # issue 12: one image's fit ran for hours
         model = tmp_path / "chain.xml"
         model.write_text(_chain_xml(1000))
+        if case.endswith("text_video"):
+            videos = [tmp_path / "notes.avi"]
+            videos[0].write_text("not a video")
     else:
         bad = tmp_path / "h.xml"
         bad.write_text('<histograms model="x" bins="360"></histograms>')
