@@ -68,15 +68,15 @@ def measure(j: int, n_views: int, attempt: bool) -> None:
     det = Detections.from_views(list(rig.project(model.marker_positions(q))))
     a, r = model.arrays, rig.arrays
     off = np.zeros((n_views, 2))
-    args = (a, r, off, det.kernel_points, det.start, 5.0, 0.0, _kernels.NO_UNSEEN)
+    image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=5.0, fuse_px=0.0)
+    args = (a, r, image)
     start = q + 1.0
     _kernels.posture_error(start, *args)
     loops = max(1, int(2e5 / (j * n_views * j)))
     evaluation = _best(lambda: [_kernels.posture_error(start, *args) for _ in range(loops)]) / loops
-    refine_args = (model.lower, model.upper, a, r, off, det.kernel_points, det.start, 5.0, 0.0,
-                   _kernels.NO_UNSEEN, 1.0)
-    _kernels.refine(start, *refine_args, 1, 1e-5, _kernels.NO_TARGETS)
-    step = _best(lambda: _kernels.refine(start, *refine_args, 1, 1e-5, _kernels.NO_TARGETS), 1)
+    refine_args = (_kernels.Bounds(model.lower, model.upper), a, r, image, 1.0)
+    _kernels.refine(start, *refine_args, 1, _kernels.NO_TARGETS)
+    step = _best(lambda: _kernels.refine(start, *refine_args, 1, _kernels.NO_TARGETS), 1)
     cost = estimate_fit_cost(model, rig, FitParams(), images=1)
     line = (f"J={j:5d} V={n_views}: evaluation {evaluation * 1e6:10.1f} µs (estimate "
             f"{cost.evaluation_s * 1e6:10.1f}), LM step {step * 1e3:10.1f} ms (estimate "

@@ -12,7 +12,7 @@ root tracking (``track``), a video job, its plan and its result files
 (``render``) and its movements (``movement``), gathered with the truth files by
 ``synth``, the lab's XML files (``xmlio``) and the paper's examples
 (``examples``). The names below are the public ones; compiled kernels live in
-``_kernels``.
+``_kernels`` (fitting), ``_detect_kernels`` and ``_histogram_kernels``.
 """
 
 from core.anneal import AnnealParams, anneal

@@ -1,5 +1,19 @@
 """Compiled kernels: forward kinematics, projection, Eq. 5, Simulated Annealing, refinement.
 
+What is in this file, and why together: numba caches each kernel (``cache=True``) per
+function, keyed by this file's time stamp alone, with the code of every kernel it calls and
+of every ``inline='always'`` helper compiled into it. A callee in another file could change
+and leave its callers' cached code stale; so the kernels a fit calls, and all they call,
+live here, and a change to any of them invalidates them all (``core.warmup`` tests one
+entry, :func:`fit_attempt`'s, for the whole file). Kernels no fitting kernel calls live
+beside their modules: detection and the field centroids in ``core._detect_kernels``, Eq. 4
+in ``core._histogram_kernels``.
+
+The interface is named: a fitting kernel takes the model (``core.model.KinematicArrays``),
+the views (``core.rig.RigArrays``), the image (:class:`Image`), the DOF ranges
+(:class:`Bounds`) and SA's settings (:class:`SAParams`) as named tuples, built in Python
+(numba passes them by value) and read by field, never by position.
+
 Everything here trusts its input: the public functions in ``model``, ``rig``,
 ``error``, ``anneal`` and ``refine`` validate once and call these on contiguous
 float64 / int64 arrays. Angles inside the kernels are degrees unless a name says
@@ -26,6 +40,7 @@ Written for the SA inner loop, which evaluates Eq. 5 some 10^5 times a second:
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -36,10 +51,101 @@ BEHIND_CAMERA = 1.0e9  # pixel coordinate given to points behind a pinhole camer
 FRAME = 12  # numbers per joint frame: rotation (row-major 3×3), then origin (3)
 # For Python callers. Inside a kernel a global array is a read-only constant, another type: a
 # kernel passing one to another kernel would compile that one a second time (and everything
-# it calls), so kernels pass arrays of their own (:func:`_no_unseen`, :func:`_no_targets`). A
-# literal int is a type of its own too: kernels pass step counts as ``np.int64``.
+# it calls), so kernels pass arrays of their own (:func:`_no_targets`, ``Image.unseen`` as
+# Python gave it). A literal int is a type of its own too: kernels pass step counts as
+# ``np.int64``.
 NO_TARGETS = np.zeros((0, 3))  # refine in image mode
 NO_UNSEEN = np.zeros((0, 0), dtype=np.bool_)  # every marker may be seen
+FD_STEP = 1e-5  # forward-difference step of refine's Jacobian, degrees (model units)
+
+
+# ---- records passed to the kernels -----------------------------------------------------------
+# numba passes a named tuple by value, typed by its fields' types: build them in Python with the
+# field types given (float() / int() / bool(), C-contiguous arrays), so one signature serves all.
+# The model and the views travel as core.model.KinematicArrays and core.rig.RigArrays.
+
+
+class Image(NamedTuple):
+    """One image's detections and how the objective (:func:`blob_error`) charges them.
+
+    det : (N, 3) float64, detections of all views (u, v px, merged flag), view v in
+        ``det[start[v]:start[v + 1]]`` (``core.error.Detections.kernel_points``).
+    start : (V + 1,) int64.  offset : (V, 2) float64, pixels added to each view's projections.
+    penalty : float, px a marker of a view without detections costs (and an unseen one).
+    fuse_px : float, markers projecting closer are one blob; 0: plain Eq. 5.
+    lost_px : float, > 0 lets every view lose its worst marker, charged this instead.
+    unseen : (V, M) bool, markers charged ``penalty`` whatever they project on; (0, 0): none.
+    """
+
+    det: np.ndarray
+    start: np.ndarray
+    offset: np.ndarray
+    penalty: float
+    fuse_px: float
+    lost_px: float
+    unseen: np.ndarray
+
+    @classmethod
+    def of(cls, det: np.ndarray, start: np.ndarray, offset: np.ndarray, *, penalty: float,
+           fuse_px: float, lost_px: float = 0.0, unseen: np.ndarray = NO_UNSEEN) -> Image:
+        """The record, its numbers as float64 (one kernel signature whatever Python passed)."""
+        return cls(det, start, offset, float(penalty), float(fuse_px), float(lost_px), unseen)
+
+
+class Bounds(NamedTuple):
+    """Each DOF's range, (D,) float64 each: degrees (rotations) or model units (translations)."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+
+
+class SAParams(NamedTuple):
+    """Simulated Annealing's settings (paper Table 1; ``core.anneal.AnnealParams``) and the
+    attempt's (:func:`fit_attempt`).
+
+    sigma : (D,) float64, s(H) of each DOF.  hist : (D, B) float64, bin probabilities, NaN rows
+    for translations.  h_min : T_h.  n_end, n_l, n_tau : int, N_end, N_l, N_τ.  tau0, l0, c_l,
+    c_tau : float, start temperature and step factor, their cooling factors.  eps : float, ε
+    (px).  polish_every, patience, draws : int (:func:`anneal`).  huber_c : float, the
+    refinement's least-squares radius (px).  refine_result : bool, restarts : int
+    (:func:`fit_attempt`).
+    """
+
+    sigma: np.ndarray
+    hist: np.ndarray
+    h_min: float
+    n_end: int
+    n_l: int
+    n_tau: int
+    tau0: float
+    l0: float
+    c_l: float
+    c_tau: float
+    eps: float
+    polish_every: int
+    patience: int
+    draws: int
+    huber_c: float
+    refine_result: bool
+    restarts: int
+
+
+class Workspace(NamedTuple):
+    """Scratch arrays of one posture's evaluation (:func:`workspace`).
+
+    frames : (12·J,) joint frames.  sincos : (2·D,).  world : (M, 3) world markers.
+    raw, fused : (V, M, 2) projections, apart and fused.  index : (M,) int64, dist : (M,),
+    each marker's detection and distance (:func:`blob_error`).  claims : (N,) int64.
+    """
+
+    frames: np.ndarray
+    sincos: np.ndarray
+    world: np.ndarray
+    raw: np.ndarray
+    fused: np.ndarray
+    index: np.ndarray
+    dist: np.ndarray
+    claims: np.ndarray
 
 # ---- rotations -----------------------------------------------------------------------------
 
@@ -110,8 +216,8 @@ def joint_frames(q, kin, fr, sc) -> None:
     identity rest orientations are skipped. ``sc`` (2·D) receives every DOF's
     sine and cosine (translations included: unused, harmless).
     """
-    parent, offset, rest, rest_identity = kin[0], kin[1], kin[2], kin[3]
-    rot_dof, trans_dof = kin[4], kin[5]
+    parent, offset, rest, rest_identity = kin.parent, kin.offset, kin.rest, kin.rest_identity
+    rot_dof, trans_dof = kin.rot_dof, kin.trans_dof
     for i in range(q.shape[0]):
         sc[2 * i], sc[2 * i + 1] = sincos_deg(q[i])
     for k in range(parent.shape[0]):
@@ -169,7 +275,7 @@ def joint_frames(q, kin, fr, sc) -> None:
 @njit(cache=True, nogil=True)
 def forward_kinematics(q, kin, rot, pos) -> None:
     """World rotation ``rot`` (J,3,3) and origin ``pos`` (J,3) of every joint (topological order)."""
-    J = kin[0].shape[0]
+    J = kin.parent.shape[0]
     fr, sc = np.empty(FRAME * J), np.empty(2 * q.shape[0])
     joint_frames(q, kin, fr, sc)
     for k in range(J):
@@ -182,7 +288,7 @@ def forward_kinematics(q, kin, rot, pos) -> None:
 @njit(cache=True, inline="always")
 def world_markers(fr, kin, out) -> None:
     """World position (M,3) of every marker from the joint frames ``fr``."""
-    marker_joint, marker_pos = kin[6], kin[7]
+    marker_joint, marker_pos = kin.marker_joint, kin.marker_pos
     for m in range(marker_joint.shape[0]):
         b = FRAME * marker_joint[m]
         x, y, z = marker_pos[m, 0], marker_pos[m, 1], marker_pos[m, 2]
@@ -194,7 +300,7 @@ def world_markers(fr, kin, out) -> None:
 @njit(cache=True, nogil=True)
 def marker_positions_many(Q, kin):
     """World marker positions (T,M,3) for postures Q (T,D)."""
-    J, M = kin[0].shape[0], kin[6].shape[0]
+    J, M = kin.parent.shape[0], kin.marker_joint.shape[0]
     out = np.empty((Q.shape[0], M, 3))
     fr, sc = np.empty(FRAME * J), np.empty(2 * Q.shape[1])
     for t in range(Q.shape[0]):
@@ -256,8 +362,10 @@ def project_point(kind, P, K, dist, v, X0, X1, X2):
 
 
 @njit(cache=True, inline="always")
-def project_markers(world, kind, P, K, dist, offset, out) -> None:
-    """Pixel coordinates (V,M,2) of world markers (M,3), plus each view's 2D offset (V,2)."""
+def project_markers(world, views, offset, out) -> None:
+    """Pixel coordinates (V,M,2) of world markers (M,3) in ``views`` (``core.rig.RigArrays``),
+    plus each view's 2D offset (V,2)."""
+    kind, P, K, dist = views.kind, views.P, views.K, views.dist
     for v in range(kind.shape[0]):
         for m in range(world.shape[0]):
             u, w = project_point(kind, P, K, dist, v, world[m, 0], world[m, 1], world[m, 2])
@@ -266,13 +374,13 @@ def project_markers(world, kind, P, K, dist, offset, out) -> None:
 
 
 @njit(cache=True, nogil=True)
-def project_many(world, kind, P, K, dist):
-    """Pixel coordinates (T,V,M,2) of world markers (T,M,3), no offsets."""
-    V = kind.shape[0]
+def project_many(world, views):
+    """Pixel coordinates (T,V,M,2) of world markers (T,M,3) in ``views``, no offsets."""
+    V = views.kind.shape[0]
     out = np.empty((world.shape[0], V, world.shape[1], 2))
     zero = np.zeros((V, 2))
     for t in range(world.shape[0]):
-        project_markers(world[t], kind, P, K, dist, zero, out[t])
+        project_markers(world[t], views, zero, out[t])
     return out
 
 
@@ -300,22 +408,24 @@ def fuse_projections(raw, fuse_px, out) -> None:
 
 @njit(cache=True, nogil=True)
 def workspace(kin, views, D, N):
-    """Scratch arrays: frames, sines/cosines, world, raw and fused projections (V,M,2), and
-    for :func:`blob_error` each marker's detection and distance (M) and the claims on each
-    detection (N)."""
-    J, M, V = kin[0].shape[0], kin[6].shape[0], views[0].shape[0]
-    return (np.empty(FRAME * J), np.empty(2 * D), np.empty((M, 3)), np.empty((V, M, 2)),
-            np.empty((V, M, 2)), np.empty(M, dtype=np.int64), np.empty(M), np.empty(N, dtype=np.int64))
+    """A :class:`Workspace` for model ``kin``, ``views``, ``D`` DOFs and ``N`` detections."""
+    J, M, V = kin.parent.shape[0], kin.marker_joint.shape[0], views.kind.shape[0]
+    return Workspace(np.empty(FRAME * J), np.empty(2 * D), np.empty((M, 3)), np.empty((V, M, 2)),
+                     np.empty((V, M, 2)), np.empty(M, dtype=np.int64), np.empty(M),
+                     np.empty(N, dtype=np.int64))
 
 
 @njit(cache=True, inline="always")
 def project_posture(q, kin, views, offset, fuse_px, work) -> None:
-    """Raw projections (V,M,2) of posture ``q`` into ``work[3]``, fused ones into ``work[4]``."""
-    fr, sc, world, raw, fused = work[0], work[1], work[2], work[3], work[4]
-    kind, P, K, dist = views
+    """Raw projections (V,M,2) of posture ``q`` into ``work.raw``, fused ones into ``work.fused``.
+
+    ``offset`` and ``fuse_px`` come apart from their :class:`Image`: SA's inner loop takes
+    them out of it once, not at every iteration (reference counting).
+    """
+    fr, sc, world, raw, fused = work.frames, work.sincos, work.world, work.raw, work.fused
     joint_frames(q, kin, fr, sc)
     world_markers(fr, kin, world)
-    project_markers(world, kind, P, K, dist, offset, raw)
+    project_markers(world, views, offset, raw)
     if fuse_px > 0.0:
         fuse_projections(raw, fuse_px, fused)
 
@@ -442,7 +552,7 @@ def _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, lost_px, unseen, i
     otherwise let a wrong posture squeeze two markers onto one blob. With
     ``lost_px`` > 0 either reading may lose its worst marker, charged ``lost_px``
     instead of its distance (an occluded marker). ``index``, ``dist``, ``claims``: scratch
-    (:func:`workspace`'s last three), passed apart: taking them out of the tuple in SA's
+    (:class:`Workspace`'s last three), passed apart: taking them out of the tuple in SA's
     inner loop costs reference counting at every iteration.
     """
     reach2 = fuse_px * fuse_px
@@ -492,29 +602,19 @@ def blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, 
 
 
 @njit(cache=True, nogil=True)
-def posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px=0.0):
-    """The objective (:func:`blob_error`) of one posture; plain Eq. 5 with ``fuse_px`` 0.
-
-    Python calls it with and without ``lost_px``, two signatures: each is a call of
-    :func:`_posture_error`, whose body is compiled once.
-    """
-    return _posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px)
+def posture_error(q, kin, views, image):
+    """The objective (:func:`blob_error`) of posture ``q`` on ``image`` (:class:`Image`); plain
+    Eq. 5 with ``image.fuse_px`` and ``image.lost_px`` 0."""
+    work = workspace(kin, views, q.shape[0], image.det.shape[0])
+    return _evaluate(q, kin, views, image, np.inf, work)
 
 
 @njit(cache=True, nogil=True)
-def _posture_error(q, kin, views, offset, det, start, penalty, fuse_px, unseen, lost_px):
-    """:func:`posture_error` (``lost_px`` given)."""
-    work = workspace(kin, views, q.shape[0], det.shape[0])
-    return _evaluate(q, kin, views, offset, det, start, penalty, fuse_px, lost_px, np.inf, unseen, work)
-
-
-@njit(cache=True, nogil=True)
-def _evaluate(q, kin, views, offset, det, start, penalty, fuse_px, lost_px, limit, unseen, work):
+def _evaluate(q, kin, views, image, limit, work):
     """The objective (:func:`blob_error`, summed up to ``limit``) of posture ``q``, projected
-    into ``work`` (:func:`workspace`): a plain call, as :func:`_objective`."""
-    _project(q, kin, views, offset, fuse_px, work)
-    return _objective(work[3], work[4], det, start, penalty, fuse_px, lost_px, limit, work[5], work[6],
-                      work[7], unseen)
+    into ``work`` (:class:`Workspace`): a plain call, as :func:`_objective`."""
+    _project(q, kin, views, image.offset, image.fuse_px, work)
+    return _objective(image, limit, work)
 
 
 @njit(cache=True, nogil=True)
@@ -524,17 +624,18 @@ def _project(q, kin, views, offset, fuse_px, work) -> None:
 
 
 @njit(cache=True, nogil=True)
-def _objective(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, dist, claims, unseen):
-    """:func:`blob_error` as a plain call, compiled once for the kernels that evaluate it
-    outside SA's inner loop (numba types an inlined helper again at every call site)."""
-    return blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, dist, claims,
-                      unseen)
+def _objective(image, limit, work):
+    """:func:`blob_error` of the projections in ``work`` as a plain call, compiled once for the
+    kernels that evaluate it outside SA's inner loop (numba types an inlined helper again at
+    every call site)."""
+    return blob_error(work.raw, work.fused, image.det, image.start, image.penalty, image.fuse_px,
+                      image.lost_px, limit, work.index, work.dist, work.claims, image.unseen)
 
 
 @njit(cache=True, nogil=True)
-def _no_unseen():
-    """No marker unseen: an empty (0, 0) mask of the type Python passes (``NO_UNSEEN``)."""
-    return np.zeros((0, 0), dtype=np.bool_)
+def _with(image, fuse_px, lost_px, unseen):
+    """``image`` charged otherwise: its detections with these ``fuse_px``, ``lost_px``, ``unseen``."""
+    return Image(image.det, image.start, image.offset, image.penalty, fuse_px, lost_px, unseen)
 
 
 @njit(cache=True, nogil=True)
@@ -569,9 +670,8 @@ def next_uniform(s) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _residuals(q, kin, views, offset, det, start, penalty, fuse_px, unseen, targets, work, res,
-               valid):
-    """Residual groups ``res`` of posture ``q`` and which count, ``valid`` (G,).
+def _residuals(q, kin, views, image, targets, work, res, valid):
+    """Residual groups ``res`` of posture ``q`` on ``image`` and which count, ``valid`` (G,).
 
     Image mode (no ``targets``, ``res`` (V·M, 2)): group v·M + m is marker m's
     position in view v (raw, or merged where :func:`blob_error` reads the view so)
@@ -580,7 +680,7 @@ def _residuals(q, kin, views, offset, det, start, penalty, fuse_px, unseen, targ
     marker m minus its target (inverse kinematics).
     """
     if targets.shape[0] > 0:
-        fr, sc, world = work[0], work[1], work[2]
+        fr, sc, world = work.frames, work.sincos, work.world
         joint_frames(q, kin, fr, sc)
         world_markers(fr, kin, world)
         for m in range(world.shape[0]):
@@ -588,8 +688,10 @@ def _residuals(q, kin, views, offset, det, start, penalty, fuse_px, unseen, targ
                 res[m, a] = world[m, a] - targets[m, a]
             valid[m] = True
         return
-    project_posture(q, kin, views, offset, fuse_px, work)
-    raw, fused, index, dist, claims = work[3], work[4], work[5], work[6], work[7]
+    det, start, penalty, fuse_px, unseen = (image.det, image.start, image.penalty, image.fuse_px,
+                                            image.unseen)
+    project_posture(q, kin, views, image.offset, fuse_px, work)
+    raw, fused, index, dist, claims = work.raw, work.fused, work.index, work.dist, work.claims
     V, M = raw.shape[0], raw.shape[1]
     for v in range(V):
         a, b = start[v], start[v + 1]
@@ -666,30 +768,32 @@ def _cholesky_solve(A, b, L, x) -> None:
 
 
 @njit(cache=True, nogil=True)
-def refine(q0, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen, huber_c,
-           max_iter, h_fd, targets):
-    """Levenberg–Marquardt on the Huber loss of residual groups (:func:`_residuals`), within bounds.
+def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
+    """Levenberg–Marquardt on the Huber loss of residual groups (:func:`_residuals`), within
+    ``bounds`` (:class:`Bounds`).
 
     Image mode (``targets`` of shape (0, 3)): nearest detections are re-chosen at
     every evaluation, so this polishes the basin SA found (sub-pixel) without
     committing to marker labels. Residuals below ``huber_c`` pixels are fitted
     by least squares (efficient for detection noise), larger ones by their
-    length (robust to fused or missing markers, as Eq. 5 is). Target mode
-    (``targets`` (M, 3)): inverse kinematics onto world marker positions.
-    Jacobian by forward differences of ``h_fd`` degrees. Stops after
+    length (robust to fused or missing markers, as Eq. 5 is); ``image.lost_px`` is not
+    read, markers ``image.unseen`` marks count nothing. Target mode (``targets`` (M, 3)):
+    inverse kinematics onto world marker positions (``image`` not read).
+    Jacobian by forward differences of :data:`FD_STEP`. Stops after
     ``max_iter`` steps, or when a step moves less than 1e-6 (degrees, model
     units) or gains less than 1e-10 of the cost. Returns the refined posture.
     """
-    M, D = kin[6].shape[0], q0.shape[0]
-    G, C = (M, 3) if targets.shape[0] > 0 else (views[0].shape[0] * M, 2)
+    M, D = kin.marker_joint.shape[0], q0.shape[0]
+    G, C = (M, 3) if targets.shape[0] > 0 else (views.kind.shape[0] * M, 2)
+    lower, upper, h_fd = bounds.lower, bounds.upper, FD_STEP
     q, trial = q0.copy(), q0.copy()
-    work = workspace(kin, views, D, det.shape[0])
+    work = workspace(kin, views, D, image.det.shape[0])
     res, res2 = np.empty((G, C)), np.empty((G, C))
     valid = np.empty(G, dtype=np.bool_)
     jac = np.empty((G, C, D))
     A, H, L = np.empty((D, D)), np.empty((D, D)), np.empty((D, D))
     g, delta = np.empty(D), np.empty(D)
-    _residuals(q, kin, views, offset, det, start, penalty, fuse_px, unseen, targets, work, res, valid)
+    _residuals(q, kin, views, image, targets, work, res, valid)
     cost = _huber_cost(res, valid, huber_c)
     lam = 1e-3
     step, gain = np.inf, np.inf
@@ -697,8 +801,7 @@ def refine(q0, lower, upper, kin, views, offset, det, start, penalty, fuse_px, u
         for i in range(D):
             trial[:] = q
             trial[i] += h_fd
-            _residuals(trial, kin, views, offset, det, start, penalty, fuse_px, unseen, targets, work, res2,
-                       valid)
+            _residuals(trial, kin, views, image, targets, work, res2, valid)
             for k in range(G):
                 for a in range(C):
                     jac[k, a, i] = (res2[k, a] - res[k, a]) / h_fd
@@ -725,8 +828,7 @@ def refine(q0, lower, upper, kin, views, offset, det, start, penalty, fuse_px, u
             moved = np.max(np.abs(trial - q))
             if moved < 1e-6:
                 break  # converged: more damping only shortens the step (saves ~15 trials)
-            _residuals(trial, kin, views, offset, det, start, penalty, fuse_px, unseen, targets, work, res2,
-                       valid)
+            _residuals(trial, kin, views, image, targets, work, res2, valid)
             new_cost = _huber_cost(res2, valid, huber_c)
             if new_cost < cost:
                 step = moved
@@ -783,24 +885,22 @@ _POLISH_STEPS = 10
 
 
 @njit(cache=True, nogil=True)
-def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, lost_px,
-            huber_c, out) -> float:
-    """Refine ``q`` (:data:`_POLISH_STEPS` LM steps) into ``out`` if that lowers its error; return
-    the error of ``out``.
+def _polish(q, e_q, bounds, kin, views, image, huber_c, out) -> float:
+    """Refine ``q`` (:data:`_POLISH_STEPS` LM steps) into ``out`` if that lowers its error on
+    ``image``; return the error of ``out``.
 
-    With ``lost_px`` (the objective lets each view lose a marker), the refinement leaves
+    With ``image.lost_px`` (the objective lets each view lose a marker), the refinement leaves
     out the markers :func:`_lost_markers` finds at ``q``: otherwise it pulls a lost
     marker onto the nearest other blob, the very pull the objective is there to stop.
     """
-    unseen = _no_unseen()
-    if lost_px > 0.0:
-        mask, lost = _lost_markers(q, kin, views, offset, det, start, lost_px, fuse_px)
+    unseen = image.unseen
+    if image.lost_px > 0.0:
+        mask, lost = _lost_markers(q, kin, views, image, image.lost_px)
         if lost:
             unseen = mask
-    polished = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen,
-                      huber_c, np.int64(_POLISH_STEPS), 1e-5, _no_targets())
-    e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px, _no_unseen(),
-                          lost_px)
+    polished = refine(q, bounds, kin, views, _with(image, image.fuse_px, image.lost_px, unseen),
+                      huber_c, np.int64(_POLISH_STEPS), _no_targets())
+    e_pol = posture_error(polished, kin, views, image)
     if e_pol < e_q:
         out[:] = polished
         return e_pol
@@ -809,13 +909,13 @@ def _polish(q, e_q, lower, upper, kin, views, offset, det, start, penalty, fuse_
 
 
 @njit(cache=True, nogil=True)
-def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start, penalty, fuse_px,
-           lost_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience, draws,
-           huber_c, state):
-    """Simulated Annealing of Eq. 5 over the DOFs (paper Eq. 6 and §2.3).
+def anneal(q0, bounds, kin, views, image, sa, state):
+    """Simulated Annealing of the objective on ``image`` over the DOFs (paper Eq. 6 and §2.3).
 
-    Proposals by :func:`_propose`; Metropolis acceptance at temperature ``tau``;
-    ``tau *= c_tau`` every ``n_tau`` and ``l *= c_l`` every ``n_l`` iterations;
+    ``q0`` (D,): the start, within ``bounds`` (:class:`Bounds`); ``sa``: :class:`SAParams`
+    (``refine_result`` and ``restarts`` not read); ``state``: the xoshiro256** state (4,)
+    uint64, advanced. Proposals by :func:`_propose`; Metropolis acceptance at temperature
+    ``tau``; ``tau *= c_tau`` every ``n_tau`` and ``l *= c_l`` every ``n_l`` iterations;
     stops after ``n_end`` iterations or when the best error is below ``eps``.
     ``hist`` (D,B) holds each DOF's probabilities (NaN row for translations).
 
@@ -839,17 +939,22 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
 
     Returns (best posture, best error, iterations run).
     """
+    lower, upper = bounds.lower, bounds.upper
+    sigma, hist, h_min, n_end, n_l, n_tau = sa.sigma, sa.hist, sa.h_min, sa.n_end, sa.n_l, sa.n_tau
+    c_l, c_tau, eps, polish_every, patience, draws = (sa.c_l, sa.c_tau, sa.eps, sa.polish_every,
+                                                      sa.patience, sa.draws)
+    det, start, offset, penalty = image.det, image.start, image.offset, image.penalty
+    fuse_px, lost_px, unseen = image.fuse_px, image.lost_px, image.unseen
     D = q0.shape[0]
     bins_per_degree = hist.shape[1] / 360.0
     turns = np.empty(D)
     for i in range(D):
         turns[i] = -1.0 if np.isnan(hist[i, 0]) else np.floor(lower[i] / 360.0)
     work = workspace(kin, views, D, det.shape[0])
-    raw, fused, index, dist, claims = work[3], work[4], work[5], work[6], work[7]
-    no_unseen = _no_unseen()
+    raw, fused, index, dist, claims = work.raw, work.fused, work.index, work.dist, work.claims
     cur, cand, best, seed_q = q0.copy(), q0.copy(), q0.copy(), q0.copy()
     e_cur = e_best = np.inf  # the first pass evaluates q0 itself and always accepts it
-    tau, step = tau0, l0
+    tau, step = sa.tau0, sa.l0
     it = -1
     e_mark, stale = np.inf, 0
     while it < n_end and e_best >= eps:
@@ -863,7 +968,7 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
             limit = e_cur - tau * math.log(u) if u > 0.0 else np.inf
         project_posture(cand, kin, views, offset, fuse_px, work)
         e_new = blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, dist,
-                           claims, NO_UNSEEN)
+                           claims, unseen)
         if e_new <= limit:
             cur[:] = cand
             e_cur = e_new
@@ -877,11 +982,9 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
         if it % n_l == 0:
             step *= c_l
         if polish_every > 0 and it % polish_every == 0:
-            e_best = _polish(best, e_best, lower, upper, kin, views, offset, det, start, penalty,
-                             fuse_px, lost_px, huber_c, best)
+            e_best = _polish(best, e_best, bounds, kin, views, image, sa.huber_c, best)
             if e_best >= eps:
-                e_hop = _polish(cur, np.inf, lower, upper, kin, views, offset, det, start, penalty,
-                                fuse_px, lost_px, huber_c, cand)
+                e_hop = _polish(cur, np.inf, bounds, kin, views, image, sa.huber_c, cand)
                 if e_hop < e_best:
                     best[:] = cand
                     e_best = e_hop
@@ -889,13 +992,11 @@ def anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
                 e_seed = np.inf
                 for _ in range(draws):
                     draw_posture(lower, upper, hist, state, cand)
-                    e_new = _evaluate(cand, kin, views, offset, det, start, penalty, fuse_px, lost_px,
-                                      e_seed, no_unseen, work)
+                    e_new = _evaluate(cand, kin, views, image, e_seed, work)
                     if e_new < e_seed:
                         e_seed = e_new
                         seed_q[:] = cand
-                e_draw = _polish(seed_q, e_seed, lower, upper, kin, views, offset, det, start,
-                                 penalty, fuse_px, lost_px, huber_c, cand)
+                e_draw = _polish(seed_q, e_seed, bounds, kin, views, image, sa.huber_c, cand)
                 if e_draw < e_best:
                     best[:] = cand
                     e_best = e_draw
@@ -964,13 +1065,14 @@ def draw_posture(lower, upper, hist, state, out) -> None:
 
 
 @njit(cache=True, nogil=True)
-def _lost_markers(q, kin, views, offset, det, start, penalty, fuse_px):
-    """In every view, the worst-matched marker if it is farther than ``penalty`` from its
-    detection (what an unseen marker costs): (V, M) mask, and whether any was found."""
-    V, M = views[0].shape[0], kin[6].shape[0]
+def _lost_markers(q, kin, views, image, beyond):
+    """In every view of ``image``, the worst-matched marker if it is farther than ``beyond`` px
+    from its detection (what losing it costs): (V, M) mask, and whether any was found."""
+    det, start, penalty, fuse_px = image.det, image.start, image.penalty, image.fuse_px
+    V, M = views.kind.shape[0], kin.marker_joint.shape[0]
     work = workspace(kin, views, q.shape[0], det.shape[0])
-    _project(q, kin, views, offset, fuse_px, work)
-    raw, fused, index, dist, claims = work[3], work[4], work[5], work[6], work[7]
+    _project(q, kin, views, image.offset, fuse_px, work)
+    raw, fused, index, dist, claims = work.raw, work.fused, work.index, work.dist, work.claims
     unseen = np.zeros((V, M), dtype=np.bool_)
     lost = False
     for v in range(V):
@@ -981,30 +1083,30 @@ def _lost_markers(q, kin, views, offset, det, start, penalty, fuse_px):
                                                   NO_UNSEEN, index, dist, claims)[1]
         _match_view(fused if merged else raw, v, det, a, b, index, dist, NO_UNSEEN, penalty)
         worst = np.argmax(dist)
-        if dist[worst] > penalty:
+        if dist[worst] > beyond:
             unseen[v, worst] = True
             lost = True
     return unseen, lost
 
 
 @njit(cache=True, nogil=True)
-def _refit_unseen(q, objective, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                  huber_c):
+def _refit_unseen(q, objective, bounds, kin, views, image, huber_c):
     """Refit ``q`` (in place) without the markers that look lost; return the objective kept.
 
     A marker the camera lost (occluded) is charged its distance to some other
     blob, and the fit leans towards it. After an attempt, in every view the worst
-    matched marker farther than ``penalty`` (:func:`_lost_markers`) is taken as
+    matched marker farther than ``image.penalty`` (:func:`_lost_markers`) is taken as
     not seen: the posture is refined without those markers, and kept if its
-    objective, with them charged ``penalty``, is lower than ``objective``.
+    objective, with them charged ``penalty`` (and ``image.lost_px``, ``image.unseen`` not
+    read), is lower than ``objective``.
     Images whose markers are all within ``penalty`` are left as they are.
     """
-    unseen, lost = _lost_markers(q, kin, views, offset, det, start, penalty, fuse_px)
+    unseen, lost = _lost_markers(q, kin, views, image, image.penalty)
     if not lost:
         return objective
-    refit = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px, unseen,
-                   huber_c, np.int64(50), 1e-5, _no_targets())
-    e_refit = posture_error(refit, kin, views, offset, det, start, penalty, fuse_px, unseen)
+    masked = _with(image, image.fuse_px, 0.0, unseen)
+    refit = refine(q, bounds, kin, views, masked, huber_c, np.int64(50), _no_targets())
+    e_refit = posture_error(refit, kin, views, masked)
     if e_refit < objective:
         q[:] = refit
         return e_refit
@@ -1012,11 +1114,11 @@ def _refit_unseen(q, objective, lower, upper, kin, views, offset, det, start, pe
 
 
 @njit(cache=True, nogil=True)
-def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
-                penalty, fuse_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau, eps, polish_every, patience,
-                draws, huber_c, refine_result, restarts, state):
+def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state):
     """One attempt on one image: SA, restarted while above ``eps``, each result refined.
 
+    ``image``: :class:`Image` (``lost_px`` not read: each run sets it); ``sa``:
+    :class:`SAParams`; ``state``: the xoshiro256** state (4,) uint64, advanced.
     The first run starts from ``start_q`` (the histogram means), or from a posture
     drawn from the histograms when ``draw_start`` (re-analysis); restarts, up to
     ``restarts`` while the best objective is still >= ``eps``, from drawn postures.
@@ -1037,93 +1139,33 @@ def fit_attempt(start_q, draw_start, lower, upper, sigma, hist, h_min, kin, view
     error, objective, SA iterations); the objective is Eq. 5 with fusion below
     ``fuse_px``.
     """
+    penalty, fuse_px, unseen = image.penalty, image.fuse_px, image.unseen
+    charged = _with(image, fuse_px, penalty, unseen)  # every view may lose a marker
     q0, best = start_q.copy(), start_q.copy()
-    no_unseen = _no_unseen()
     objective, iterations = np.inf, 0
-    for run in range(restarts + 1):
-        if run > 0 and objective < eps:
+    for run in range(sa.restarts + 1):
+        if run > 0 and objective < sa.eps:
             break
         if run > 0 or draw_start:
-            draw_posture(lower, upper, hist, state, q0)
-        lost_px = penalty if run > 0 else 0.0
-        q, value, its = anneal(q0, lower, upper, sigma, hist, h_min, kin, views, offset, det, start,
-                               penalty, fuse_px, lost_px, n_end, n_l, n_tau, tau0, l0, c_l, c_tau,
-                               eps, polish_every, patience, draws, huber_c, state)
+            draw_posture(bounds.lower, bounds.upper, sa.hist, state, q0)
+        searched = charged if run > 0 else _with(image, fuse_px, 0.0, unseen)
+        q, value, its = anneal(q0, bounds, kin, views, searched, sa, state)
         iterations += its
-        if refine_result:
-            polished = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                              no_unseen, huber_c, np.int64(50), 1e-5, _no_targets())
-            e_pol = posture_error(polished, kin, views, offset, det, start, penalty, fuse_px,
-                                  no_unseen, lost_px)
+        if sa.refine_result:
+            polished = refine(q, bounds, kin, views, searched, sa.huber_c, np.int64(50), _no_targets())
+            e_pol = posture_error(polished, kin, views, searched)
             if e_pol <= value:
                 q = polished
-        value = posture_error(q, kin, views, offset, det, start, penalty, fuse_px, no_unseen,
-                              penalty)
-        if refine_result:
-            value = _refit_unseen(q, value, lower, upper, kin, views, offset, det, start, penalty,
-                                  fuse_px, huber_c)
+        value = posture_error(q, kin, views, charged)
+        if sa.refine_result:
+            value = _refit_unseen(q, value, bounds, kin, views, image, sa.huber_c)
         if run > 0 and value >= 0.99 * objective and objective < penalty:
             break
         if value < objective:
             best[:] = q
             objective = value
-    error = posture_error(best, kin, views, offset, det, start, penalty, 0.0, no_unseen)
+    error = posture_error(best, kin, views, _with(image, 0.0, 0.0, unseen))
     return best, error, objective, iterations
-
-
-# ---- joint-angle histograms (Eq. 4) ---------------------------------------------------------
-
-
-@njit(cache=True, nogil=True)
-def eq4_update(probs, counts, bins) -> None:
-    """Eq. 4 in place, one measurement per row: ``H_N = ((N-1)·H_{N-1} + Δ) / N``."""
-    for r in range(probs.shape[0]):
-        counts[r] += 1.0
-        keep = (counts[r] - 1.0) / counts[r]
-        for k in range(probs.shape[1]):
-            probs[r, k] *= keep
-        probs[r, bins[r]] += 1.0 / counts[r]
-
-
-@njit(cache=True, nogil=True)
-def circular_stats(probs, lower, upper, sin_c, cos_c):
-    """Circular mean (range coordinates) and spread s(H) of each row, degrees.
-
-    Mean: direction of Σ p·(cos, sin) of the bin centres, expressed in
-    ``[lower, lower + 360)``; a mean beyond ``upper`` goes to the
-    nearer range end on the circle; no direction (|Σ| < 1e-9) gives the range
-    midpoint. Spread: RMS angular distance of the bins to the unclamped mean;
-    an empty row gives the spread of a uniform distribution over its range.
-    ``sin_c``, ``cos_c`` (B,): sine and cosine of the bin centres.
-    """
-    R, B = probs.shape
-    width = 360.0 / B
-    means, stds = np.empty(R), np.empty(R)
-    for r in range(R):
-        lo, hi = lower[r], upper[r]
-        s = c = total = 0.0
-        for k in range(B):
-            s += probs[r, k] * sin_c[k]
-            c += probs[r, k] * cos_c[k]
-            total += probs[r, k]
-        raw = lo + (math.degrees(math.atan2(s, c)) - lo) % 360.0
-        mean = raw
-        if mean > hi:
-            mean = hi if (mean - hi) < (lo + 360.0 - mean) else lo
-        undirected = math.hypot(s, c) < 1e-9
-        means[r] = 0.5 * (lo + hi) if undirected else mean
-        centre = 0.5 * (lo + hi) if undirected else raw
-        if total > 0.0:
-            var = 0.0
-            c0 = centre % 360.0
-            for k in range(B):  # d: bin centre - c0 wrapped into [-180, 180), no fmod per bin
-                d = (k + 0.5) * width - c0
-                d = d - 360.0 if d >= 180.0 else (d + 360.0 if d < -180.0 else d)
-                var += probs[r, k] * d * d
-            stds[r] = math.sqrt(var / total)
-        else:
-            stds[r] = (hi - lo) / math.sqrt(12.0)
-    return means, stds
 
 
 # ---- depth-flip alternatives (kinematic jumps) ------------------------------------------------
@@ -1141,9 +1183,8 @@ def _reflect(points, rows, origin, normal) -> None:
 
 
 @njit(cache=True, nogil=True)
-def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset, det, start, penalty,
-                      fuse_px, huber_c, flip_joints, subtree_joints, subtree_markers, depth,
-                      perspective, masks, max_refined, out_q, out_objective):
+def flip_alternatives(q, objective, tolerance, bounds, kin, views, image, huber_c, geometry,
+                      max_refined, out_q, out_objective):
     """Other postures that image (almost) like ``q``: one view's depth flips (kinematic jumps).
 
     A view does not see depth along its viewing direction: reflecting the part
@@ -1155,18 +1196,22 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
     it is within ``tolerance`` of ``objective``, inverse kinematics finds the
     posture nearest to it within the DOF ranges, and image refinement polishes
     it. Distinct postures (some DOF more than 1 apart) scoring within
-    ``tolerance`` of ``objective`` are written to ``out_q``/``out_objective``.
+    ``tolerance`` of ``objective`` on ``image`` (:class:`Image`) are written to
+    ``out_q``/``out_objective``.
 
-    ``depth`` (V,3): the viewing direction, or the camera centre where
-    ``perspective``; ``subtree_joints`` (F,J) and ``subtree_markers`` (F,M): what
-    lies below each flip joint. At most ``max_refined`` flips that pass the screen are
-    refined (each refinement costs D evaluations a step). Returns how many alternatives
-    were written.
+    ``geometry``: ``core.ambiguity.FlipGeometry``, whose ``depth`` (V,3) is the viewing
+    direction, or the camera centre where ``perspective``; ``subtree_joints`` (F,J) and
+    ``subtree_markers`` (F,M): what lies below each flip joint. At most ``max_refined`` flips
+    that pass the screen are refined (each refinement costs D evaluations a step). Returns
+    how many alternatives were written.
     """
-    J, M, D = kin[0].shape[0], kin[6].shape[0], q.shape[0]
-    V = views[0].shape[0]
-    work = workspace(kin, views, D, det.shape[0])
-    fr, sc, raw, fused = work[0], work[1], work[3], work[4]
+    J, M, D = kin.parent.shape[0], kin.marker_joint.shape[0], q.shape[0]
+    V = views.kind.shape[0]
+    flip_joints, subtree_joints, subtree_markers = (geometry.flip_joints, geometry.subtree_joints,
+                                                    geometry.subtree_markers)
+    depth, perspective, masks = geometry.depth, geometry.perspective, geometry.masks
+    work = workspace(kin, views, D, image.det.shape[0])
+    fr, sc, raw, fused = work.frames, work.sincos, work.raw, work.fused
     joint_frames(q, kin, fr, sc)
     world = np.empty((M, 3))
     world_markers(fr, kin, world)
@@ -1176,8 +1221,6 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
             joints[k, a] = fr[FRAME * k + 9 + a]
     targets, moved = np.empty((M, 3)), np.empty((J, 3))
     normal = np.empty(3)
-    no_unseen = _no_unseen()
-    kind, P, K, dist = views
     found = refined = np.int64(0)
     for v in range(V):
         for mask in masks:
@@ -1195,21 +1238,18 @@ def flip_alternatives(q, objective, tolerance, lower, upper, kin, views, offset,
                 normal /= length
                 _reflect(targets, subtree_markers[f], origin, normal)
                 _reflect(moved, subtree_joints[f], origin, normal)
-            project_markers(targets, kind, P, K, dist, offset, raw)
-            if fuse_px > 0.0:
-                fuse_projections(raw, fuse_px, fused)
+            project_markers(targets, views, image.offset, raw)
+            if image.fuse_px > 0.0:
+                fuse_projections(raw, image.fuse_px, fused)
             limit = objective + tolerance
-            if _objective(raw, fused, det, start, penalty, fuse_px, 0.0, limit, work[5], work[6],
-                          work[7], no_unseen) > limit:
+            if _objective(image, limit, work) > limit:
                 continue
             if refined == max_refined:
                 return found
             refined += 1
-            reached = refine(q, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                             no_unseen, 1e9, np.int64(30), 1e-5, targets)
-            cand = refine(reached, lower, upper, kin, views, offset, det, start, penalty, fuse_px,
-                          no_unseen, huber_c, np.int64(50), 1e-5, _no_targets())
-            e_cand = posture_error(cand, kin, views, offset, det, start, penalty, fuse_px, no_unseen)
+            reached = refine(q, bounds, kin, views, image, 1e9, np.int64(30), targets)
+            cand = refine(reached, bounds, kin, views, image, huber_c, np.int64(50), _no_targets())
+            e_cand = posture_error(cand, kin, views, image)
             if e_cand > objective + tolerance or not _distinct(cand, q, out_q, found):
                 continue
             out_q[found] = cand
@@ -1229,347 +1269,3 @@ def _distinct(cand, q, kept, n) -> bool:
         if np.max(np.abs(cand - kept[k])) <= 1.0:
             return False
     return True
-
-
-# ---- marker regions and centroids (core.detect) -------------------------------------------------
-
-
-@njit(cache=True, inline="always")
-def _find(parent, i):
-    """Root of ``i`` in a union-find forest, halving the path on the way."""
-    while parent[i] != i:
-        parent[i] = parent[parent[i]]
-        i = parent[i]
-    return i
-
-
-@njit(cache=True, inline="always")
-def _rank_at(binary, ranks, y, x):
-    """Kept-region number of pixel (y, x), 0 for background or a dropped region."""
-    return ranks[y * binary.shape[1] + x] if binary[y, x] else 0
-
-
-@njit(cache=True, inline="always")
-def _max_rank(binary, ranks, y, x, r):
-    """Largest kept-region number in the (2r+1)² window around (y, x), 0 if none."""
-    H, W = binary.shape
-    best = 0
-    for yy in range(max(y - r, 0), min(y + r + 1, H)):
-        for xx in range(max(x - r, 0), min(x + r + 1, W)):
-            k = _rank_at(binary, ranks, yy, xx)
-            best = k if k > best else best
-    return best
-
-
-# Holds the GIL (no nogil): it runs for well under a millisecond per view, and ``index`` is a
-# scratch array core.detect shares between calls of one roi size, which threads must not share.
-@njit(cache=True)
-def detect_regions(image, binary, pixels, min_area, max_area, index):
-    """Marker centroids of one view: regions of bright pixels, then weighted centroids.
-
-    ``binary`` (h,w) uint8 0/1 is the filtered, thresholded image, ``pixels``
-    its non-zero flat indices in raster order. Regions are 8-connected
-    components found by union-find over the bright pixels alone (a view holds a
-    few hundred of them, so this beats labelling the whole image), numbered in
-    raster order of their first pixel; those of ``min_area``..``max_area``
-    pixels are kept. ``index`` (h·w,) int32 is scratch, read only where
-    ``binary`` is set: the caller keeps one per image size (allocating 400 kB
-    per call costs more than the whole labelling).
-
-    Centroid of kept region k: the region grown by one pixel (pixels whose 3×3
-    window's largest kept-region number is k) weighted by ``intensity -
-    background``; the background is the mean of its ring (pixels with no kept
-    region in their 3×3 window and k the largest in their 5×5), or the image's
-    median when it has none; a region whose weights do not sum to a positive
-    number gets its plain centroid. Returns the (K, 2) centroids (u, v) in pixels,
-    centres at +0.5, and the (K,) areas in pixels of the kept regions.
-    """
-    H, W = binary.shape
-    n = pixels.shape[0]
-    parent = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        p = pixels[i]
-        parent[i] = i
-        index[p] = i
-        y, x = p // W, p % W
-        for dy, dx in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):  # neighbours already visited
-            yy, xx = y + dy, x + dx
-            if yy >= 0 and 0 <= xx < W and binary[yy, xx]:
-                a, b = _find(parent, i), _find(parent, index[yy * W + xx])
-                if a != b:
-                    parent[max(a, b)] = min(a, b)
-    region = np.full(n, -1, dtype=np.int64)
-    count = 0
-    for i in range(n):
-        root = _find(parent, i)
-        if region[root] < 0:
-            region[root] = count
-            count += 1
-        region[i] = region[root]
-    area = np.zeros(count, dtype=np.int64)
-    box = np.empty((count, 4), dtype=np.int64)  # x0, y0, x1, y1 (inclusive)
-    box[:, 0], box[:, 1], box[:, 2], box[:, 3] = W, H, -1, -1
-    for i in range(n):
-        c, y, x = region[i], pixels[i] // W, pixels[i] % W
-        area[c] += 1
-        box[c, 0], box[c, 1] = min(box[c, 0], x), min(box[c, 1], y)
-        box[c, 2], box[c, 3] = max(box[c, 2], x), max(box[c, 3], y)
-    rank_of = np.zeros(count, dtype=np.int64)
-    K = 0
-    for c in range(count):
-        if min_area <= area[c] <= max_area:
-            K += 1
-            rank_of[c] = K
-    ranks = index  # reuse: flat kept-region number of every bright pixel
-    for i in range(n):
-        ranks[pixels[i]] = rank_of[region[i]]
-    out = np.empty((K, 2))
-    kept_area = np.empty(K)
-    fallback = np.nan
-    for c in range(count):
-        k = rank_of[c]
-        if k == 0:
-            continue
-        kept_area[k - 1] = area[c]
-        y0, y1 = max(box[c, 1] - 2, 0), min(box[c, 3] + 3, H)
-        x0, x1 = max(box[c, 0] - 2, 0), min(box[c, 2] + 3, W)
-        ring, n_ring = 0.0, 0
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                if _max_rank(binary, ranks, y, x, 1) == 0 and _max_rank(binary, ranks, y, x, 2) == k:
-                    ring += image[y, x]
-                    n_ring += 1
-        if n_ring == 0 and np.isnan(fallback):
-            fallback = np.median(image[::4, ::4].copy())
-        background = ring / n_ring if n_ring else fallback
-        total = su = sv = own = ou = ov = 0.0
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                if _max_rank(binary, ranks, y, x, 1) == k:
-                    w = image[y, x] - background
-                    total += w
-                    su += w * (x + 0.5)
-                    sv += w * (y + 0.5)
-                if _rank_at(binary, ranks, y, x) == k:
-                    own += 1.0
-                    ou += x + 0.5
-                    ov += y + 0.5
-        if total > 0.0:
-            out[k - 1, 0], out[k - 1, 1] = su / total, sv / total
-        else:
-            out[k - 1, 0], out[k - 1, 1] = ou / own, ov / own
-    return out, kept_area
-
-
-# ---- field centroids (de-interlacing) -------------------------------------------------------
-
-
-_SUBCOLUMNS = 16  # midpoint rule across a pixel column: disc edge integrated to ~1e-3 px²
-_DISC_TOLERANCE_PX = 1e-3  # a disc fit has converged when its centre moves less than this
-_DISC_EVALUATIONS = 16  # model evaluations a disc fit may take (most converge in 3-5)
-
-
-@njit(cache=True, nogil=True)
-def _disc_model(cu, cv, r, xcols, yrows, out, jac):
-    """Each window pixel's area inside the disc (centre cu, cv; radius r), row by row, and,
-    when ``jac`` has rows, its derivatives by (cu, cv, r) into ``jac`` (n, 3).
-
-    Pixel (row k, column c) is [xcols[c], +1) × [yrows[k], +1): exact along y (the
-    chord's overlap with the pixel), midpoint rule over :data:`_SUBCOLUMNS` across x.
-    The chords' half-heights h depend on the column alone, so they are computed once
-    for all rows (a window holds 3-5 rows); pixels clear of the disc are 0.
-    The derivatives come in the same pass (central differences took six more
-    evaluations): a chord end inside the pixel moves with cv and with the half-height
-    h = sqrt(r² - dx²), and h by its derivatives dx/h (cu) and r/h (r) averaged over
-    the subcolumn, which stay bounded at the disc's edge where h → 0.
-    """
-    ncols = xcols.size
-    derive = jac.shape[0] > 0
-    half = np.empty(ncols * _SUBCOLUMNS)  # -1: the subcolumn misses the disc
-    slopes = ncols * _SUBCOLUMNS if derive else 0  # h's derivatives, only when asked for
-    dh_du, dh_dr = np.empty(slopes), np.empty(slopes)
-    edge_h, edge_asin = np.empty(_SUBCOLUMNS + 1), np.empty(_SUBCOLUMNS + 1)
-    width = 1.0 / _SUBCOLUMNS
-    for c in range(ncols):
-        if abs(xcols[c] + 0.5 - cu) > r + 0.5:  # the column misses the disc: no square roots
-            half[c * _SUBCOLUMNS:(c + 1) * _SUBCOLUMNS] = -1.0
-            continue
-        for s in range(_SUBCOLUMNS):
-            dx = xcols[c] + (s + 0.5) * width - cu
-            half[c * _SUBCOLUMNS + s] = math.sqrt(r * r - dx * dx) if abs(dx) < r else -1.0
-        if not derive:
-            continue
-        # the averages of dx/h and r/h over a subcolumn, from h and asin at its edges
-        for s in range(_SUBCOLUMNS + 1):
-            e = xcols[c] + s * width - cu
-            if abs(e) < r:
-                edge_h[s], edge_asin[s] = math.sqrt(r * r - e * e), math.asin(e / r)
-            else:
-                edge_h[s], edge_asin[s] = 0.0, math.copysign(0.5 * math.pi, e)
-        for s in range(_SUBCOLUMNS):
-            dh_du[c * _SUBCOLUMNS + s] = (edge_h[s] - edge_h[s + 1]) / width
-            dh_dr[c * _SUBCOLUMNS + s] = r * (edge_asin[s + 1] - edge_asin[s]) / width
-    for k in range(yrows.size):
-        y0 = yrows[k]
-        for c in range(ncols):
-            i = k * ncols + c
-            out[i] = 0.0
-            if derive:
-                jac[i, 0] = jac[i, 1] = jac[i, 2] = 0.0
-            if abs(xcols[c] + 0.5 - cu) > r + 0.5 or abs(y0 + 0.5 - cv) > r + 0.5:
-                continue
-            total = d_u = d_v = d_r = 0.0
-            for s in range(c * _SUBCOLUMNS, (c + 1) * _SUBCOLUMNS):
-                h = half[s]
-                if h >= 0.0:
-                    top, bottom = cv + h, cv - h
-                    hi = min(y0 + 1.0, top)
-                    lo = max(y0, bottom)
-                    if hi > lo:
-                        total += hi - lo
-                        if derive:  # a chord end inside the pixel moves it: top +, bottom -
-                            top_in = 1.0 if top < y0 + 1.0 else 0.0
-                            bottom_in = 1.0 if bottom > y0 else 0.0
-                            d_v += top_in - bottom_in
-                            d_u += (top_in + bottom_in) * dh_du[s]
-                            d_r += (top_in + bottom_in) * dh_dr[s]
-            out[i] = total / _SUBCOLUMNS
-            if derive:
-                jac[i, 0], jac[i, 1], jac[i, 2] = d_u / _SUBCOLUMNS, d_v / _SUBCOLUMNS, d_r / _SUBCOLUMNS
-
-
-@njit(cache=True, nogil=True)
-def fit_field_discs(image, centres, radii, x_off, y_off, pitch, fitted, misfit):
-    """Disc-model centres of markers in a field image.
-
-    A field holds every ``pitch``-th frame row: a marker a few pixels across covers
-    two or three of its rows, and the weighted centroid of so few samples locks onto
-    them. Field pixel (row k, column j) sees the frame pixel [j + x_off, … + 1) ×
-    [pitch·k + y_off, … + 1); a sharp round marker of uniform brightness covers it by
-    the disc's area inside it. Gauss–Newton fits centre, radius and brightness to the
-    pixels around each detection (minus the mean of the window's border).
-
-    image : (h, w) uint8 or float, one view's roi of a field.
-    centres : (K, 2) frame-pixel (u, v) of its detections; radii : (K,) their starting
-        radii, frame pixels.
-    fitted : (K, 2) out, the disc centres; misfit : (K,) out, the fit's residual energy
-        beyond the background noise's (from the border's variance) over the data's energy
-        (0: a sharp disc), NaN where the fit failed or strayed more
-        than 1 px or a factor 2 in radius from its start.
-    """
-    h, w = image.shape
-    for k in range(centres.shape[0]):
-        misfit[k] = np.nan
-        r0 = radii[k]
-        cu, cv = centres[k, 0], centres[k, 1]
-        cj = math.floor(cu - x_off)
-        ck = math.floor((cv - y_off) / pitch)
-        reach = math.ceil(r0 + 1.5)
-        j0, j1 = max(0, cj - reach), min(w, cj + reach + 1)
-        rows = math.ceil(reach / pitch)
-        k0, k1 = max(0, ck - rows), min(h, ck + rows + 1)
-        if j1 - j0 < 3 or k1 - k0 < 3:
-            continue
-        n = (j1 - j0) * (k1 - k0)
-        data = np.empty(n)
-        xcols, yrows = np.empty(j1 - j0), np.empty(k1 - k0)
-        for col in range(j0, j1):
-            xcols[col - j0] = col + x_off
-        for row in range(k0, k1):
-            yrows[row - k0] = pitch * row + y_off
-        border, border2, n_border, i = 0.0, 0.0, 0, 0
-        for row in range(k0, k1):
-            for col in range(j0, j1):
-                data[i] = image[row, col]
-                if row == k0 or row == k1 - 1 or col == j0 or col == j1 - 1:
-                    border += data[i]
-                    border2 += data[i] * data[i]
-                    n_border += 1
-                i += 1
-        mean = border / n_border
-        data -= mean
-        noise = max(0.0, border2 / n_border - mean * mean) * (n - 4)  # residual energy of a perfect fit
-        theta = np.array([cu, cv, r0])
-        if not _gauss_newton_disc(theta, data, xcols, yrows):
-            continue
-        if abs(theta[0] - cu) < 1.0 and abs(theta[1] - cv) < 1.0 and 0.5 * r0 < theta[2] < 2.0 * r0:
-            fitted[k, 0], fitted[k, 1] = theta[0], theta[1]
-            misfit[k] = _relative_misfit(theta, data, xcols, yrows, noise)
-
-
-@njit(cache=True, nogil=True)
-def _relative_misfit(theta, data, xcols, yrows, noise):
-    """Residual energy of the best-scaled disc beyond ``noise`` (the background's share),
-    over the data's energy."""
-    model = np.empty(data.size)
-    _disc_model(theta[0], theta[1], theta[2], xcols, yrows, model, np.empty((0, 3)))
-    mm, dm, dd = 0.0, 0.0, 0.0
-    for i in range(data.size):
-        mm += model[i] * model[i]
-        dm += data[i] * model[i]
-        dd += data[i] * data[i]
-    if mm <= 0.0 or dd <= 0.0:
-        return np.inf
-    return max(0.0, dd - dm * dm / mm - noise) / dd
-
-
-@njit(cache=True, nogil=True)
-def _gauss_newton_disc(theta, data, xcols, yrows):
-    """Fit ``a``·disc(theta) to ``data`` by Gauss–Newton; True if it converged.
-
-    The model is piecewise smooth: a chord end crossing a pixel's edge is a kink, and
-    full steps can cycle across one (measured on noisy discs); a step that raises the
-    misfit is halved instead, so the fit settles on the kink.
-    """
-    n = data.size
-    model, dmodel = np.empty(n), np.empty((n, 3))
-    J = np.empty((n, 4))
-    JtJ, Jtr = np.empty((4, 4)), np.empty(4)
-    dd = 0.0
-    for i in range(n):
-        dd += data[i] * data[i]
-    kept, step = theta.copy(), np.zeros(3)
-    kept_cost = np.inf
-    for _ in range(_DISC_EVALUATIONS):
-        _disc_model(theta[0], theta[1], theta[2], xcols, yrows, model, dmodel)
-        mm, dm = 0.0, 0.0
-        for i in range(n):
-            mm += model[i] * model[i]
-            dm += data[i] * model[i]
-        cost = dd - dm * dm / mm if mm > 0.0 else np.inf
-        if cost > kept_cost:  # overshot: halve the step from the kept posture
-            step *= 0.5
-            theta[:] = kept + step
-            if abs(step[0]) < _DISC_TOLERANCE_PX and abs(step[1]) < _DISC_TOLERANCE_PX:
-                theta[:] = kept
-                return True
-            continue
-        if mm <= 0.0:
-            return False
-        kept[:] = theta
-        kept_cost = cost
-        a = dm / mm
-        for i in range(n):
-            J[i, 0], J[i, 1], J[i, 2] = a * dmodel[i, 0], a * dmodel[i, 1], a * dmodel[i, 2]
-            J[i, 3] = model[i]
-        for p in range(4):
-            acc = 0.0
-            for i in range(n):
-                acc += J[i, p] * (data[i] - a * model[i])
-            Jtr[p] = acc
-            for q in range(p + 1):
-                acc = 0.0
-                for i in range(n):
-                    acc += J[i, p] * J[i, q]
-                JtJ[p, q] = acc
-                JtJ[q, p] = acc
-            JtJ[p, p] *= 1.0 + 1e-6
-        delta = solve_spd(JtJ, Jtr)
-        for p in range(3):
-            step[p] = max(-0.5, min(0.5, delta[p]))
-        theta[:] = kept + step
-        if theta[2] <= 0.25:
-            return False
-        if abs(step[0]) < _DISC_TOLERANCE_PX and abs(step[1]) < _DISC_TOLERANCE_PX:
-            return True
-    return abs(step[1]) < 10 * _DISC_TOLERANCE_PX

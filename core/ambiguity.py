@@ -30,6 +30,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from itertools import pairwise
+from typing import NamedTuple
 
 import numpy as np
 
@@ -62,9 +63,9 @@ class Candidate:
     objective: float
 
 
-@dataclass(frozen=True)
-class FlipGeometry:
-    """What the depth flips of a model seen by a rig need, computed once per model and rig.
+class FlipGeometry(NamedTuple):
+    """What the depth flips of a model seen by a rig need, computed once per model and rig;
+    the kernel ``core._kernels.flip_alternatives`` takes it as it is (a named tuple).
 
     flip_joints : (F,) topological indices of the joints with rotational DOFs.
     subtree_joints, subtree_markers : (F, J), (F, M) bool, what lies at or below each.
@@ -163,11 +164,11 @@ def flip_alternatives(
     out_q = np.empty((MAX_ALTERNATIVES, len(model.dofs)))
     out_objective = np.empty(MAX_ALTERNATIVES)
     off = view_offsets(offsets, rig)
+    image = _kernels.Image.of(detections.kernel_points, detections.start, off,
+                              penalty=empty_view_penalty_px, fuse_px=fusion_px)
     n = _kernels.flip_alternatives(
-        fit.dofs, fit.objective, float(tolerance_px), model.lower, model.upper, model.arrays,
-        rig.arrays, off, detections.kernel_points, detections.start, float(empty_view_penalty_px),
-        float(fusion_px), float(huber_px), geo.flip_joints, geo.subtree_joints, geo.subtree_markers,
-        geo.depth, geo.perspective, geo.masks, MAX_FLIP_REFINES, out_q, out_objective,
+        fit.dofs, float(fit.objective), float(tolerance_px), _kernels.Bounds(model.lower, model.upper),
+        model.arrays, rig.arrays, image, float(huber_px), geo, MAX_FLIP_REFINES, out_q, out_objective,
     )
     return [
         Candidate(out_q[k].copy(), plain_error(out_q[k], detections, model, rig, off,
@@ -180,8 +181,9 @@ def plain_error(q: np.ndarray, detections: Detections, model: KinematicModel, ri
                 offsets: np.ndarray, penalty: float) -> float:
     """Plain Eq. 5 (pixels, no fusion) of posture ``q`` (D,) on ``detections``, views shifted by
     ``offsets`` (V, 2); a view without detections costs ``penalty`` px per marker."""
-    return float(_kernels.posture_error(q, model.arrays, rig.arrays, offsets, detections.kernel_points,
-                                        detections.start, float(penalty), 0.0, _kernels.NO_UNSEEN))
+    image = _kernels.Image.of(detections.kernel_points, detections.start, offsets, penalty=penalty,
+                              fuse_px=0.0)
+    return float(_kernels.posture_error(q, model.arrays, rig.arrays, image))
 
 
 def angle_gaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:

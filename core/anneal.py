@@ -5,7 +5,8 @@ the proposal ``j + l·v`` with ``v_i = s(H_i)·r_i`` (re-drawn where the joint
 histogram says the angle is implausible, ``H_i < T_h``), the Metropolis
 acceptance at temperature τ, and the geometric cooling of τ and l. The loop
 itself is compiled (``core._kernels.anneal``); this module validates, prepares
-the histogram statistics and reports.
+the histogram statistics and reports. :func:`anneal` runs the kernel a fit runs
+(``core._kernels.fit_attempt``), without its restarts and refinement.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 
-__all__ = ["AnnealParams", "AnnealResult", "StopReason", "anneal", "search_space"]
+__all__ = ["AnnealParams", "AnnealResult", "StopReason", "anneal", "kernel_params", "search_space"]
 
 
 class StopReason(enum.Enum):
@@ -168,6 +169,23 @@ def search_space(model: KinematicModel, histograms: Histograms) -> SearchSpace:
     return SearchSpace(mean, np.maximum(sigma, 1e-6), np.ascontiguousarray(table), histograms)
 
 
+def kernel_params(params: AnnealParams, sigma: np.ndarray, table: np.ndarray, *, eps: float,
+                  refine_result: bool, restarts: int) -> _kernels.SAParams:
+    """``params`` as the kernels take them, for DOFs of step scales ``sigma`` (D,) and
+    plausibility ``table`` (D, B) (:class:`SearchSpace`'s, or a part's rows of them); ``eps``
+    in pixels; ``refine_result`` and ``restarts`` as ``core.fit.FitParams``'s ``refine`` and
+    ``restarts``."""
+    p = params
+    return _kernels.SAParams(
+        sigma=np.ascontiguousarray(sigma, dtype=np.float64),
+        hist=np.ascontiguousarray(table, dtype=np.float64),
+        h_min=float(p.plausibility_threshold), n_end=int(p.n_end), n_l=int(p.n_l), n_tau=int(p.n_tau),
+        tau0=float(p.tau0), l0=float(p.l0), c_l=float(p.c_l), c_tau=float(p.c_tau), eps=float(eps),
+        polish_every=int(p.polish_every), patience=int(p.patience), draws=int(p.draws),
+        huber_c=float(p.huber_px), refine_result=bool(refine_result), restarts=int(restarts),
+    )
+
+
 def anneal(
     detections: Detections,
     *,
@@ -183,6 +201,11 @@ def anneal(
 ) -> AnnealResult:
     """Minimise Eq. 5 for one image by Simulated Annealing.
 
+    One SA run of the kernel a fit runs (``core._kernels.fit_attempt``, no restart, no
+    refinement of the result). ``error`` is the plain Eq. 5 error of the best posture; the
+    stop is :attr:`StopReason.BELOW_EPSILON` where the attempt's objective (with fusion below
+    ``fusion_px``; without fusion, that same Eq. 5 error) ended below ε.
+
     Parameters
     ----------
     detections : Detections, one group per rig view.
@@ -197,13 +220,10 @@ def anneal(
     q0 = space.mean.copy() if start is None else model._check_postures(start)[0].copy()
     q0 = np.clip(q0, model.lower, model.upper)
     state = rng.integers(1, np.iinfo(np.uint64).max, size=4, dtype=np.uint64, endpoint=True)
-    p = params
-    best, err, it = _kernels.anneal(
-        q0, model.lower, model.upper, space.sigma, space.table, float(p.plausibility_threshold),
-        model.arrays, rig.arrays, view_offsets(offsets, rig), detections.kernel_points,
-        detections.start, float(empty_view_penalty_px), check_fusion(fusion_px), 0.0, p.n_end, p.n_l, p.n_tau,
-        float(p.tau0), float(p.l0), float(p.c_l), float(p.c_tau), float(p.eps), int(p.polish_every),
-        int(p.patience), int(p.draws), float(p.huber_px), state,
-    )
-    stop = StopReason.BELOW_EPSILON if err < p.eps else StopReason.ITERATIONS
+    sa = kernel_params(params, space.sigma, space.table, eps=params.eps, refine_result=False, restarts=0)
+    image = _kernels.Image.of(detections.kernel_points, detections.start, view_offsets(offsets, rig),
+                              penalty=empty_view_penalty_px, fuse_px=check_fusion(fusion_px))
+    best, err, objective, it = _kernels.fit_attempt(
+        q0, False, _kernels.Bounds(model.lower, model.upper), model.arrays, rig.arrays, image, sa, state)
+    stop = StopReason.BELOW_EPSILON if objective < params.eps else StopReason.ITERATIONS
     return AnnealResult(best, float(err), int(it), stop)

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from core import _kernels
+from core import _detect_kernels
 from core.bounds import OptionError, check_options, option
 from core.error import Detections
 from core.rig import Rig
@@ -240,7 +240,7 @@ def _detect_view(
         return np.empty((0, 2)), np.empty(0)
     binary = marker_mask(image, params)
     pixels = np.flatnonzero(binary.view(bool))
-    centroids, areas = _kernels.detect_regions(image, binary, pixels, params.min_area,
+    centroids, areas = _detect_kernels.detect_regions(image, binary, pixels, params.min_area,
                                                params.max_area, _scratch(binary.size))
     roi = rig.views[index].roi
     if roi is not None:

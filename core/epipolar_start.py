@@ -133,8 +133,8 @@ def branch_start(candidates: Candidates, *, part: Part, rotation: np.ndarray, or
     for beam in beams:
         n = int(np.count_nonzero(beam.targets >= 0))
         if n >= MIN_ASSIGNED:
-            error = float(_kernels.posture_error(beam.q, kin, rig.arrays, offsets, points, start,
-                                                 float(empty_view_penalty_px), 0.0, _kernels.NO_UNSEEN))
+            image = _kernels.Image.of(points, start, offsets, penalty=empty_view_penalty_px, fuse_px=0.0)
+            error = float(_kernels.posture_error(beam.q, kin, rig.arrays, image))
             found.append((error, beam.cost, BranchStart(beam.q, error, n)))
     if not found:
         return None
@@ -199,8 +199,8 @@ def _solve(assigned: np.ndarray, q: np.ndarray, kin: KinematicArrays, targets: n
     posed = assigned >= 0
     sub = kin._replace(marker_joint=kin.marker_joint[posed],
                        marker_pos=np.ascontiguousarray(kin.marker_pos[posed]))
-    solved = _kernels.refine(q, lower, upper, sub, rig.arrays, offsets, points, start, 0.0, 0.0,
-                             _kernels.NO_UNSEEN, np.inf, IK_STEPS, 1e-5,
-                             np.ascontiguousarray(targets[assigned[posed]]))
+    solved = _kernels.refine(q, _kernels.Bounds(lower, upper), sub, rig.arrays,
+                             _kernels.Image.of(points, start, offsets, penalty=0.0, fuse_px=0.0), np.inf,
+                             IK_STEPS, np.ascontiguousarray(targets[assigned[posed]]))
     d = _markers(solved, kin)[posed] - targets[assigned[posed]]
     return _Beam(assigned, solved, float(np.sum(d * d)), skips)

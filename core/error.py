@@ -157,9 +157,9 @@ def view_error(
     check_views(detections, rig)
     return float(
         _kernels.posture_error(
-            q, model.arrays, rig.arrays, view_offsets(offsets, rig), detections.kernel_points,
-            detections.start, float(empty_view_penalty_px), check_fusion(fusion_px),
-            _kernels.NO_UNSEEN,
+            q, model.arrays, rig.arrays,
+            _kernels.Image.of(detections.kernel_points, detections.start, view_offsets(offsets, rig),
+                              penalty=empty_view_penalty_px, fuse_px=check_fusion(fusion_px)),
         )
     )
 

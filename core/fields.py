@@ -10,7 +10,7 @@ field row ``r`` of parity ``p`` is frame row ``2r + p``, hence
 A field samples every other frame row, so a marker a few pixels across covers two
 or three of its rows and its weighted centroid locks onto them (up to ±0.28 px in v
 on 4 px discs). Where a sharp disc explains a detection's pixels, its centre is fitted
-instead (``_kernels.fit_field_discs``), which brings a sharp disc's error to the noise's;
+instead (``_detect_kernels.fit_field_discs``), which brings a sharp disc's error to the noise's;
 blurred markers keep the centroid (:data:`DISC_MISFIT_MAX`), an imperfect choice that a
 model of a blurred disc would serve better. docs/ENGINE_NOTES.md has the measured errors.
 
@@ -26,7 +26,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from core import _kernels
+from core import _detect_kernels
 from core.detect import DetectorParams, detect_views, view_images
 from core.error import Detections
 from core.rig import Rig, View
@@ -105,7 +105,7 @@ def _field_rows(image: np.ndarray, view: View, parity: int) -> np.ndarray:
 
 def _fit_discs(fields, rig, parity, points, areas, start) -> None:
     """Replace each detection's centroid by its disc-model centre where a sharp disc
-    explains its pixels (``_kernels.fit_field_discs``, misfit below :data:`DISC_MISFIT_MAX`).
+    explains its pixels (``_detect_kernels.fit_field_discs``, misfit below :data:`DISC_MISFIT_MAX`).
 
     fields : each view's field image, as detected.
     """
@@ -116,7 +116,7 @@ def _fit_discs(fields, rig, parity, points, areas, start) -> None:
         if hi == lo:
             continue
         x, first = (view.roi[0], view.roi[1]) if view.roi is not None else (0, 0)
-        _kernels.fit_field_discs(fields[v], points[lo:hi], radii[lo:hi], float(x),
+        _detect_kernels.fit_field_discs(fields[v], points[lo:hi], radii[lo:hi], float(x),
                                  FIELD_ROW_PITCH * first + parity, FIELD_ROW_PITCH,
                                  fitted[lo:hi], misfit[lo:hi])
     sharp = misfit < DISC_MISFIT_MAX  # NaN: not fitted

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core import _kernels
+from core import _histogram_kernels
 from core._files import decimal, parse_decimal
 from core.model import KinematicModel
 from core.xmlio import attribute, parse
@@ -121,7 +121,7 @@ class Histograms:
         a = np.asarray(angles, dtype=np.float64)
         if a.shape != self.counts.shape:
             raise ValueError(f"angles must have shape {self.counts.shape}, got {a.shape}")
-        _kernels.eq4_update(self.probs, self.counts, self.bin_index(a))
+        _histogram_kernels.eq4_update(self.probs, self.counts, self.bin_index(a))
 
     def bin_index(self, angles: np.ndarray) -> np.ndarray:
         """Bin of each angle (degrees, any interval) after wrapping into [0, 360)."""
@@ -169,7 +169,7 @@ class Histograms:
     def stats(self) -> tuple[np.ndarray, np.ndarray]:
         """(:meth:`means`, :meth:`stds`) in one pass: the search needs both for every image."""
         sin_c, cos_c = _centre_trig(self.bins)
-        return _kernels.circular_stats(self.probs, self.lower, self.upper, sin_c, cos_c)
+        return _histogram_kernels.circular_stats(self.probs, self.lower, self.upper, sin_c, cos_c)
 
     # ---- FORMATS §4 --------------------------------------------------------------------------
     def to_xml(self) -> str:

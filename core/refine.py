@@ -66,9 +66,7 @@ def refine(
         raise ValueError(f"max_iter must be non-negative, got {max_iter}")
     check_views(detections, rig)
     q = np.clip(model._check_postures(dofs)[0], model.lower, model.upper)
-    return _kernels.refine(
-        q, model.lower, model.upper, model.arrays, rig.arrays, view_offsets(offsets, rig),
-        detections.kernel_points, detections.start, float(empty_view_penalty_px),
-        check_fusion(fusion_px),
-        _kernels.NO_UNSEEN, float(huber_px), int(max_iter), 1e-5, _kernels.NO_TARGETS,
-    )
+    image = _kernels.Image.of(detections.kernel_points, detections.start, view_offsets(offsets, rig),
+                              penalty=empty_view_penalty_px, fuse_px=check_fusion(fusion_px))
+    return _kernels.refine(q, _kernels.Bounds(model.lower, model.upper), model.arrays, rig.arrays, image,
+                           float(huber_px), int(max_iter), _kernels.NO_TARGETS)

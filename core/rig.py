@@ -190,8 +190,7 @@ class Rig:
         if pts.ndim not in (2, 3) or pts.shape[-1] != 3:
             raise ValueError(f"points must have shape (M, 3) or (T, M, 3), got {pts.shape}")
         many = np.ascontiguousarray(pts.reshape((-1, *pts.shape[-2:])))
-        a = self.arrays
-        out = _kernels.project_many(many, a.kind, a.P, a.K, a.dist)
+        out = _kernels.project_many(many, self.arrays)
         return out[0] if pts.ndim == 2 else out
 
 

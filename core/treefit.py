@@ -34,7 +34,6 @@ views every branch tries it, kept where it lowers the two-sided error
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -48,6 +47,7 @@ from core.ambiguity import (
     flip_alternatives,
     flip_masks,
 )
+from core.anneal import kernel_params
 from core.epipolar_start import branch_start
 from core.error import Detections, view_offsets
 from core.model import KinematicModel
@@ -79,15 +79,13 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
     model posed by ``kin`` (the whole model, or one part) against detections ``points``
     (N, 3) grouped by view at ``start`` (V + 1,); returns (dofs (d,), error, objective,
     iterations)."""
-    a = params.anneal
-    return _kernels.fit_attempt(
-        space.mean[dofs], draw_start, model.lower[dofs], model.upper[dofs], space.sigma[dofs],
-        np.ascontiguousarray(space.table[dofs]), float(a.plausibility_threshold), kin, rig.arrays,
-        off, points, start, float(params.empty_view_penalty_px), float(params.fusion_px), a.n_end,
-        a.n_l, a.n_tau, float(a.tau0), float(a.l0), float(a.c_l), float(a.c_tau), float(eps),
-        a.polish_every, a.patience, a.draws, float(a.huber_px), params.refine, params.restarts,
-        stream,
-    )
+    sa = kernel_params(params.anneal, space.sigma[dofs], space.table[dofs], eps=eps,
+                       refine_result=params.refine, restarts=params.restarts)
+    image = _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
+                              fuse_px=params.fusion_px)
+    return _kernels.fit_attempt(space.mean[dofs], bool(draw_start),
+                                _kernels.Bounds(model.lower[dofs], model.upper[dofs]), kin, rig.arrays,
+                                image, sa, stream)
 
 
 def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None,
@@ -125,10 +123,10 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     for row in warm:
         q = np.ascontiguousarray(row[dofs])
         if params.refine:
-            q = _kernels.refine(q, model.lower[dofs], model.upper[dofs], kin, rig.arrays, off,
-                                points, start, float(params.empty_view_penalty_px),
-                                float(params.fusion_px), unseen, float(params.anneal.huber_px),
-                                WARM_STEPS, 1e-5, _kernels.NO_TARGETS)
+            image = _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
+                                      fuse_px=params.fusion_px, unseen=unseen)
+            q = _kernels.refine(q, _kernels.Bounds(model.lower[dofs], model.upper[dofs]), kin, rig.arrays,
+                                image, float(params.anneal.huber_px), WARM_STEPS, _kernels.NO_TARGETS)
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
         if value < WARM_EPS_FACTOR * eps:
             return q, value, True
@@ -143,8 +141,8 @@ def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, un
     ``points`` grouped at ``start``, without the projections ``unseen`` (V, m) marks."""
     penalty = float(params.empty_view_penalty_px)
     unseen = _in_seen_views(unseen, start)
-    return float(_kernels.posture_error(q, kin, rig.arrays, off, points, start, penalty,
-                                        float(params.fusion_px), unseen)) - penalty * np.count_nonzero(unseen)
+    image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, unseen=unseen)
+    return float(_kernels.posture_error(q, kin, rig.arrays, image)) - penalty * np.count_nonzero(unseen)
 
 
 def _in_seen_views(unseen: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -395,24 +393,23 @@ def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig
     (posture, plain Eq. 5 error, objective), the objective as ``_kernels.fit_attempt``
     reports it (fusion, a lost marker per view)."""
     a, kin, views = params.anneal, model.arrays, rig.arrays
-    points, start = det.kernel_points, det.start
-    penalty, fuse = float(params.empty_view_penalty_px), float(params.fusion_px)
+    bounds = _kernels.Bounds(model.lower, model.upper)
+    image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
+                              fuse_px=params.fusion_px)
+    charged = image._replace(lost_px=image.penalty)  # every view may lose a marker
 
     def objective(p: np.ndarray) -> float:
-        return _kernels.posture_error(p, kin, views, off, points, start, penalty, fuse,
-                                      _kernels.NO_UNSEEN, penalty)
+        return _kernels.posture_error(p, kin, views, charged)
 
     value = objective(q)
     if params.refine and steps > 0:
-        polished = _kernels.refine(q, model.lower, model.upper, kin, views, off, points, start,
-                                   penalty, fuse, _kernels.NO_UNSEEN, float(a.huber_px), steps, 1e-5,
+        polished = _kernels.refine(q, bounds, kin, views, image, float(a.huber_px), steps,
                                    _kernels.NO_TARGETS)
         if (e := objective(polished)) <= value:
             q, value = polished, e
     if params.refine:
-        value = _kernels._refit_unseen(q, value, model.lower, model.upper, kin, views, off, points,
-                                       start, penalty, fuse, float(a.huber_px))
-    error = _kernels.posture_error(q, kin, views, off, points, start, penalty, 0.0, _kernels.NO_UNSEEN)
+        value = _kernels._refit_unseen(q, value, bounds, kin, views, image, float(a.huber_px))
+    error = _kernels.posture_error(q, kin, views, image._replace(fuse_px=0.0))
     return q, float(error), float(value)
 
 
@@ -430,9 +427,10 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
     other branches' unchanged cost every time.
     """
     tree, off = model.tree, view_offsets(offsets, rig)
-    points, start, views = detections.kernel_points, detections.start, rig.arrays
-    penalty, fuse = float(empty_view_penalty_px), float(fusion_px)
-    trunk = replace(geometry, masks=geometry.masks[_trunk_masks(geometry, model, tree)])
+    views = rig.arrays
+    image = _kernels.Image.of(detections.kernel_points, detections.start, off, penalty=empty_view_penalty_px,
+                              fuse_px=fusion_px)
+    trunk = geometry._replace(masks=geometry.masks[_trunk_masks(geometry, model, tree)])
     found = flip_alternatives(fit, detections, model=model, rig=rig, geometry=trunk,
                               tolerance_px=tolerance_px, fusion_px=fusion_px,
                               empty_view_penalty_px=empty_view_penalty_px, huber_px=huber_px,
@@ -442,21 +440,17 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
         geo = _branch_geometry(part, geometry)
         kin, q = part.at(rot[part.base], pos[part.base]), np.ascontiguousarray(fit.dofs[part.dofs])
         out_q, out_objective = np.empty((MAX_ALTERNATIVES, len(q))), np.empty(MAX_ALTERNATIVES)
-        own = _kernels.posture_error(q, kin, views, off, points, start, penalty, fuse,
-                                     _kernels.NO_UNSEEN)
+        own = _kernels.posture_error(q, kin, views, image)
         n = _kernels.flip_alternatives(
-            q, own, float(tolerance_px), model.lower[part.dofs], model.upper[part.dofs], kin, views,
-            off, points, start, penalty, fuse, float(huber_px), geo.flip_joints, geo.subtree_joints,
-            geo.subtree_markers, geo.depth, geo.perspective, geo.masks, MAX_FLIP_REFINES, out_q,
-            out_objective)
+            q, own, float(tolerance_px), _kernels.Bounds(model.lower[part.dofs], model.upper[part.dofs]),
+            kin, views, image, float(huber_px), geo, MAX_FLIP_REFINES, out_q, out_objective)
         for k in range(n):
             whole = fit.dofs.copy()
             whole[part.dofs] = out_q[k]
-            objective = float(_kernels.posture_error(whole, model.arrays, views, off, points, start,
-                                                     penalty, fuse, _kernels.NO_UNSEEN, penalty))
+            objective = float(_kernels.posture_error(whole, model.arrays, views,
+                                                     image._replace(lost_px=image.penalty)))
             if objective <= fit.objective + tolerance_px:
-                error = _kernels.posture_error(whole, model.arrays, views, off, points, start,
-                                               penalty, 0.0, _kernels.NO_UNSEEN)
+                error = _kernels.posture_error(whole, model.arrays, views, image._replace(fuse_px=0.0))
                 found.append(Candidate(whole, float(error), objective))
     return sorted(found, key=lambda c: c.objective)[:MAX_ALTERNATIVES]
 
@@ -479,6 +473,6 @@ def _branch_geometry(part: Part, geometry: FlipGeometry) -> FlipGeometry:
     kin = part.kin
     flip = np.flatnonzero((kin.rot_dof >= 0).any(axis=1))
     below = _subtrees(kin.parent)[flip]
-    return replace(geometry, flip_joints=flip.astype(np.int64), subtree_joints=below,
-                   subtree_markers=np.ascontiguousarray(below[:, kin.marker_joint]),
-                   masks=flip_masks(len(flip)))
+    return geometry._replace(flip_joints=flip.astype(np.int64), subtree_joints=below,
+                             subtree_markers=np.ascontiguousarray(below[:, kin.marker_joint]),
+                             masks=flip_masks(len(flip)))

@@ -34,7 +34,7 @@ import numpy as np
 
 from core import _kernels
 from core.error import Detections, view_offsets
-from core.rig import Rig
+from core.rig import Rig, RigArrays
 
 __all__ = ["MAX_BLOBS_PER_VIEW", "MAX_CANDIDATES", "MAX_RAY_PAIRS", "Candidates", "triangulate"]
 
@@ -156,7 +156,8 @@ def _pair(rays: list[tuple[np.ndarray, np.ndarray]], blobs: list[np.ndarray], de
             ia, ib = np.repeat(np.arange(na), nb), np.tile(np.arange(nb), na)
             mid, ok = _closest(rays[a][0][ia], rays[a][1][ia], rays[b][0][ib], rays[b][1][ib])
             both = [a, b]
-            proj = _kernels.project_many(mid[None], *(x[both] for x in rig.arrays))[0] + off[both, None]
+            pair = RigArrays(*(x[both] for x in rig.arrays))
+            proj = _kernels.project_many(mid[None], pair)[0] + off[both, None]
             far = np.maximum(np.linalg.norm(proj[0] - det.points[blobs[a][ia]], axis=1),
                              np.linalg.norm(proj[1] - det.points[blobs[b][ib]], axis=1))
             ok &= far <= tolerance_px

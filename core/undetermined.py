@@ -103,11 +103,11 @@ def undetermined_alternative(
         return None
     off = view_offsets(offsets, rig)
     kin, views, points, start = model.arrays, rig.arrays, detections.kernel_points, detections.start
-    penalty = float(empty_view_penalty_px)
+    image = _kernels.Image.of(points, start, off, penalty=empty_view_penalty_px, fuse_px=fusion_px)
+    charged = image._replace(lost_px=image.penalty)  # the objective a fit reports
 
     def objective(p: np.ndarray) -> float:
-        return float(_kernels.posture_error(p, kin, views, off, points, start, penalty,
-                                            float(fusion_px), _kernels.NO_UNSEEN, penalty))
+        return float(_kernels.posture_error(p, kin, views, charged))
 
     def pinned(p: np.ndarray, d: int) -> np.ndarray:
         """``p`` refined with DOF d held: the whole model, or for a tree (``core.tree``) d's
@@ -120,9 +120,8 @@ def undetermined_alternative(
         lower, upper = model.lower[dofs].copy(), model.upper[dofs].copy()
         lower[dofs == d] = upper[dofs == d] = p[d]
         out = p.copy()
-        out[dofs] = _kernels.refine(p[dofs].copy(), lower, upper, part_kin, views, off, points,
-                                    start, penalty, float(fusion_px), _kernels.NO_UNSEEN,
-                                    float(huber_px), PROFILE_STEPS, 1e-5, _kernels.NO_TARGETS)
+        out[dofs] = _kernels.refine(p[dofs].copy(), _kernels.Bounds(lower, upper), part_kin, views,
+                                    image, float(huber_px), PROFILE_STEPS, _kernels.NO_TARGETS)
         return out
 
     profiles, moves = _profiles(q, model, rig, detections)
@@ -148,7 +147,7 @@ def undetermined_alternative(
                     best, best_gap = p, gap
     if best is None:
         return None
-    return Candidate(best, plain_error(best, detections, model, rig, off, penalty), objective(best))
+    return Candidate(best, plain_error(best, detections, model, rig, off, image.penalty), objective(best))
 
 
 def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig,

@@ -110,13 +110,12 @@ def _compile_aside() -> None:
     rig, m = _rig(), KinematicModel.from_xml(_CHAIN)
     det, q = _images(m, rig)[0], _posture(m)
     view_error(q, det, model=m, rig=rig, fusion_px=8.0)
-    _kernels._lost_markers(q, m.arrays, rig.arrays, view_offsets(None, rig), det.kernel_points, det.start,
-                           1.0, 8.0)
+    image = _kernels.Image.of(det.kernel_points, det.start, view_offsets(None, rig), penalty=1.0, fuse_px=8.0)
+    _kernels._lost_markers(q, m.arrays, rig.arrays, image, 1.0)
     _detect(rig)
     flip_alternatives(Candidate(q, 1.0, 1.0), det, model=m, rig=rig, geometry=FlipGeometry.of(m, rig),
                       tolerance_px=1e9, fusion_px=8.0, empty_view_penalty_px=1.0, huber_px=1.0)
-    _kernels._refit_unseen(q, np.inf, m.lower, m.upper, m.arrays, rig.arrays, view_offsets(None, rig),
-                           det.kernel_points, det.start, 1.0, 8.0, 1.0)
+    _kernels._refit_unseen(q, np.inf, _kernels.Bounds(m.lower, m.upper), m.arrays, rig.arrays, image, 1.0)
 
 
 def _wait_for_cache(aside: subprocess.Popen[bytes], kernels: tuple[Dispatcher, ...],

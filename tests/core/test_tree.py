@@ -97,8 +97,8 @@ def test_a_leg_on_its_neighbours_blobs_costs_more_two_sided_than_the_truth():
     a, b = model.tree.branches
     stolen[a.dofs] = _onto(model, rig, q, a, b)
     off, blobs = np.zeros((3, 2)), np.ones(len(det.points), dtype=bool)
-    plain = [_kernels.posture_error(p, model.arrays, rig.arrays, off, det.kernel_points, det.start,
-                                    5.0, 0.0, _kernels.NO_UNSEEN) for p in (q, stolen)]
+    image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=5.0, fuse_px=0.0)
+    plain = [_kernels.posture_error(p, model.arrays, rig.arrays, image) for p in (q, stolen)]
     two_sided = [two_sided_error(p, det, model, rig, off, blobs, 5.0) for p in (q, stolen)]
     left_unexplained = (two_sided[1] - two_sided[0]) - (plain[1] - plain[0])
     assert left_unexplained > 0.5 * 5.0 * len(a.markers) * len(rig.views)

@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from core import _kernels
+from core import _detect_kernels, _histogram_kernels, _kernels
 from core.warmup import compile_kernels
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -16,10 +16,11 @@ ROOT = Path(__file__).resolve().parents[2]
 # from its on-disk cache and those it had to compile.
 COUNT_LOADS = """
 from numba.core.registry import CPUDispatcher
-from core import _kernels
+from core import _detect_kernels, _histogram_kernels, _kernels
 from core.warmup import compile_kernels
 compile_kernels()
-kernels = [k for k in vars(_kernels).values() if isinstance(k, CPUDispatcher)]
+kernels = [k for module in (_kernels, _detect_kernels, _histogram_kernels) for k in vars(module).values()
+           if isinstance(k, CPUDispatcher)]
 print(sum(sum(k.stats.cache_hits.values()) for k in kernels),
       sum(sum(k.stats.cache_misses.values()) for k in kernels))
 """
@@ -28,7 +29,8 @@ print(sum(sum(k.stats.cache_hits.values()) for k in kernels),
 def test_one_call_compiles_the_kernels_a_chain_and_a_tree_fit_run():
     assert compile_kernels() > 0.0
     for kernel in (_kernels.fit_attempt, _kernels.refine, _kernels.posture_error,
-                   _kernels.forward_kinematics, _kernels.flip_alternatives, _kernels.detect_regions):
+                   _kernels.forward_kinematics, _kernels.flip_alternatives, _detect_kernels.detect_regions,
+                   _histogram_kernels.eq4_update):
         assert kernel.signatures, kernel.__name__
 
 
