@@ -461,6 +461,17 @@ def _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, lost_px, unseen, i
         large = large or det[c, 2] > 0.0
     if not (differs and large):
         return apart, False
+    return _nested_reading(raw, fused, v, det, a, b, reach2, lost_px, apart, unseen, index, dist,
+                           claims)
+
+
+@njit(cache=True, nogil=True)
+def _nested_reading(raw, fused, v, det, a, b, reach2, lost_px, apart, unseen, index, dist, claims):
+    """:func:`_view_reading` of view v past its all-apart reading (cost ``apart``, ``index`` and
+    ``dist`` as its :func:`_match_view` left them), whose full merge (``fused``) differs: the
+    nested merged readings, the best kept in ``fused`` if it beats ``apart``. Compiled once
+    and called, not inlined: :func:`_view_reading` is inlined wherever the objective is, and
+    this loop is only taken in views with merged-looking blobs."""
     M = raw.shape[1]
     close = np.empty(M, dtype=np.bool_)  # markers the full merge moves: only they ever move
     for m in range(M):
