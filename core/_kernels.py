@@ -543,12 +543,18 @@ def _lose_worst(total, dist, lost_px):
 
 @njit(cache=True, inline="always")
 def _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, lost_px, unseen, index, dist, claims):
-    """(cost, merged?) of view v: its markers imaged apart, or merged where closer than ``fuse_px``.
+    """(cost, merged?) of view v: its markers imaged apart, or its closer pairs merged.
 
     Whether the detector merged two close markers depends on their distance, size
-    and the threshold; the view is read the way that explains it better, merged
-    only if it shows a detection large enough to be merged markers (``det[:, 2]``,
-    ``core.error.Detections.kernel_points``): with one view, merging would
+    and the threshold, and it merges closer pairs first: the view is read apart, then
+    with the pairs closer than each pair distance below ``fuse_px`` merged (nested
+    readings, the last merging every pair closer than ``fuse_px``), and the reading
+    that explains it best is kept. Read all merged or all apart, a view holding a merged
+    pair and a pair imaged apart within ``fuse_px`` would charge the true posture for
+    one of them, and the fit would pull those markers off their blobs. Only distances
+    at a pair with a large detection near its midpoint are read, then the full merge;
+    merged only if the view shows a detection large enough to be merged markers
+    (``det[:, 2]``, ``core.error.Detections.kernel_points``): with one view, merging would
     otherwise let a wrong posture squeeze two markers onto one blob. With
     ``lost_px`` > 0 either reading may lose its worst marker, charged ``lost_px``
     instead of its distance (an occluded marker). ``index``, ``dist``, ``claims``: scratch
@@ -565,10 +571,94 @@ def _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, lost_px, unseen, i
         large = large or det[c, 2] > 0.0
     if not (differs and large):
         return apart, False
-    merged = _lose_worst(_match_view(fused, v, det, a, b, index, dist, unseen, penalty), dist,
-                         lost_px)
-    merged += _unexplained(raw, fused, v, det, a, b, index, claims, reach2)
-    return (merged, True) if merged < apart else (apart, False)
+    return _nested_reading(raw, fused, v, det, a, b, reach2, lost_px, apart, unseen, index, dist,
+                           claims)
+
+
+@njit(cache=True, nogil=True)
+def _nested_reading(raw, fused, v, det, a, b, reach2, lost_px, apart, unseen, index, dist, claims):
+    """:func:`_view_reading` of view v past its all-apart reading (cost ``apart``, ``index`` and
+    ``dist`` as its :func:`_match_view` left them), whose full merge (``fused``) differs: the
+    nested merged readings, the best kept in ``fused`` if it beats ``apart``. Compiled once
+    and called, not inlined: :func:`_view_reading` is inlined wherever the objective is, and
+    this loop is only taken in views with merged-looking blobs."""
+    M = raw.shape[1]
+    close = np.empty(M, dtype=np.bool_)  # markers the full merge moves: only they ever move
+    for m in range(M):
+        close[m] = fused[v, m, 0] != raw[v, m, 0] or fused[v, m, 1] != raw[v, m, 1]
+        fused[v, m, 0], fused[v, m, 1] = raw[v, m, 0], raw[v, m, 1]
+    best, best_level, last = apart, -1.0, -1.0
+    level = _next_level(raw, v, det, a, b, close, -1.0, reach2)
+    while level >= 0.0:
+        total = _merge_closer(raw, fused, v, level, close, det, a, b, index, dist, unseen)
+        merged = _lose_worst(total, dist, lost_px) + _unexplained(raw, fused, v, det, a, b, index,
+                                                                  claims, reach2)
+        if merged < best:
+            best, best_level = merged, level
+        last, level = level, _next_level(raw, v, det, a, b, close, level, reach2)
+    if best_level < 0.0:
+        return apart, False
+    if best_level != last:
+        _merge_closer(raw, fused, v, best_level, close, det, a, b, index, dist, unseen)
+    return best, True
+
+
+@njit(cache=True, inline="always")
+def _next_level(raw, v, det, a, b, close, above, reach2) -> float:
+    """The next squared distance above ``above`` at which view v may be read with more of its
+    markers merged, or -1: the least distance between two ``close`` markers below ``reach2``
+    whose midpoint has a detection large enough to be merged markers (``det[a:b]``) within
+    ``sqrt(reach2)``, else the greatest below ``reach2`` (every close pair merged)."""
+    level, top = -1.0, -1.0
+    for m in range(raw.shape[1]):
+        if not close[m]:
+            continue
+        for k in range(m + 1, raw.shape[1]):
+            if not close[k]:
+                continue
+            du, dv = raw[v, k, 0] - raw[v, m, 0], raw[v, k, 1] - raw[v, m, 1]
+            d2 = du * du + dv * dv
+            if not above < d2 < reach2:
+                continue
+            top = d2 if d2 > top else top
+            if level >= 0.0 and d2 >= level:
+                continue
+            mu, mv = 0.5 * (raw[v, k, 0] + raw[v, m, 0]), 0.5 * (raw[v, k, 1] + raw[v, m, 1])
+            for c in range(a, b):
+                eu, ev = det[c, 0] - mu, det[c, 1] - mv
+                if det[c, 2] > 0.0 and eu * eu + ev * ev < reach2:
+                    level = d2
+                    break
+    return level if level >= 0.0 else top
+
+
+@njit(cache=True, inline="always")
+def _merge_closer(raw, fused, v, level, close, det, a, b, index, dist, unseen) -> float:
+    """View v of ``fused`` read with the markers closer than squared distance ``level``
+    merged (each ``close`` marker at the mean of those within it, itself included, as
+    :func:`fuse_projections`), the markers that moved matched again (``index``, ``dist``,
+    as :func:`_match_view` left them for ``fused``'s previous reading); returns their sum."""
+    for m in range(raw.shape[1]):
+        if not close[m]:
+            continue
+        su, sv, n = 0.0, 0.0, 0.0
+        for k in range(raw.shape[1]):
+            du, dv = raw[v, k, 0] - raw[v, m, 0], raw[v, k, 1] - raw[v, m, 1]
+            w = 1.0 if du * du + dv * dv <= level else 0.0
+            su += w * raw[v, k, 0]
+            sv += w * raw[v, k, 1]
+            n += w
+        u, w_ = su / n, sv / n
+        if u == fused[v, m, 0] and w_ == fused[v, m, 1]:
+            continue
+        fused[v, m, 0], fused[v, m, 1] = u, w_
+        if not (unseen.shape[0] > 0 and unseen[v, m]):
+            d2, c = _nearest(u, w_, det, a, b)
+            index[m], dist[m] = c, math.sqrt(d2)
+    total = 0.0
+    for m in range(raw.shape[1]):
+        total += dist[m]
+    return total
 
 
 @njit(cache=True, inline="always")
@@ -576,11 +666,11 @@ def blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, 
     """The objective: Eq. 5, or with ``fuse_px`` > 0 Eq. 5 read as the blobs a camera shows.
 
     ``fuse_px`` <= 0: exactly :func:`eq5` on the raw projections (the paper).
-    ``fuse_px`` > 0: every view is read as its markers imaged apart, or with those
-    closer than ``fuse_px`` merged into one blob at their centroid, whichever
-    explains the view better (a detector merges two discs up to ~1.3 diameters
-    apart, depending on the threshold); each reading is Eq. 5 plus the charge of
-    :func:`_unexplained` detections. A view without detections adds ``penalty``
+    ``fuse_px`` > 0: every view is read as its markers imaged apart, or with its pairs
+    closer than some distance up to ``fuse_px`` merged into one blob at their centroid,
+    whichever explains the view best (:func:`_view_reading`; a detector merges two discs
+    up to ~1.3 diameters apart, depending on the threshold); each reading is Eq. 5 plus
+    the charge of :func:`_unexplained` detections. A view without detections adds ``penalty``
     per marker, and so does a marker ``unseen`` (V,M) marks (empty: none);
     ``lost_px`` > 0 lets every view lose one marker (:func:`_view_reading`).
     ``index``, ``dist``, ``claims``: scratch as :func:`_view_reading`'s. Stops summing once

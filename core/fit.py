@@ -40,6 +40,7 @@ from core.treefit import (
     attempt_kernel,
     fit_tree,
     refine_whole,
+    search_floor,
     tree_flip_alternatives,
 )
 from core.undetermined import residual_tolerance, undetermined_alternative
@@ -96,8 +97,9 @@ class FitParams:
     choose_by_continuity : at the end of a sequence, choose each image's posture
         among its alternatives by continuity with its neighbours (``core.ambiguity``).
     outlier_factor : an image whose objective is more than this times the sequence's
-        median (and above ε) is re-analysed as if over the threshold; 0: only the
-        threshold (the paper).
+        median (and above where the search itself stops, ``core.treefit.search_floor``:
+        ε, or its parts' for a tree) is re-analysed as if over the threshold; 0: only
+        the threshold (the paper).
     """
 
     anneal: AnnealParams = field(default_factory=AnnealParams)
@@ -458,7 +460,7 @@ def reanalyse_image(
     The kept attempt brings its alternatives along.
     """
     attempt = previous.attempts + 1
-    if not needs_reanalysis(previous, params, typical):
+    if not needs_reanalysis(previous, model, params, typical):
         return previous
     best, alternatives, its = _attempt(
         detections, model, rig, search_space(model, histograms), params,
@@ -472,22 +474,28 @@ def reanalyse_image(
                     previous.iterations + its, previous.detections, alternatives)
 
 
-def needs_reanalysis(fit: ImageFit, params: FitParams, typical: float = math.nan) -> bool:
+def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
+                     typical: float = math.nan) -> bool:
     """True while an image has attempts left and is over the error threshold (paper §3.2), or
     its objective is an outlier: above ``params.outlier_factor`` times ``typical`` (the
-    sequence's ``core.sequence.typical_objective``) and above ε.
+    sequence's ``core.sequence.typical_objective``) and above the level where ``model``'s
+    search stops in the image's views (``core.treefit.search_floor``: ε for a chain, the sum
+    of its parts' ε for a tree).
 
     The paper's 10 px threshold was "clearly larger than the expected analysis
     result" (2.9 px); clean footage now fits at ~0.1 px, so a local minimum at
     5-9 px is far from typical yet under the threshold. Outliers are re-analysed
     like over-threshold images; their status still says only whether the error
-    is over the threshold.
+    is over the threshold. A tree's parts each stop at their own ε, so a whole
+    animal that fits most images far below it would otherwise send every image
+    that stops near it to attempts that stop there again.
     """
     if fit.attempts >= params.max_attempts or fit.status is Status.NO_DETECTIONS:
         return False
     if fit.status is Status.OVER_THRESHOLD:
         return True
-    limit = max(params.anneal.eps, params.outlier_factor * typical)
+    views_seen = sum(1 for c in fit.detections if c > 0)
+    limit = max(search_floor(model, params, views_seen), params.outlier_factor * typical)
     return params.outlier_factor > 0 and math.isfinite(limit) and fit.objective > limit
 
 

@@ -188,19 +188,21 @@ def typical_objective(fits: Iterable[ImageFit]) -> float:
     return float(np.median(values)) if values else math.nan
 
 
-def images_to_reanalyse(fits: Iterable[ImageFit], params: FitParams,
+def images_to_reanalyse(fits: Iterable[ImageFit], model: KinematicModel, params: FitParams,
                         typical: float) -> list[tuple[int, int]]:
-    """(sample, next attempt) of every fit ``core.fit.needs_reanalysis`` picks, in the order given."""
-    return [(f.sample, f.attempts + 1) for f in fits if needs_reanalysis(f, params, typical)]
+    """(sample, next attempt) of every fit of ``model`` ``core.fit.needs_reanalysis`` picks,
+    in the order given."""
+    return [(f.sample, f.attempts + 1) for f in fits if needs_reanalysis(f, model, params, typical)]
 
 
 def plan_reanalysis(prior: Histograms, observed: Iterable[Histograms], fits: Sequence[ImageFit],
-                    params: FitParams) -> Reanalysis:
+                    model: KinematicModel, params: FitParams) -> Reanalysis:
     """Step 3, once every chunk is fitted: ``observed`` (each chunk's) merged into ``prior`` by
-    counts, the typical objective of ``fits`` (the chunks' first attempts, in sample order)
-    and the images to re-analyse."""
+    counts, the typical objective of ``fits`` (the chunks' first attempts of ``model``, in
+    sample order) and the images to re-analyse."""
     typical = typical_objective(fits)
-    return Reanalysis(prior.merge(*observed), typical, images_to_reanalyse(fits, params, typical))
+    return Reanalysis(prior.merge(*observed), typical,
+                      images_to_reanalyse(fits, model, params, typical))
 
 
 def finish_sequence(
@@ -273,7 +275,7 @@ def fit_sequence(
     run = partial(_fit_range, images, model, rig, histograms, params, seed, offsets, progress)
     chunks = list(map_chunks(run, plan_chunks(n, chunk_size)))
     fits = [f for c in chunks for f in c.fits]  # fits[s] is sample s: the chunks cover 0..n-1
-    todo = plan_reanalysis(histograms, [c.observed for c in chunks], fits, params)
+    todo = plan_reanalysis(histograms, [c.observed for c in chunks], fits, model, params)
     samples = [sample for sample, _ in todo.images]
     redo = partial(_attempts_while_needed, images, model, rig, todo.histograms, params, seed,
                    offsets, todo.typical)
@@ -288,7 +290,7 @@ def _attempts_while_needed(images, model, rig, histograms, params, seed, offsets
     module-level function, so that the processes fitting the chunks share the re-analyses;
     an image's attempts depend on nothing but itself and ``histograms``)."""
     det = images[fit.sample]
-    while needs_reanalysis(fit, params, typical):
+    while needs_reanalysis(fit, model, params, typical):
         fit = reanalyse_image(
             det, fit, model=model, rig=rig, histograms=histograms, params=params, seed=seed,
             offsets=None if offsets is None else offsets[fit.sample], typical=typical,

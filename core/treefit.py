@@ -60,8 +60,8 @@ if TYPE_CHECKING:
     from core.fit import FitParams
 
 __all__ = ["attempt_kernel", "epipolar_start", "fit_tree", "part_objective", "refine_whole",
-           "shared_projections", "tree_flip_alternatives", "two_sided_error", "warm_start",
-           "world_frames"]
+           "search_floor", "shared_projections", "tree_flip_alternatives", "two_sided_error",
+           "warm_start", "world_frames"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
@@ -247,6 +247,25 @@ def _part_eps(part: Part, params: FitParams, views_seen: int) -> float:
     """SA's stop ε for a part (pixels): ``AnnealParams.eps`` per :data:`EPS_PROJECTIONS` of its
     marker projections into the views with detections."""
     return params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
+
+
+def search_floor(model: KinematicModel, params: FitParams, views_seen: int) -> float:
+    """The objective (pixels) below which an attempt's search stops on ``model`` in an image
+    with detections in ``views_seen`` views: ε (``AnnealParams.eps``) for a model fitted
+    whole (``model.tree`` None), the sum of its parts' ε (:func:`_part_eps`) for a tree.
+
+    An image scoring under it ends where another attempt's search would stop as well, so
+    it is no outlier to re-analyse, however far above the sequence's typical objective
+    (``core.fit.needs_reanalysis``): a hexapod's 27 markers seen in 3 views stop at 20 px.
+
+    >>> from core.fit import FitParams
+    >>> from core.examples import LOCUST
+    >>> search_floor(KinematicModel.from_xml(LOCUST / "model.xml"), FitParams(), 2)
+    1.0
+    """
+    if model.tree is None:
+        return params.anneal.eps
+    return float(sum(_part_eps(part, params, views_seen) for part in model.tree.parts))
 
 
 def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,

@@ -322,7 +322,8 @@ def _after_chunks(job_id: int) -> None:
         keys = session.scalars(select(Chunk.observed_key).where(Chunk.job_id == job_id)
                                .order_by(Chunk.index)).all()
         observed = [histstore.load(storage, k, loaded.fit.model) for k in keys if k]
-        todo = plan_reanalysis(loaded.prior, observed, _fits(session, job_id), loaded.fit.params)
+        todo = plan_reanalysis(loaded.prior, observed, _fits(session, job_id), loaded.fit.model,
+                               loaded.fit.params)
         histstore.save(storage, f"jobs/{job_id}/merged.npz", todo.histograms)
         moved = rows_changed(session,
             update(Job).where(Job.id == job_id, Job.status == JobStatus.RUNNING, Job.fitted_at.is_(None))
@@ -358,7 +359,7 @@ def run_attempt(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
     fit = reanalyse_image(fit_job.source[sample], previous, model=fit_job.model, rig=fit_job.source.rig,
                           histograms=merged, params=fit_job.params, seed=fit_job.seed, typical=typical,
                           offsets=None if offsets is None else offsets[0])
-    again = needs_reanalysis(fit, fit_job.params, typical)
+    again = needs_reanalysis(fit, fit_job.model, fit_job.params, typical)
     over = int(fit.status is Status.OVER_THRESHOLD) - int(previous.status is Status.OVER_THRESHOLD)
     with session_scope() as session:
         stored = rows_changed(session,
@@ -385,8 +386,8 @@ def pending_reanalyses(session: Session, job_id: int) -> list[tuple[int, int]]:
     """(sample, next attempt) of every image of a re-analysing job that still needs one: read
     from the stored fits with the rule that queued them, so lost messages can be sent again."""
     job = session.get_one(Job, job_id)
-    params = _load(session, job_id).fit.params
-    return images_to_reanalyse(_fits(session, job_id), params, _typical(job))
+    fit_job = _load(session, job_id).fit
+    return images_to_reanalyse(_fits(session, job_id), fit_job.model, fit_job.params, _typical(job))
 
 
 def _typical(job: Job) -> float:

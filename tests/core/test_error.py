@@ -83,6 +83,20 @@ def test_a_view_is_read_merged_or_apart_whichever_explains_it(locust, gap_px):
     assert _eq5_at(side, top, det) == pytest.approx(gap_px if gap_px < 5 else 0.0)
 
 
+def test_a_view_is_read_with_its_closer_pairs_merged_and_its_farther_apart(locust):
+    """In one view, markers 3 px apart show as one blob and markers 7 px apart as two (both
+    within the 8 px fusion distance): neither all-apart (1.5 px a marker on the merged blob)
+    nor all-merged (3.5 px a marker off the two blobs) explains the view; merging the
+    closer pair alone does, and scores 0."""
+    model, rig = locust
+    side = rig.project(model.marker_positions(np.array([170.0, 0.0, 0.0, 10.0, 90.0])))[0]
+    top = np.array([[240.0, 438.0], [243.0, 438.0], [160.0, 440.0], [160.0, 447.0]])
+    blobs = np.array([[241.5, 438.0], [160.0, 440.0], [160.0, 447.0]])
+    det = Detections.from_views([side, blobs])
+    assert _eq5_at(side, top, det) == pytest.approx(3.0)
+    assert _eq5_at(side, top, det, fusion_px=8.0) == pytest.approx(0.0, abs=1e-9)
+
+
 def _eq5_at(side, top, det, fusion_px=0.0):
     """The objective of imaged markers (side, top) against ``det``, through the kernel."""
     from core import _kernels

@@ -10,6 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from scenes import FAST, detections, postures
+from tree_subjects import FREE_ROOT, insect
 
 from core.error import Detections, view_error
 from core.fit import (
@@ -194,17 +195,36 @@ def test_a_lost_marker_does_not_drag_the_posture(locust):
     assert fits[0].objective == pytest.approx(5.0, abs=0.2)  # the lost marker's flat charge
 
 
-def test_outliers_are_reanalysed_as_if_over_the_threshold():
+def test_outliers_are_reanalysed_as_if_over_the_threshold(locust):
+    model, _ = locust
     params = FitParams()
     fit = ImageFit(0, np.zeros(5), 6.0, 6.0, 1, Status.OK, 500, (4, 4))
     assert typical_objective([fit, replace(fit, objective=0.1), replace(fit, objective=0.2)]) == 0.2
-    assert needs_reanalysis(fit, params, typical=0.1)  # 60x the typical objective
-    assert not needs_reanalysis(fit, params, typical=1.0)  # 6x
-    assert not needs_reanalysis(fit, replace(params, outlier_factor=0.0), typical=0.1)
-    assert not needs_reanalysis(replace(fit, objective=0.9), params, typical=0.01)  # below eps
-    assert not needs_reanalysis(replace(fit, attempts=params.max_attempts), params, typical=0.1)
-    assert needs_reanalysis(replace(fit, status=Status.OVER_THRESHOLD), params)
+    assert needs_reanalysis(fit, model, params, typical=0.1)  # 60x the typical objective
+    assert not needs_reanalysis(fit, model, params, typical=1.0)  # 6x
+    assert not needs_reanalysis(fit, model, replace(params, outlier_factor=0.0), typical=0.1)
+    assert not needs_reanalysis(replace(fit, objective=0.9), model, params, typical=0.01)  # below eps
+    assert not needs_reanalysis(replace(fit, attempts=params.max_attempts), model, params, typical=0.1)
+    assert needs_reanalysis(replace(fit, status=Status.OVER_THRESHOLD), model, params)
 
+
+def test_a_tree_image_under_its_parts_eps_is_no_outlier(locust):
+    """A whole animal stops each part's search at the part's ε: an image above 10x the typical
+    objective but under the sum of those is where another attempt stops too, and is left
+    alone; one above it is re-analysed. A single chain keeps ε itself as the floor."""
+    tree = insect(legs=2, root_dofs=FREE_ROOT)  # 11 markers: 3 views stop at 8.25 px
+    good = ImageFit(0, np.zeros(len(tree.dofs)), 0.5, 0.5, 1, Status.OK, 500, (11, 11, 11))
+    fits = [*(replace(good, sample=s) for s in range(5)),
+            replace(good, sample=5, objective=6.0),  # 12x the median, under 8.25 px
+            replace(good, sample=6, objective=9.0),  # over 8.25 px
+            replace(good, sample=7, objective=6.0, detections=(11, 11, 0))]  # 2 views: 5.5 px
+    plan = plan_reanalysis(Histograms.uniform(tree), [], fits, tree, FitParams())
+    assert plan.typical == pytest.approx(0.5)
+    assert plan.images == [(6, 2), (7, 2)]
+    chain, _ = locust
+    as_chain = [replace(f, dofs=np.zeros(5), detections=(4, 4)) for f in fits]
+    plan = plan_reanalysis(Histograms.uniform(chain), [], as_chain, chain, FitParams())
+    assert plan.images == [(5, 2), (6, 2), (7, 2)]  # over 10x the median and ε (1 px)
 
 
 def test_the_reanalysis_plan_merges_by_counts_and_picks_each_image_with_its_next_attempt(locust):
@@ -219,7 +239,7 @@ def test_the_reanalysis_plan_merges_by_counts_and_picks_each_image_with_its_next
     fits = [good, replace(good, sample=1, objective=0.1), replace(good, sample=2, objective=6.0),
             replace(good, sample=3, status=Status.OVER_THRESHOLD, attempts=2),
             ImageFit(4, np.full(5, np.nan), math.nan, math.nan, 0, Status.NO_DETECTIONS, 0, (0, 0))]
-    plan = plan_reanalysis(prior, [chunk_a, chunk_b], fits, FitParams())
+    plan = plan_reanalysis(prior, [chunk_a, chunk_b], fits, model, FitParams())
     assert plan.typical == pytest.approx(0.2)  # the median of 0.2, 0.1, 6.0 and 0.2
     assert plan.images == [(2, 2), (3, 3)]  # an outlier, and an image over the threshold
     np.testing.assert_allclose(plan.histograms.counts, prior.counts + 2)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from tree_subjects import FREE_ROOT, angle_errors, detections, insect, movement, ring_rig
@@ -13,7 +15,7 @@ from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 from core.sequence import fit_sequence
-from core.treefit import two_sided_error
+from core.treefit import search_floor, two_sided_error
 
 # ---- decomposition ---------------------------------------------------------------------------
 
@@ -44,6 +46,21 @@ def test_a_free_root_with_three_markers_is_a_trunk_fitted_first():
 
 def test_a_free_root_its_markers_cannot_fix_makes_the_tree_one_part():
     assert insect(legs=2, root_dofs=FREE_ROOT, thorax_markers=2).tree is None
+
+
+def test_the_search_floor_is_the_sum_of_the_parts_eps_or_eps_for_a_chain():
+    """A part stops at ε (1 px) per 4 of its marker projections into the views with
+    detections; markers on a trunk without DOFs belong to no part."""
+    params = FitParams()
+    free = insect(legs=2, root_dofs=FREE_ROOT)  # trunk 3 markers + 2 legs x 4
+    assert search_floor(free, params, 3) == pytest.approx((3 + 4 + 4) * 3 / 4)
+    assert search_floor(free, params, 2) == pytest.approx((3 + 4 + 4) * 2 / 4)
+    assert search_floor(insect(legs=2), params, 3) == pytest.approx((4 + 4) * 3 / 4)
+    wider = FitParams(anneal=replace(params.anneal, eps=2.0))
+    assert search_floor(free, wider, 3) == pytest.approx(2.0 * (3 + 4 + 4) * 3 / 4)
+    chain = KinematicModel.from_xml(EXAMPLES / "locust_hind_leg" / "model.xml")
+    assert search_floor(chain, params, 2) == search_floor(chain, params, 6) == params.anneal.eps
+    assert search_floor(chain, wider, 2) == 2.0
 
 
 def test_a_part_posed_at_its_base_puts_its_markers_where_the_whole_model_does():
