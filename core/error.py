@@ -12,8 +12,9 @@ being reported as a confident fit.
 
 Blobs (``fusion_px`` > 0; :func:`fusion_distance` of the marker diameter): a
 camera shows two markers closer than about 1.3 diameters as one blob at their
-centroid, so every view is read both ways, the markers apart or those closer
-than ``fusion_px`` merged, whichever explains it better; and a detection no
+centroid, and it merges closer pairs first, so every view is read apart and with
+the pairs closer than each pair distance below ``fusion_px`` merged (nested
+readings), whichever explains it best; and a detection no
 marker claims, next to markers that share a blob, is charged (two markers put
 on one blob leave it unexplained: the paper's Fig. 9). Otherwise the true
 posture of a frame with fused markers is not a minimum, and a wrong one that
@@ -37,7 +38,7 @@ from core.rig import Rig
 __all__ = ["DEFAULT_EMPTY_VIEW_PENALTY_PX", "Detections", "fusion_distance", "view_error"]
 
 DEFAULT_EMPTY_VIEW_PENALTY_PX = 5.0
-# fusion_px in marker diameters: reading every view both ways makes a generous distance
+# fusion_px in marker diameters: reading every view apart as well makes a generous distance
 # safe, and it must cover what the detector merges (up to ~1.3 diameters; smaller distances
 # read merged pairs apart: docs/ENGINE_NOTES.md, "Fusion distance").
 FUSION_DIAMETERS = 2.0

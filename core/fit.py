@@ -83,8 +83,9 @@ class FitParams:
     refine : polish SA's best posture by bounded least squares (``core.refine``).
     empty_view_penalty_px : Eq. 5 charge per marker of a view without detections.
     fusion_px : markers projecting closer than this may be one blob, and every view is
-        read both ways (``core.error``; :func:`core.error.fusion_distance` of the marker
-        diameter; 0 = the paper's Eq. 5). Reported errors are plain Eq. 5.
+        read apart and with its closer pairs merged (``core.error``;
+        :func:`core.error.fusion_distance` of the marker diameter; 0 = the paper's Eq. 5).
+        Reported errors are plain Eq. 5.
     restarts : within one attempt, SA runs again (from a posture drawn from the
         histograms) at most this many times while the objective stays >= ε: SA's
         own convergence test says it is in a local minimum, whatever the threshold.
