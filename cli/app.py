@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict
 from pathlib import Path
@@ -33,7 +33,7 @@ from core.benchmark import FUSION_PX, locust_benchmark
 from core.bounds import bounds_of
 from core.cost import check_fit_cost, estimate_fit_cost
 from core.export import EXPORTS, unit_scale
-from core.fit import FitParams, Status
+from core.fit import FitParams, ImageFit, Status
 from core.histogram import HistogramError, Histograms
 from core.model import KinematicModel, ModelError
 from core.options import FitOptions, build_fit
@@ -52,7 +52,8 @@ PRIOR_WEIGHT = bounds_of(FitOptions)["prior_weight"]
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0])
 
-USER_ERRORS = (ModelError, RigError, HistogramError, VideoError, ValueError, OSError)
+USER_ERRORS: tuple[type[Exception], ...] = (
+    ModelError, RigError, HistogramError, VideoError, ValueError, OSError)
 
 
 def run() -> None:
@@ -165,7 +166,7 @@ def fit(
 
 
 @contextmanager
-def progress_bar(total: int) -> Iterator:
+def progress_bar(total: int) -> Iterator[Callable[[ImageFit], None] | None]:
     """A progress callback: a bar on a terminal, nothing otherwise."""
     if not sys.stderr.isatty():
         yield None
@@ -389,7 +390,7 @@ def _draw_plots(results: Path, model: KinematicModel, start: Histograms, final: 
     print(f"wrote {results / PLOTS_DIR}: {', '.join(names)}")
 
 
-def _report(path: Path) -> dict:
+def _report(path: Path) -> dict[str, Any]:
     try:
         report = json.loads(path.read_text())
     except (ValueError, UnicodeDecodeError) as exc:
