@@ -990,7 +990,7 @@ def _propose(cur, cand, step, sigma, lower, upper, hist, turns, bins_per_degree,
 _POLISH_STEPS = 10
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always")
 def _polish(q, e_q, bounds, kin, views, image, huber_c, out) -> float:
     """Refine ``q`` (:data:`_POLISH_STEPS` LM steps) into ``out`` if that lowers its error on
     ``image``; return the error of ``out``.

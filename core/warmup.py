@@ -32,12 +32,13 @@ from core import _kernels
 from core.ambiguity import Candidate, FlipGeometry, flip_alternatives
 from core.detect import detect
 from core.error import Detections, view_error, view_offsets
-from core.fit import FitParams
+from core.fit import FitParams, image_stream
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.refine import refine
 from core.rig import Rig
 from core.sequence import fit_sequence
+from core.treefit import world_frames
 
 __all__ = ["compile_kernels", "compile_kernels_saying_so"]
 
@@ -78,9 +79,10 @@ def compile_kernels() -> float:
     """Run a few tiny fits so that every kernel is compiled or loaded; returns the seconds taken.
 
     With an empty cache, a second process (:func:`_compile_aside`) compiles the objective and
-    the lost-marker search into numba's cache while this one compiles refinement; this one
-    waits for those two (SA's polish calls all three) and loads them, instead of compiling
-    them a second time, then compiles SA. The machine's second core takes part of a first run.
+    the lost-marker search into numba's cache while this one compiles refinement and the
+    posture draw; this one waits for those two (SA's polish calls all three) and loads them,
+    instead of compiling them a second time, then compiles SA. The machine's second core
+    takes part of a first run.
     """
     t0 = time.perf_counter()
     aside = None if _cache_filled() else subprocess.Popen(
@@ -91,6 +93,7 @@ def compile_kernels() -> float:
         rig, chain = _rig(), KinematicModel.from_xml(_CHAIN)
         refine(_posture(chain), _blobs(), model=chain, rig=rig, fusion_px=8.0)  # aside renders meanwhile
         if aside is not None:
+            _draw(chain)  # while aside still compiles the objective
             _wait_for_cache(aside, (_kernels.posture_error, _kernels._lost_markers))
         for m in (chain, KinematicModel.from_xml(_TREE)):
             params = FitParams(anneal=FitParams().anneal.with_iterations(300), fusion_px=8.0, max_attempts=2)
@@ -105,17 +108,19 @@ def compile_kernels() -> float:
 
 def _compile_aside() -> None:
     """Into numba's cache: the objective and the lost-marker search (SA's polish calls them,
-    the first process waits for them), then detection, depth flips and the refit without
-    lost markers, which the first process reaches last."""
+    the first process waits for them), then in the order the first process reaches them: the
+    refit without lost markers (the attempt calls it), depth flips, detection, the tree's
+    joint frames."""
     rig, m = _rig(), KinematicModel.from_xml(_CHAIN)
     det, q = _images(m, rig)[0], _posture(m)
     view_error(q, det, model=m, rig=rig, fusion_px=8.0)
     image = _kernels.Image.of(det.kernel_points, det.start, view_offsets(None, rig), penalty=1.0, fuse_px=8.0)
     _kernels._lost_markers(q, m.arrays, rig.arrays, image, 1.0)
-    _detect(rig)
+    _kernels._refit_unseen(q, np.inf, _kernels.Bounds(m.lower, m.upper), m.arrays, rig.arrays, image, 1.0)
     flip_alternatives(Candidate(q, 1.0, 1.0), det, model=m, rig=rig, geometry=FlipGeometry.of(m, rig),
                       tolerance_px=1e9, fusion_px=8.0, empty_view_penalty_px=1.0, huber_px=1.0)
-    _kernels._refit_unseen(q, np.inf, _kernels.Bounds(m.lower, m.upper), m.arrays, rig.arrays, image, 1.0)
+    _detect(rig)
+    world_frames(q, m)
 
 
 def _wait_for_cache(aside: subprocess.Popen[bytes], kernels: tuple[Dispatcher, ...],
@@ -168,6 +173,12 @@ def _images(m: KinematicModel, rig: Rig) -> list[Detections]:
     """Three images of ``m`` moving a little, rendered without noise."""
     postures = np.linspace(m.lower + 0.3 * (m.upper - m.lower), m.lower + 0.4 * (m.upper - m.lower), 3)
     return [Detections.from_views(list(p)) for p in rig.project(m.marker_positions(postures))]
+
+
+def _draw(m: KinematicModel) -> None:
+    """A posture drawn from uniform histograms (D, 36), as an attempt's restart draws one."""
+    hist = np.full((len(m.dofs), 36), 1.0 / 36)
+    _kernels.draw_posture(m.lower, m.upper, hist, image_stream(0, 0, 0), np.empty(len(m.dofs)))
 
 
 def _detect(rig: Rig) -> None:
