@@ -699,7 +699,7 @@ def posture_error(q, kin, views, image):
     return _evaluate(q, kin, views, image, np.inf, work)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always")
 def _evaluate(q, kin, views, image, limit, work):
     """The objective (:func:`blob_error`, summed up to ``limit``) of posture ``q``, projected
     into ``work`` (:class:`Workspace`): a plain call, as :func:`_objective`."""
