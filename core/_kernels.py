@@ -32,7 +32,11 @@ Written for the SA inner loop, which evaluates Eq. 5 some 10^5 times a second:
   loop is one function and arrays are not reference-counted at every call; numba
   types an inlined helper again at every call site, so helpers of scalars alone
   (LLVM inlines them) and those called once per refinement step or outside SA's
-  proposal loop are plain calls, compiled once;
+  proposal loop are plain calls, compiled once; but a plain call's library carries the
+  code of all it calls, which numba optimises again in it: thin wrappers of big kernels
+  (:func:`_polish`, :func:`_evaluate`) are inlined;
+- no slice assignment of arrays (``a[:] = b``): numba compiles its shape-mismatch message
+  (string formatting) in every process, uncached; :func:`_copy` loops;
 - random numbers come from an inlined xoshiro256** generator seeded from the
   caller's ``numpy.random.Generator`` (~1 ns a draw instead of ~7 ns).
 """
@@ -702,7 +706,8 @@ def posture_error(q, kin, views, image):
 @njit(cache=True, inline="always")
 def _evaluate(q, kin, views, image, limit, work):
     """The objective (:func:`blob_error`, summed up to ``limit``) of posture ``q``, projected
-    into ``work`` (:class:`Workspace`): a plain call, as :func:`_objective`."""
+    into ``work`` (:class:`Workspace`) by the plain calls :func:`_project` and
+    :func:`_objective`; inlined, as a thin wrapper (see the module's docstring)."""
     _project(q, kin, views, image.offset, image.fuse_px, work)
     return _objective(image, limit, work)
 

@@ -79,10 +79,10 @@ def compile_kernels() -> float:
     """Run a few tiny fits so that every kernel is compiled or loaded; returns the seconds taken.
 
     With an empty cache, a second process (:func:`_compile_aside`) compiles the objective and
-    the lost-marker search into numba's cache while this one compiles refinement and the
-    posture draw; this one waits for those two (SA's polish calls all three) and loads them,
-    instead of compiling them a second time, then compiles SA. The machine's second core
-    takes part of a first run.
+    the lost-marker search into numba's cache while this one renders the warm-up images and
+    compiles refinement; this one waits for those two (SA's polish calls all three) and
+    loads them, instead of compiling them a second time, then compiles SA. The machine's
+    second core takes part of a first run.
     """
     t0 = time.perf_counter()
     aside = None if _cache_filled() else subprocess.Popen(
@@ -93,7 +93,6 @@ def compile_kernels() -> float:
         rig, chain = _rig(), KinematicModel.from_xml(_CHAIN)
         fits = [(m, _images(m, rig)) for m in (chain, KinematicModel.from_xml(_TREE))]
         refine(_posture(chain), _blobs(), model=chain, rig=rig, fusion_px=8.0)
-        _draw(chain)
         if aside is not None:
             _wait_for_cache(aside, (_kernels.posture_error, _kernels._lost_markers))
         for m, images in fits:
@@ -108,15 +107,16 @@ def compile_kernels() -> float:
 
 def _compile_aside() -> None:
     """Into numba's cache: the nested readings (refinement in the first process reaches them
-    some 3 s in), the objective and the lost-marker search (SA's polish calls them, the first
-    process waits for them), detection, then what needs the first process's refinement: the
-    refit without lost markers (the attempt calls it), depth flips; and the tree's joint
-    frames."""
+    some 3 s in), the objective, the posture draw and the lost-marker search (the first
+    process waits for them: SA calls them), detection, then what needs the first process's
+    refinement: the refit without lost markers (the attempt calls it), depth flips; and the
+    tree's joint frames."""
     rig, m = _rig(), KinematicModel.from_xml(_CHAIN)
     det, q = _blobs(), _posture(m)
     _nested_readings(m, rig, det)
     view_error(q, det, model=m, rig=rig, fusion_px=8.0)
     image = _kernels.Image.of(det.kernel_points, det.start, view_offsets(None, rig), penalty=1.0, fuse_px=8.0)
+    _draw(m)
     _kernels._lost_markers(q, m.arrays, rig.arrays, image, 1.0)
     _detect(rig)
     _kernels._refit_unseen(q, np.inf, _kernels.Bounds(m.lower, m.upper), m.arrays, rig.arrays, image, 1.0)
