@@ -733,14 +733,14 @@ def _with(image, fuse_px, lost_px, unseen):
     return Image(image.det, image.start, image.offset, image.penalty, fuse_px, lost_px, unseen)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always")
 def _copy(dst, src) -> None:
-    """``dst[:] = src`` for two C-contiguous float64 arrays of one shape, as a loop: numba's slice
-    assignment compiles its shape-mismatch message (string formatting, 1.5 s or more) in every
-    process that compiles a kernel using it, for every number of dimensions."""
-    d, s = dst.reshape(dst.size), src.reshape(src.size)
-    for i in range(s.shape[0]):
-        d[i] = s[i]
+    """``dst[:] = src`` for two 1-D float64 arrays of one length, as a loop (2-D: their
+    ``ravel()``): numba's slice assignment compiles its shape-mismatch message (string
+    formatting, 1.5 s or more) in every process that compiles a kernel using it, for every
+    number of dimensions. Inlined: SA copies at every accepted proposal."""
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
 
 
 @njit(cache=True, nogil=True)
@@ -930,7 +930,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
                         A[i, j] += w * jac[k, a, i] * jac[k, a, j]
         improved = False
         while lam < 1e8:
-            _copy(H, A)
+            _copy(H.ravel(), A.ravel())
             for i in range(D):
                 H[i, i] += lam * (A[i, i] + 1e-9)
             _cholesky_solve(H, g, L, delta)
@@ -945,7 +945,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
                 step = moved
                 gain = cost - new_cost
                 _copy(q, trial)
-                _copy(res, res2)
+                _copy(res.ravel(), res2.ravel())
                 cost = new_cost
                 lam = max(lam / 3.0, 1e-9)
                 improved = True
@@ -1335,8 +1335,8 @@ def flip_alternatives(q, objective, tolerance, bounds, kin, views, image, huber_
     found = refined = np.int64(0)
     for v in range(V):
         for mask in masks:
-            _copy(targets, world)
-            _copy(moved, joints)
+            _copy(targets.ravel(), world.ravel())
+            _copy(moved.ravel(), joints.ravel())
             for f in range(flip_joints.shape[0]):
                 if (mask >> f) & 1 == 0:
                     continue
