@@ -33,8 +33,8 @@ Written for the SA inner loop, which evaluates Eq. 5 some 10^5 times a second:
   types an inlined helper again at every call site, so helpers of scalars alone
   (LLVM inlines them) and those called once per refinement step or outside SA's
   proposal loop are plain calls, compiled once; but a plain call's library carries the
-  code of all it calls, which numba optimises again in it: thin wrappers of big kernels
-  (:func:`_polish`, :func:`_evaluate`) are inlined;
+  code of all it calls, which numba optimises again in it: a thin wrapper of big kernels
+  outside SA's loop (:func:`_evaluate`) is inlined;
 - no slice assignment of arrays (``a[:] = b``): numba compiles its shape-mismatch message
   (string formatting) in every process, uncached; :func:`_copy` loops;
 - random numbers come from an inlined xoshiro256** generator seeded from the
@@ -995,7 +995,7 @@ def _propose(cur, cand, step, sigma, lower, upper, hist, turns, bins_per_degree,
 _POLISH_STEPS = 10
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _polish(q, e_q, bounds, kin, views, image, huber_c, out) -> float:
     """Refine ``q`` (:data:`_POLISH_STEPS` LM steps) into ``out`` if that lowers its error on
     ``image``; return the error of ``out``.
