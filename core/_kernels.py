@@ -32,7 +32,11 @@ Written for the SA inner loop, which evaluates Eq. 5 some 10^5 times a second:
   loop is one function and arrays are not reference-counted at every call; numba
   types an inlined helper again at every call site, so helpers of scalars alone
   (LLVM inlines them) and those called once per refinement step or outside SA's
-  proposal loop are plain calls, compiled once;
+  proposal loop are plain calls, compiled once; but a plain call's library carries the
+  code of all it calls, which numba optimises again in it: a thin wrapper of big kernels
+  outside SA's loop (:func:`_evaluate`) is inlined;
+- no slice assignment of arrays (``a[:] = b``): numba compiles its shape-mismatch message
+  (string formatting) in every process, uncached; :func:`_copy` loops;
 - random numbers come from an inlined xoshiro256** generator seeded from the
   caller's ``numpy.random.Generator`` (~1 ns a draw instead of ~7 ns).
 """
@@ -51,8 +55,8 @@ BEHIND_CAMERA = 1.0e9  # pixel coordinate given to points behind a pinhole camer
 FRAME = 12  # numbers per joint frame: rotation (row-major 3×3), then origin (3)
 # For Python callers. Inside a kernel a global array is a read-only constant, another type: a
 # kernel passing one to another kernel would compile that one a second time (and everything
-# it calls), so kernels pass arrays of their own (:func:`_no_targets`, ``Image.unseen`` as
-# Python gave it). A literal int is a type of its own too: kernels pass step counts as
+# it calls), so kernels pass arrays of their own (:func:`_no_targets`, :func:`_no_unseen`,
+# ``Image.unseen`` as Python gave it). A literal int is a type of its own too: kernels pass step counts as
 # ``np.int64``.
 NO_TARGETS = np.zeros((0, 3))  # refine in image mode
 NO_UNSEEN = np.zeros((0, 0), dtype=np.bool_)  # every marker may be seen
@@ -699,10 +703,11 @@ def posture_error(q, kin, views, image):
     return _evaluate(q, kin, views, image, np.inf, work)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always")
 def _evaluate(q, kin, views, image, limit, work):
     """The objective (:func:`blob_error`, summed up to ``limit``) of posture ``q``, projected
-    into ``work`` (:class:`Workspace`): a plain call, as :func:`_objective`."""
+    into ``work`` (:class:`Workspace`) by the plain calls :func:`_project` and
+    :func:`_objective`; inlined, as a thin wrapper (see the module's docstring)."""
     _project(q, kin, views, image.offset, image.fuse_px, work)
     return _objective(image, limit, work)
 
@@ -726,6 +731,22 @@ def _objective(image, limit, work):
 def _with(image, fuse_px, lost_px, unseen):
     """``image`` charged otherwise: its detections with these ``fuse_px``, ``lost_px``, ``unseen``."""
     return Image(image.det, image.start, image.offset, image.penalty, fuse_px, lost_px, unseen)
+
+
+@njit(cache=True, inline="always")
+def _copy(dst, src) -> None:
+    """``dst[:] = src`` for two 1-D float64 arrays of one length, as a loop (2-D: their
+    ``ravel()``): numba's slice assignment compiles its shape-mismatch message (string
+    formatting, 1.5 s or more) in every process that compiles a kernel using it, for every
+    number of dimensions. Inlined: SA copies at every accepted proposal."""
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
+
+
+@njit(cache=True, nogil=True)
+def _no_unseen():
+    """No marker unseen: the empty (0, 0) mask of the type Python passes (``NO_UNSEEN``)."""
+    return np.zeros((0, 0), dtype=np.bool_)
 
 
 @njit(cache=True, nogil=True)
@@ -889,7 +910,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     step, gain = np.inf, np.inf
     for _ in range(max_iter):
         for i in range(D):
-            trial[:] = q
+            _copy(trial, q)
             trial[i] += h_fd
             _residuals(trial, kin, views, image, targets, work, res2, valid)
             for k in range(G):
@@ -909,7 +930,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
                         A[i, j] += w * jac[k, a, i] * jac[k, a, j]
         improved = False
         while lam < 1e8:
-            H[:] = A
+            _copy(H.ravel(), A.ravel())
             for i in range(D):
                 H[i, i] += lam * (A[i, i] + 1e-9)
             _cholesky_solve(H, g, L, delta)
@@ -923,8 +944,8 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
             if new_cost < cost:
                 step = moved
                 gain = cost - new_cost
-                q[:] = trial
-                res[:] = res2
+                _copy(q, trial)
+                _copy(res.ravel(), res2.ravel())
                 cost = new_cost
                 lam = max(lam / 3.0, 1e-9)
                 improved = True
@@ -992,9 +1013,9 @@ def _polish(q, e_q, bounds, kin, views, image, huber_c, out) -> float:
                       huber_c, np.int64(_POLISH_STEPS), _no_targets())
     e_pol = posture_error(polished, kin, views, image)
     if e_pol < e_q:
-        out[:] = polished
+        _copy(out, polished)
         return e_pol
-    out[:] = q
+    _copy(out, q)
     return e_q
 
 
@@ -1060,10 +1081,10 @@ def anneal(q0, bounds, kin, views, image, sa, state):
         e_new = blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, dist,
                            claims, unseen)
         if e_new <= limit:
-            cur[:] = cand
+            _copy(cur, cand)
             e_cur = e_new
             if e_cur < e_best:
-                best[:] = cur
+                _copy(best, cur)
                 e_best = e_cur
         if it == 0:
             continue
@@ -1076,7 +1097,7 @@ def anneal(q0, bounds, kin, views, image, sa, state):
             if e_best >= eps:
                 e_hop = _polish(cur, np.inf, bounds, kin, views, image, sa.huber_c, cand)
                 if e_hop < e_best:
-                    best[:] = cand
+                    _copy(best, cand)
                     e_best = e_hop
             if e_best >= eps and draws > 0:
                 e_seed = np.inf
@@ -1085,10 +1106,10 @@ def anneal(q0, bounds, kin, views, image, sa, state):
                     e_new = _evaluate(cand, kin, views, image, e_seed, work)
                     if e_new < e_seed:
                         e_seed = e_new
-                        seed_q[:] = cand
+                        _copy(seed_q, cand)
                 e_draw = _polish(seed_q, e_seed, bounds, kin, views, image, sa.huber_c, cand)
                 if e_draw < e_best:
-                    best[:] = cand
+                    _copy(best, cand)
                     e_best = e_draw
             if e_best < e_mark * 0.99:
                 e_mark, stale = e_best, 0
@@ -1163,15 +1184,15 @@ def _lost_markers(q, kin, views, image, beyond):
     work = workspace(kin, views, q.shape[0], det.shape[0])
     _project(q, kin, views, image.offset, fuse_px, work)
     raw, fused, index, dist, claims = work.raw, work.fused, work.index, work.dist, work.claims
-    unseen = np.zeros((V, M), dtype=np.bool_)
+    unseen, seen = np.zeros((V, M), dtype=np.bool_), _no_unseen()
     lost = False
     for v in range(V):
         a, b = start[v], start[v + 1]
         if a == b:
             continue
         merged = fuse_px > 0.0 and _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, 0.0,
-                                                  NO_UNSEEN, index, dist, claims)[1]
-        _match_view(fused if merged else raw, v, det, a, b, index, dist, NO_UNSEEN, penalty)
+                                                  seen, index, dist, claims)[1]
+        _match_view(fused if merged else raw, v, det, a, b, index, dist, seen, penalty)
         worst = np.argmax(dist)
         if dist[worst] > beyond:
             unseen[v, worst] = True
@@ -1198,7 +1219,7 @@ def _refit_unseen(q, objective, bounds, kin, views, image, huber_c):
     refit = refine(q, bounds, kin, views, masked, huber_c, np.int64(50), _no_targets())
     e_refit = posture_error(refit, kin, views, masked)
     if e_refit < objective:
-        q[:] = refit
+        _copy(q, refit)
         return e_refit
     return objective
 
@@ -1252,7 +1273,7 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state):
         if run > 0 and value >= 0.99 * objective and objective < penalty:
             break
         if value < objective:
-            best[:] = q
+            _copy(best, q)
             objective = value
     error = posture_error(best, kin, views, _with(image, 0.0, 0.0, unseen))
     return best, error, objective, iterations
@@ -1314,8 +1335,8 @@ def flip_alternatives(q, objective, tolerance, bounds, kin, views, image, huber_
     found = refined = np.int64(0)
     for v in range(V):
         for mask in masks:
-            targets[:] = world
-            moved[:] = joints
+            _copy(targets.ravel(), world.ravel())
+            _copy(moved.ravel(), joints.ravel())
             for f in range(flip_joints.shape[0]):
                 if (mask >> f) & 1 == 0:
                     continue
@@ -1342,7 +1363,7 @@ def flip_alternatives(q, objective, tolerance, bounds, kin, views, image, huber_
             e_cand = posture_error(cand, kin, views, image)
             if e_cand > objective + tolerance or not _distinct(cand, q, out_q, found):
                 continue
-            out_q[found] = cand
+            _copy(out_q[found], cand)
             out_objective[found] = e_cand
             found += 1
             if found == out_q.shape[0]:

@@ -32,12 +32,13 @@ from core import _kernels
 from core.ambiguity import Candidate, FlipGeometry, flip_alternatives
 from core.detect import detect
 from core.error import Detections, view_error, view_offsets
-from core.fit import FitParams
+from core.fit import FitParams, image_stream
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.refine import refine
 from core.rig import Rig
 from core.sequence import fit_sequence
+from core.treefit import world_frames
 
 __all__ = ["compile_kernels", "compile_kernels_saying_so"]
 
@@ -78,9 +79,10 @@ def compile_kernels() -> float:
     """Run a few tiny fits so that every kernel is compiled or loaded; returns the seconds taken.
 
     With an empty cache, a second process (:func:`_compile_aside`) compiles the objective and
-    the lost-marker search into numba's cache while this one compiles refinement; this one
-    waits for those two (SA's polish calls all three) and loads them, instead of compiling
-    them a second time, then compiles SA. The machine's second core takes part of a first run.
+    the lost-marker search into numba's cache while this one renders the warm-up images and
+    compiles refinement; this one waits for those two (SA's polish calls all three) and
+    loads them, instead of compiling them a second time, then compiles SA. The machine's
+    second core takes part of a first run.
     """
     t0 = time.perf_counter()
     aside = None if _cache_filled() else subprocess.Popen(
@@ -89,13 +91,13 @@ def compile_kernels() -> float:
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         rig, chain = _rig(), KinematicModel.from_xml(_CHAIN)
-        refine(_posture(chain), _blobs(), model=chain, rig=rig, fusion_px=8.0)  # aside renders meanwhile
+        fits = [(m, _images(m, rig)) for m in (chain, KinematicModel.from_xml(_TREE))]
+        refine(_posture(chain), _blobs(), model=chain, rig=rig, fusion_px=8.0)
         if aside is not None:
             _wait_for_cache(aside, (_kernels.posture_error, _kernels._lost_markers))
-        for m in (chain, KinematicModel.from_xml(_TREE)):
+        for m, images in fits:
             params = FitParams(anneal=FitParams().anneal.with_iterations(300), fusion_px=8.0, max_attempts=2)
-            fit_sequence(_images(m, rig), model=m, rig=rig, histograms=Histograms.uniform(m), params=params,
-                         seed=0)
+            fit_sequence(images, model=m, rig=rig, histograms=Histograms.uniform(m), params=params, seed=0)
         _detect(rig)
     finally:
         if aside is not None:
@@ -104,18 +106,32 @@ def compile_kernels() -> float:
 
 
 def _compile_aside() -> None:
-    """Into numba's cache: the objective and the lost-marker search (SA's polish calls them,
-    the first process waits for them), then detection, depth flips and the refit without
-    lost markers, which the first process reaches last."""
+    """Into numba's cache: the nested readings (refinement in the first process reaches them
+    some 3 s in), the objective, the posture draw and the lost-marker search (the first
+    process waits for them: SA calls them), detection, then what needs the first process's
+    refinement: the refit without lost markers (the attempt calls it), depth flips; and the
+    tree's joint frames."""
     rig, m = _rig(), KinematicModel.from_xml(_CHAIN)
-    det, q = _images(m, rig)[0], _posture(m)
+    det, q = _blobs(), _posture(m)
+    _nested_readings(m, rig, det)
     view_error(q, det, model=m, rig=rig, fusion_px=8.0)
     image = _kernels.Image.of(det.kernel_points, det.start, view_offsets(None, rig), penalty=1.0, fuse_px=8.0)
+    _draw(m)
     _kernels._lost_markers(q, m.arrays, rig.arrays, image, 1.0)
     _detect(rig)
+    _kernels._refit_unseen(q, np.inf, _kernels.Bounds(m.lower, m.upper), m.arrays, rig.arrays, image, 1.0)
     flip_alternatives(Candidate(q, 1.0, 1.0), det, model=m, rig=rig, geometry=FlipGeometry.of(m, rig),
                       tolerance_px=1e9, fusion_px=8.0, empty_view_penalty_px=1.0, huber_px=1.0)
-    _kernels._refit_unseen(q, np.inf, _kernels.Bounds(m.lower, m.upper), m.arrays, rig.arrays, image, 1.0)
+    world_frames(q, m)
+
+
+def _nested_readings(m: KinematicModel, rig: Rig, det: Detections) -> None:
+    """``_kernels._nested_reading`` called as refinement and the objective call it (zero
+    projections: nothing to merge)."""
+    work = _kernels.workspace(m.arrays, rig.arrays, len(m.dofs), len(det.kernel_points))
+    work.raw[:], work.fused[:] = 0.0, 0.0
+    _kernels._nested_reading(work.raw, work.fused, 0, det.kernel_points, 0, 0, 64.0, 0.0, np.inf,
+                             _kernels.NO_UNSEEN, work.index, work.dist, work.claims)
 
 
 def _wait_for_cache(aside: subprocess.Popen[bytes], kernels: tuple[Dispatcher, ...],
@@ -159,8 +175,8 @@ def _posture(m: KinematicModel) -> np.ndarray:
 
 
 def _blobs() -> Detections:
-    """Three blobs in each view of :func:`_rig`, placed by hand: rendering them would compile
-    the kernels of projection, which the second process compiles meanwhile."""
+    """Three blobs in each view of :func:`_rig`, placed by hand (rendering them would compile
+    the kernels of projection first)."""
     return Detections.from_views([[(360, 144), (390, 150), (420, 160)], [(360, 432), (390, 440), (420, 450)]])
 
 
@@ -168,6 +184,12 @@ def _images(m: KinematicModel, rig: Rig) -> list[Detections]:
     """Three images of ``m`` moving a little, rendered without noise."""
     postures = np.linspace(m.lower + 0.3 * (m.upper - m.lower), m.lower + 0.4 * (m.upper - m.lower), 3)
     return [Detections.from_views(list(p)) for p in rig.project(m.marker_positions(postures))]
+
+
+def _draw(m: KinematicModel) -> None:
+    """A posture drawn from uniform histograms (D, 36), as an attempt's restart draws one."""
+    hist = np.full((len(m.dofs), 36), 1.0 / 36)
+    _kernels.draw_posture(m.lower, m.upper, hist, image_stream(0, 0, 0), np.empty(len(m.dofs)))
 
 
 def _detect(rig: Rig) -> None:
