@@ -142,6 +142,7 @@ def fit(
         exports = _export_kinds(export, EXPORTS)
         fit_opts = fit_options(options)
         kinematic = KinematicModel.from_xml(model)
+        warn_undetermined(model, kinematic)
         if exports:
             unit_scale(kinematic, export_units)
         camera_rig = Rig.from_json(rig)
@@ -163,6 +164,14 @@ def fit(
             _draw_overlay(job, out, OVERLAY_WORST)
         if plots:
             _draw_plots(out, kinematic, built.start, outcome.result.histograms)
+
+
+def warn_undetermined(path: Path, model: KinematicModel) -> None:
+    """One line on stderr when the model's markers cannot determine some DOF in any posture
+    (``core.identifiability``): the fit goes on, each image then has an alternative."""
+    advice = model.identifiability.advice()
+    if advice:
+        typer.echo(f"mocap: warning: {path}: {advice}", err=True)
 
 
 @contextmanager
