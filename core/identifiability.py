@@ -7,13 +7,13 @@ axis when every marker below lies on that axis. They show as directions in which
 Jacobian J of the map DOFs → 3D marker positions (3M × D) is rank-deficient. A posture
 can make J singular by itself (a straight knee lines up the markers of the shank), so a
 direction counts only when J is rank-deficient at every sampled posture: the mid-range
-one and :data:`RANDOM_POSTURES` seeded random ones within the DOF ranges.
+one and :data:`RANDOM_POSTURES` seeded random ones within the DOF ranges
+(:func:`structural_null_dofs`).
 
 J is made dimensionless before its rank is taken, so that the test does not depend on the
 model's units: translation columns are model units per model unit, rotation columns model
 units per radian divided by the model's size (the RMS distance of the markers from their
-centroid). A DOF is undetermined when every sampled posture's null space has a component
-along it: one posture where it happens to be fixed rules it out.
+centroid).
 """
 
 from __future__ import annotations
@@ -92,13 +92,20 @@ def identifiability(model: KinematicModel) -> Identifiability:
 
 
 def structural_null_dofs(model: KinematicModel) -> np.ndarray:
-    """(D,) bool: DOFs with a component in J's null space at every sampled posture."""
-    involved = np.ones(len(model.dofs), dtype=bool)
-    for q in sample_postures(model):
-        null = null_space(scaled_jacobian(model, q))
-        involved &= np.linalg.norm(null, axis=1) > _INVOLVED
-        if not involved.any():
-            break
+    """(D,) bool: DOFs with a component in J's structural null space.
+
+    Its dimension is the least nullity over the sampled postures; a posture with more has
+    singular directions of its own (a straight knee, a hip at zero rotation that happens to
+    leave adduction out of the null direction), so only the postures of least nullity,
+    generic ones, say which DOFs the structural directions involve: any of them.
+    """
+    nulls = [null_space(scaled_jacobian(model, q)) for q in sample_postures(model)]
+    least = min(n.shape[1] for n in nulls)
+    involved = np.zeros(len(model.dofs), dtype=bool)
+    if least == 0:
+        return involved
+    for null in (n for n in nulls if n.shape[1] == least):
+        involved |= np.linalg.norm(null, axis=1) > _INVOLVED
     return involved
 
 
