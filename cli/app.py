@@ -142,13 +142,13 @@ def fit(
         exports = _export_kinds(export, EXPORTS)
         fit_opts = fit_options(options)
         kinematic = KinematicModel.from_xml(model)
-        warn_undetermined(model, kinematic)
         if exports:
             unit_scale(kinematic, export_units)
         camera_rig = Rig.from_json(rig)
         start = None if histograms is None else Histograms.from_xml(histograms, kinematic)
         # Per image, before any video is decoded: the fusion distance does not change the cost.
         check_fit_cost(estimate_fit_cost(kinematic, camera_rig, fit_opts.fit_params(0.0), images=1))
+        warn_undetermined(model, kinematic)
         with flags_in_errors():
             built = build_fit(fit_opts, kinematic, camera_rig, videos, start)
         job = built.job

@@ -25,9 +25,13 @@ import numpy as np
 
 from core.model import KinematicModel, Marker, _topological_order
 
-__all__ = ["RANDOM_POSTURES", "Identifiability", "identifiability"]
+__all__ = ["MAX_ANALYSED_DOFS", "RANDOM_POSTURES", "Identifiability", "identifiability"]
 
 RANDOM_POSTURES = 4  # seeded random postures sampled beside the mid-range one
+# Models with more DOFs are not analysed: the SVDs grow as markers × DOFs², and a file may
+# hold thousands of DOFs (docs/BENCH_SUBJECTS.md has the times).
+MAX_ANALYSED_DOFS = 300
+_FIX_TRIALS = 3  # segments, root first, tested for the marker that would fix the model
 _SEED = 2026  # the random postures are the same on every call
 _STEP_DEG = 1e-3  # central-difference step of J, degrees or model units × size
 _RANK_TOL = 1e-7  # singular values below this × the largest count as zero
@@ -48,12 +52,15 @@ class Identifiability:
         every unmarked DOF above it.
     fix_segment : for the other undetermined DOFs, a segment where one marker (at a generic
         point, tested) would determine them; "" when none does or none is needed.
+    analysed : False for a model of more than :data:`MAX_ANALYSED_DOFS` DOFs, not analysed
+        (the rest is then empty).
     """
 
     undetermined: tuple[str, ...] = ()
     unmarked: tuple[str, ...] = ()
     unmarked_segments: tuple[str, ...] = ()
     fix_segment: str = ""
+    analysed: bool = True
 
     def advice(self) -> str:
         """One line for the lab: which DOFs, and what would fix the model; "" when none.
@@ -79,13 +86,15 @@ class Identifiability:
 def identifiability(model: KinematicModel) -> Identifiability:
     """The structural null DOFs of ``model``, and what would fix them (cached on the model as
     ``model.identifiability``; about a millisecond for a 42-DOF model without any)."""
+    if len(model.dofs) > MAX_ANALYSED_DOFS:
+        return Identifiability(analysed=False)
     null = structural_null_dofs(model)
     if not null.any():
         return Identifiability()
     names = model.dof_names
     unmarked_joints = _unmarked_joints(model)
     unmarked = tuple(names[i] for i in np.flatnonzero(null) if model.dofs[i].joint in unmarked_joints)
-    deepest = tuple(j for j in unmarked_joints if not set(_below(model, j)) & set(unmarked_joints))
+    deepest = _deepest(model, unmarked_joints)
     rest = null & ~np.isin(names, unmarked)
     return Identifiability(tuple(names[i] for i in np.flatnonzero(null)), unmarked, deepest,
                            _fix_segment(model, rest, deepest) if rest.any() else "")
@@ -159,25 +168,33 @@ def model_size(model: KinematicModel, q: np.ndarray) -> float:
 
 def _unmarked_joints(model: KinematicModel) -> tuple[str, ...]:
     """Joints with DOFs and no marker on them or below, in model-file order."""
-    marked = {m.joint for m in model.markers}
+    order = _topological_order(model.joints)
+    parent = model.arrays.parent  # topological indices
+    marked = np.zeros(len(order), dtype=bool)
+    marked[model.arrays.marker_joint] = True
+    for k in range(len(order) - 1, 0, -1):  # children after parents: leaves first
+        marked[parent[k]] |= marked[k]
     with_dofs = {d.joint for d in model.dofs}
-    return tuple(j.name for j in model.joints
-                 if j.name in with_dofs and not ({j.name, *_below(model, j.name)} & marked))
+    unmarked = {model.joints[i].name for k, i in enumerate(order) if not marked[k]}
+    return tuple(j.name for j in model.joints if j.name in unmarked and j.name in with_dofs)
 
 
-def _below(model: KinematicModel, name: str) -> list[str]:
-    """Names of the joints below joint ``name``."""
-    out, stack = [], [j.name for j in model.joints if j.parent == name]
-    while stack:
-        out.append(stack.pop())
-        stack.extend(j.name for j in model.joints if j.parent == out[-1])
-    return out
+def _deepest(model: KinematicModel, joints: tuple[str, ...]) -> tuple[str, ...]:
+    """Those of ``joints`` with no other of them below."""
+    parent = {j.name: j.parent for j in model.joints}
+    above: set[str] = set()
+    for name in joints:
+        up = parent[name]
+        while up is not None and up not in above:
+            above.add(up)
+            up = parent[up]
+    return tuple(j for j in joints if j not in above)
 
 
 def _fix_segment(model: KinematicModel, rest: np.ndarray, unmarked_segments: tuple[str, ...]) -> str:
     """The first segment, root first, of the DOFs ``rest`` ((D,) bool) on which one marker at
     a generic point (with one on each of ``unmarked_segments``) leaves none of them
-    undetermined; "" when no single segment does."""
+    undetermined; "" when none of the first :data:`_FIX_TRIALS` does."""
     size = model_size(model, (model.lower + model.upper) / 2)
     x, y, z = (0.5 * size * _GENERIC).tolist()
 
@@ -187,7 +204,7 @@ def _fix_segment(model: KinematicModel, rest: np.ndarray, unmarked_segments: tup
     base = tuple(marker(j) for j in unmarked_segments)
     order = [model.joints[i].name for i in _topological_order(model.joints)]
     joints = {model.dofs[i].joint for i in np.flatnonzero(rest)}
-    for joint in (j for j in order if j in joints):
+    for joint in [j for j in order if j in joints][:_FIX_TRIALS]:
         trial = KinematicModel(model.name, model.units, model.joints, model.dofs,
                                (*model.markers, *base, marker(joint)))
         if not (structural_null_dofs(trial) & rest).any():

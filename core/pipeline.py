@@ -305,7 +305,7 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
         "over_threshold_images": [f.sample for f in fits if f.status is Status.OVER_THRESHOLD],
         "ambiguous": len(ambiguous),
         "ambiguous_images": ambiguous,
-        "undetermined_dofs": list(job.model.identifiability.undetermined),
+        "undetermined_dofs": _undetermined(job.model),
         "detections_per_view": {
             name: {"mean": round(float(counts[:, v].mean()), 3) if len(fits) else None,
                    "min": int(counts[:, v].min()) if len(fits) else None,
@@ -322,6 +322,13 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
             "detector": asdict(job.source.detector),
         },
     }
+
+
+def _undetermined(model: KinematicModel) -> list[str] | None:
+    """The DOFs the model's markers cannot determine in any posture; None when the model is
+    too large to be analysed (``core.identifiability.MAX_ANALYSED_DOFS``)."""
+    found = model.identifiability
+    return list(found.undetermined) if found.analysed else None
 
 
 def _stats(values: np.ndarray) -> dict[str, float | None]:
