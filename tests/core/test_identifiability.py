@@ -15,7 +15,7 @@ from tree_subjects import movement
 from core.examples import EXAMPLES
 from core.fit import FitParams
 from core.histogram import Histograms
-from core.identifiability import null_space, sample_postures, scaled_jacobian
+from core.identifiability import MAX_ANALYSED_DOFS, null_space, sample_postures, scaled_jacobian
 from core.model import Dof, Joint, KinematicModel
 from core.sequence import fit_sequence
 from core.undetermined import UNDETERMINED_DEG
@@ -122,3 +122,19 @@ def test_every_image_of_a_model_with_undetermined_dofs_gets_an_alternative():
     degs = [f.alternative_deg(model.rotational) for f in result.fits]
     assert all(d >= UNDETERMINED_DEG for d in degs), degs
     assert all(math.isfinite(f.error) for f in result.fits)
+
+
+def test_a_model_beyond_the_analysed_size_is_not_analysed():
+    """A chain of MAX_ANALYSED_DOFS + 1 joints, one DOF each, its last marker on the last
+    joint's origin (that DOF moves nothing): not analysed, and nothing claimed."""
+    n = MAX_ANALYSED_DOFS + 1
+    joints = ['<joint name="j0"><dof axis="z" name="d0" min="-30" max="30"/></joint>'] + [
+        f'<joint name="j{i}" parent="j{i - 1}"><offset x="1"/><dof axis="z" name="d{i}" '
+        'min="-30" max="30"/></joint>' for i in range(1, n)]
+    markers = [f'<marker name="m{i}" joint="j{i}"/>' for i in range(n)]
+    chain = KinematicModel.from_xml(f'<model name="chain">{"".join(joints + markers)}</model>')
+    found = chain.identifiability
+    assert (found.analysed, found.undetermined, found.advice()) == (False, (), "")
+    shorter = KinematicModel.from_xml(
+        f'<model name="chain">{"".join(joints[:20] + markers[:20])}</model>')
+    assert shorter.identifiability.undetermined == ("d19",)
