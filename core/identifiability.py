@@ -28,8 +28,9 @@ from core.model import KinematicModel, Marker, _topological_order
 __all__ = ["MAX_ANALYSED_DOFS", "RANDOM_POSTURES", "Identifiability", "identifiability"]
 
 RANDOM_POSTURES = 4  # seeded random postures sampled beside the mid-range one
-# Models with more DOFs are not analysed: the SVDs grow as markers × DOFs², and a file may
-# hold thousands of DOFs (docs/BENCH_SUBJECTS.md has the times).
+# Models with more DOFs are not analysed: the cost grows as markers × DOFs² (the products
+# JᵀJ) and DOFs³ (their eigenvectors), and a file may hold thousands of DOFs
+# (docs/BENCH_SUBJECTS.md has the times).
 MAX_ANALYSED_DOFS = 300
 _FIX_TRIALS = 3  # segments, root first, tested for the marker that would fix the model
 _SEED = 2026  # the random postures are the same on every call
