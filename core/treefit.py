@@ -183,9 +183,11 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     shared = {} if warm is None else shared_projections(warm[0], model, rig, tree, params, off)
     candidates: list[Candidates] = []  # triangulated once, when a branch first needs them
 
-    def fit_part(part: Part, kin, points: np.ndarray, start: np.ndarray,
-                 warm: np.ndarray | None = None) -> None:
+    def fit_part(part: Part, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None = None) -> None:
+        """Fit ``part`` in ``q``, its base where the parts fitted before put it."""
         nonlocal iterations
+        rotation, origin = _base_frame(q, model, part)
+        kin = part.at(rotation, origin)
         eps = _part_eps(part, params, views_seen)
         unseen = shared.get(part.name, _kernels.NO_UNSEEN)
         tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen)
@@ -198,21 +200,21 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
         value = part_objective(q[part.dofs], kin, points, start, unseen, rig, params, off)
         if tried is not None and tried[1] < value:
             q[part.dofs], value = tried[0], tried[1]  # SA ended in a worse minimum than the warm start's
-        if value >= eps and part.base >= 0:  # a branch: its base frame is the fitted trunk's
+        if value >= eps and part.base >= 0:
             if not candidates:
                 candidates.append(triangulate(det, rig=rig, offsets=off))
-            proposed = epipolar_start(part, rot[part.base], pos[part.base], candidates[0], points,
-                                      start, model, rig, space, params, eps, off, unseen)
+            proposed = epipolar_start(part, rotation, origin, candidates[0], points, start, model,
+                                      rig, space, params, eps, off, unseen)
             if proposed is not None and proposed[1] < value:
                 q[part.dofs] = proposed[0]
 
     if tree.trunk is not None:
-        fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start, warm)
-    rot, pos = world_frames(q, model)
-    reach = _within_reach(det, rig, pos[[b.base for b in tree.branches]],
-                          np.array([b.reach for b in tree.branches]), off)
-    for part, keep in zip(tree.branches, reach, strict=True):
-        fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep), warm)
+        fit_part(tree.trunk, det.kernel_points, det.start, warm)
+    branches = tree.branches  # parents first: a branch's base is fitted when it comes
+    reach = np.zeros((len(branches), len(det.points)), dtype=bool)
+    for b, part in enumerate(branches):
+        reach[b] = _part_reach(q, det, model, rig, part, off)
+        fit_part(part, *_subset(det, reach[b]), warm)
     in_reach = reach.any(axis=0)
     score = np.inf  # the two-sided error, computed once there is a conflict to judge
     previous: list[int] = []
@@ -224,9 +226,10 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
         if score == np.inf:
             score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
         for b in conflicted:
-            part, saved = tree.branches[b], q.copy()
-            keep = reach[b] & ~_claimed(q, det, model, rig, tree, off, exclude=b)
-            fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep))
+            part, saved = branches[b], q.copy()
+            keep = _part_reach(q, det, model, rig, part, off) & ~_claimed(q, det, model, rig, tree, off,
+                                                                           exclude=b)
+            fit_part(part, *_subset(det, keep))
             new = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
             if new < score:
                 score = new
@@ -235,8 +238,7 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     if views_seen == 2:  # two views: a wrong leg can explain every blob it projects onto
         if not candidates:
             candidates.append(triangulate(det, rig=rig, offsets=off))
-        _two_view_starts(q, det, model, rig, tree, space, params, off, rot, pos, reach,
-                         candidates[0], shared)
+        _two_view_starts(q, det, model, rig, tree, space, params, off, reach, candidates[0], shared)
     # Parts that all came from warm starts arrive at ε on their own projections, refined:
     # the joint steps (each costing D evaluations) only read the blobs parts share as fused.
     steps = JOINT_STEPS if iterations else WARM_JOINT_STEPS
@@ -269,11 +271,11 @@ def search_floor(model: KinematicModel, params: FitParams, views_seen: int) -> f
 
 
 def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
-                     space: SearchSpace, params: FitParams, off: np.ndarray, rot: np.ndarray,
-                     pos: np.ndarray, reach: np.ndarray, candidates: Candidates,
-                     shared: dict[str, np.ndarray]) -> None:
+                     space: SearchSpace, params: FitParams, off: np.ndarray, reach: np.ndarray,
+                     candidates: Candidates, shared: dict[str, np.ndarray]) -> None:
     """Each branch's triangulated start (:func:`epipolar_start`) replaces its posture in ``q``
-    (D,) (changed in place) where that lowers the two-sided error over the blobs in reach.
+    (D,) (changed in place) where that lowers the two-sided error over the blobs in reach
+    (``reach`` (B, N), per branch); a branch's base is where ``q`` puts it when it comes.
 
     With two views every pair of blobs on corresponding epipolar lines is a 3D point, so a
     leg posed on another leg's blobs or on ghosts can explain all it projects onto, below
@@ -284,7 +286,8 @@ def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig:
     score = two_sided_error(q, det, model, rig, off, in_reach, cap)
     for part, keep in zip(tree.branches, reach, strict=True):
         points, start = _subset(det, keep)
-        proposed = epipolar_start(part, rot[part.base], pos[part.base], candidates, points, start,
+        rotation, origin = _base_frame(q, model, part)
+        proposed = epipolar_start(part, rotation, origin, candidates, points, start,
                                   model, rig, space, params, _part_eps(part, params, 2), off,
                                   shared.get(part.name, _kernels.NO_UNSEEN))
         if proposed is None:
@@ -344,6 +347,23 @@ def world_frames(q: np.ndarray, model: KinematicModel) -> tuple[np.ndarray, np.n
     rot, pos = np.empty((J, 3, 3)), np.empty((J, 3))
     _kernels.forward_kinematics(q, model.arrays, rot, pos)
     return rot, pos
+
+
+def _base_frame(q: np.ndarray, model: KinematicModel, part: Part) -> tuple[np.ndarray, np.ndarray]:
+    """World rotation (3, 3) and origin (3,) of ``part``'s base joint at posture ``q`` (D,)
+    (identity and zero for the root's trunk, which has none)."""
+    if part.base < 0:
+        return np.eye(3), np.zeros(3)
+    rot, pos = world_frames(q, model)
+    return rot[part.base], pos[part.base]
+
+
+def _part_reach(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, part: Part,
+                off: np.ndarray) -> np.ndarray:
+    """(N,) bool: the detections branch ``part`` can reach with its base where ``q`` (D,) puts it
+    (:func:`_within_reach`)."""
+    origin = _base_frame(q, model, part)[1]
+    return _within_reach(det, rig, origin[None], np.array([part.reach]), off)[0]
 
 
 def _within_reach(det: Detections, rig: Rig, origins: np.ndarray, reach: np.ndarray,
@@ -456,7 +476,9 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
                               offsets=offsets)
     rot, pos = world_frames(fit.dofs, model)
     for part in tree.branches:
-        geo = _branch_geometry(part, geometry)
+        geo = _branch_geometry(part, geometry, model)
+        if len(geo.flip_joints) == 0:  # a branch's own trunk: flipped with the whole model
+            continue
         kin, q = part.at(rot[part.base], pos[part.base]), np.ascontiguousarray(fit.dofs[part.dofs])
         out_q, out_objective = np.empty((MAX_ALTERNATIVES, len(q))), np.empty(MAX_ALTERNATIVES)
         own = _kernels.posture_error(q, kin, views, image)
@@ -475,22 +497,30 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
 
 
 def _trunk_masks(geometry: FlipGeometry, model: KinematicModel, tree: Tree) -> np.ndarray:
-    """(K,) bool: the masks of ``geometry`` (the whole model's) that flip no branch joint, a
-    joint whose subtree holds markers of one branch only."""
+    """(K,) bool: the masks of ``geometry`` (the whole model's) that flip no joint of
+    :func:`_own_flips` (a joint whose subtree holds markers of one branch only)."""
     in_branch = np.zeros(len(geometry.flip_joints), dtype=bool)
     for part in tree.branches:
-        outside = np.ones(len(model.markers), dtype=bool)
-        outside[part.markers] = False
-        in_branch |= ~geometry.subtree_markers[:, outside].any(axis=1)
+        in_branch |= _own_flips(part, geometry, model)
     bits = int(np.sum(np.left_shift(1, np.flatnonzero(in_branch).astype(np.int64))))
     return (geometry.masks & bits) == 0
 
 
-def _branch_geometry(part: Part, geometry: FlipGeometry) -> FlipGeometry:
-    """The depth-flip geometry of one branch alone (its arrays, base first), the views' depth
-    directions from the whole model's ``geometry``."""
+def _own_flips(part: Part, geometry: FlipGeometry, model: KinematicModel) -> np.ndarray:
+    """(F,) bool over ``geometry.flip_joints``: the joints whose subtree holds no marker but
+    the branch ``part``'s, flipped in the branch's own search. A branch's own trunk (in a
+    nested tree) carries its sub-branches: its joints are flipped with the whole model."""
+    outside = np.ones(len(model.markers), dtype=bool)
+    outside[part.markers] = False
+    return ~geometry.subtree_markers[:, outside].any(axis=1)
+
+
+def _branch_geometry(part: Part, geometry: FlipGeometry, model: KinematicModel) -> FlipGeometry:
+    """The depth-flip geometry of one branch alone (its arrays, base first) over its joints of
+    :func:`_own_flips`, the views' depth directions from the whole model's ``geometry``."""
     kin = part.kin
-    flip = np.flatnonzero((kin.rot_dof >= 0).any(axis=1))
+    own = geometry.flip_joints[_own_flips(part, geometry, model) & np.isin(geometry.flip_joints, part.joints)]
+    flip = 1 + np.searchsorted(part.joints, own)  # the part's rows: its base, then its joints
     below = _subtrees(kin.parent)[flip]
     return geometry._replace(flip_joints=flip.astype(np.int64), subtree_joints=below,
                              subtree_markers=np.ascontiguousarray(below[:, kin.marker_joint]),
