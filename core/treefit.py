@@ -212,8 +212,12 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
         fit_part(tree.trunk, det.kernel_points, det.start, warm)
     branches = tree.branches  # parents first: a branch's base is fitted when it comes
     reach = np.zeros((len(branches), len(det.points)), dtype=bool)
+    known = np.zeros(len(branches), dtype=bool)
     for b, part in enumerate(branches):
-        reach[b] = _part_reach(q, det, model, rig, part, off)
+        if not known[b]:  # every branch on this base at once: the base is fitted
+            group = [k for k, p in enumerate(branches) if p.base == part.base]
+            reach[group] = _reaches(q, det, model, rig, [branches[k] for k in group], off)
+            known[group] = True
         fit_part(part, *_subset(det, reach[b]), warm)
     in_reach = reach.any(axis=0)
     score = np.inf  # the two-sided error, computed once there is a conflict to judge
@@ -227,8 +231,8 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
             score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
         for b in conflicted:
             part, saved = branches[b], q.copy()
-            keep = _part_reach(q, det, model, rig, part, off) & ~_claimed(q, det, model, rig, tree, off,
-                                                                           exclude=b)
+            keep = _reaches(q, det, model, rig, [part], off)[0] & ~_claimed(q, det, model, rig, tree, off,
+                                                                             exclude=b)
             fit_part(part, *_subset(det, keep))
             new = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
             if new < score:
@@ -358,12 +362,12 @@ def _base_frame(q: np.ndarray, model: KinematicModel, part: Part) -> tuple[np.nd
     return rot[part.base], pos[part.base]
 
 
-def _part_reach(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, part: Part,
-                off: np.ndarray) -> np.ndarray:
-    """(N,) bool: the detections branch ``part`` can reach with its base where ``q`` (D,) puts it
-    (:func:`_within_reach`)."""
-    origin = _base_frame(q, model, part)[1]
-    return _within_reach(det, rig, origin[None], np.array([part.reach]), off)[0]
+def _reaches(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, parts: list[Part],
+             off: np.ndarray) -> np.ndarray:
+    """(len(parts), N) bool: the detections each branch of ``parts`` can reach, its base where
+    ``q`` (D,) puts it (:func:`_within_reach`)."""
+    pos = world_frames(q, model)[1]
+    return _within_reach(det, rig, pos[[p.base for p in parts]], np.array([p.reach for p in parts]), off)
 
 
 def _within_reach(det: Detections, rig: Rig, origins: np.ndarray, reach: np.ndarray,

@@ -230,7 +230,7 @@ def test_with_two_views_a_leg_on_the_wrong_blobs_is_replaced_by_its_triangulated
     params = FitParams()
     space = search_space(model, Histograms.uniform(model))
     off = view_offsets(None, rig)
-    reach = np.array([treefit._part_reach(wrong, det, model, rig, b, off) for b in tree.branches])
+    reach = treefit._reaches(wrong, det, model, rig, list(tree.branches), off)
     q = wrong.copy()
     treefit._two_view_starts(q, det, model, rig, tree, space, params, off, reach,
                              triangulate(det, rig=rig), {})
