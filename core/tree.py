@@ -53,6 +53,10 @@ class Part:
     name : its top joint's name.
     joints : (j,) int64, topological indices (in the whole model) of the part's own joints,
         parents first; its base is not one of them.
+    flips : (f,) int64, rows of ``kin`` whose joints the part's own depth-flip search flips
+        (``core.treefit.tree_flip_alternatives``): those with rotational DOFs whose subtree
+        holds no marker of another part. Empty for the root's trunk and for a branch's own
+        trunk, whose flips carry other parts along (searched on the whole model).
     dofs : (d,) int64, indices into ``model.dofs`` (the part's posture layout).
     markers : (m,) int64, indices into ``model.markers``.
     base : topological index (in the whole model) of the fixed joint the part hangs from,
@@ -64,6 +68,7 @@ class Part:
 
     name: str
     joints: np.ndarray
+    flips: np.ndarray
     dofs: np.ndarray
     markers: np.ndarray
     base: int
@@ -166,14 +171,14 @@ def _hanging(model: KinematicModel, topo: _Topology, base: int, top: int) -> lis
     joints above that split) either has no DOFs or has markers that fix its DOFs given the
     base (:func:`_fixes`); then that trunk (if it has DOFs) followed by each sub-branch's
     parts, hanging from the split."""
-    whole = [_branch(model, base, np.flatnonzero(topo.below[top]), topo.dof_joint)]
+    whole = [_branch(model, topo, base, np.flatnonzero(topo.below[top]))]
     split, kids = topo.split(top)
     if len(kids) < 2:
         return whole
     own = np.flatnonzero(topo.below[top] & ~topo.below[kids].any(axis=0))
     parts = []
     if np.isin(topo.dof_joint, own).any():
-        trunk = _branch(model, base, own, topo.dof_joint)
+        trunk = _branch(model, topo, base, own)
         if not _fixes(trunk, model):
             return whole
         parts.append(trunk)
@@ -209,15 +214,21 @@ def _trunk(model: KinematicModel, joints: np.ndarray, dof_joint: np.ndarray) -> 
     if len(markers) < (3 if rotates else 1):
         return False
     kin = _part_arrays(model.arrays, joints, dofs, markers, base=-1)
-    return Part(_name(model, int(joints[0])), joints, dofs, markers, -1, kin, np.inf)
+    none = np.zeros(0, dtype=np.int64)
+    return Part(_name(model, int(joints[0])), joints, none, dofs, markers, -1, kin, np.inf)
 
 
-def _branch(model: KinematicModel, base: int, joints: np.ndarray, dof_joint: np.ndarray) -> Part:
-    """The subtree of ``joints`` hanging from joint ``base``, as a part with its base first."""
-    dofs = np.flatnonzero(np.isin(dof_joint, joints))
-    markers = np.flatnonzero(np.isin(model.arrays.marker_joint, joints))
+def _branch(model: KinematicModel, topo: _Topology, base: int, joints: np.ndarray) -> Part:
+    """The joints ``joints`` hanging from joint ``base``, as a part with its base first."""
+    dofs = np.flatnonzero(np.isin(topo.dof_joint, joints))
+    marker_joint = model.arrays.marker_joint
+    markers = np.flatnonzero(np.isin(marker_joint, joints))
     kin = _part_arrays(model.arrays, joints, dofs, markers, base=base)
-    return Part(_name(model, int(joints[0])), joints, dofs, markers, base, kin, _reach(kin))
+    others = np.delete(marker_joint, markers)
+    rotating = np.isin(joints, topo.dof_joint[model.rotational])
+    alone = ~topo.below[joints][:, others].any(axis=1)
+    flips = 1 + np.flatnonzero(rotating & alone)  # rows of kin: the base, then the joints
+    return Part(_name(model, int(joints[0])), joints, flips, dofs, markers, base, kin, _reach(kin))
 
 
 def _fixes(part: Part, model: KinematicModel) -> bool:

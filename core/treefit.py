@@ -480,7 +480,7 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
                               offsets=offsets)
     rot, pos = world_frames(fit.dofs, model)
     for part in tree.branches:
-        geo = _branch_geometry(part, geometry, model)
+        geo = _branch_geometry(part, geometry)
         if len(geo.flip_joints) == 0:  # a branch's own trunk: flipped with the whole model
             continue
         kin, q = part.at(rot[part.base], pos[part.base]), np.ascontiguousarray(fit.dofs[part.dofs])
@@ -501,31 +501,22 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
 
 
 def _trunk_masks(geometry: FlipGeometry, model: KinematicModel, tree: Tree) -> np.ndarray:
-    """(K,) bool: the masks of ``geometry`` (the whole model's) that flip no joint of
-    :func:`_own_flips` (a joint whose subtree holds markers of one branch only)."""
+    """(K,) bool: the masks of ``geometry`` (the whole model's) that flip no branch joint, a
+    joint whose subtree holds markers of one branch only (``Part.flips``, or none)."""
     in_branch = np.zeros(len(geometry.flip_joints), dtype=bool)
     for part in tree.branches:
-        in_branch |= _own_flips(part, geometry, model)
+        outside = np.ones(len(model.markers), dtype=bool)
+        outside[part.markers] = False
+        in_branch |= ~geometry.subtree_markers[:, outside].any(axis=1)
     bits = int(np.sum(np.left_shift(1, np.flatnonzero(in_branch).astype(np.int64))))
     return (geometry.masks & bits) == 0
 
 
-def _own_flips(part: Part, geometry: FlipGeometry, model: KinematicModel) -> np.ndarray:
-    """(F,) bool over ``geometry.flip_joints``: the joints whose subtree holds no marker but
-    the branch ``part``'s, flipped in the branch's own search. A branch's own trunk (in a
-    nested tree) carries its sub-branches: its joints are flipped with the whole model."""
-    outside = np.ones(len(model.markers), dtype=bool)
-    outside[part.markers] = False
-    return ~geometry.subtree_markers[:, outside].any(axis=1)
-
-
-def _branch_geometry(part: Part, geometry: FlipGeometry, model: KinematicModel) -> FlipGeometry:
-    """The depth-flip geometry of one branch alone (its arrays, base first) over its joints of
-    :func:`_own_flips`, the views' depth directions from the whole model's ``geometry``."""
+def _branch_geometry(part: Part, geometry: FlipGeometry) -> FlipGeometry:
+    """The depth-flip geometry of one branch alone (its arrays, base first) over its joints
+    ``part.flips``, the views' depth directions from the whole model's ``geometry``."""
     kin = part.kin
-    own = geometry.flip_joints[_own_flips(part, geometry, model) & np.isin(geometry.flip_joints, part.joints)]
-    flip = 1 + np.searchsorted(part.joints, own)  # the part's rows: its base, then its joints
-    below = _subtrees(kin.parent)[flip]
-    return geometry._replace(flip_joints=flip.astype(np.int64), subtree_joints=below,
+    below = _subtrees(kin.parent)[part.flips]
+    return geometry._replace(flip_joints=part.flips, subtree_joints=below,
                              subtree_markers=np.ascontiguousarray(below[:, kin.marker_joint]),
-                             masks=flip_masks(len(flip)))
+                             masks=flip_masks(len(part.flips)))
