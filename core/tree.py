@@ -3,18 +3,28 @@
 Annealing every DOF of a six-legged insect at once cannot work: the search space
 grows with the product of the legs' spaces, while each leg's markers inform only
 that leg. A kinematic tree decomposes. Walking down from the root while a joint
-has a single child carrying markers gives the **trunk**; the subtrees hanging
+has a single child carrying markers (and DOFs) gives the **trunk**; the subtrees hanging
 from the trunk's last joint (where it first splits) are the **branches**. Each
 part is fitted by the paper's SA (Eq. 6 over its own DOFs, Eq. 5 over its own
 markers, the histograms as constraints) with everything above it fixed, then the
 whole posture is refined jointly. The cost of an image grows with the number of
 branches, not with the product of their search spaces.
 
+A branch that splits again is decomposed the same way, recursively: its own trunk (its
+joints above its split) is fitted given its base, then each sub-branch given that trunk.
+A human's upper body (lumbar, then head and two arms: 18 DOFs in ``bench/subjects/fullbody``)
+is four parts of 3-6 DOFs, not one of 18. The parts come in fitting order, parents before
+children; each knows its base, the joint whose world frame the parts before it have fixed.
+
 The decomposition is read from the model alone. A single chain (the locust leg)
-has no split, so it stays one part and is fitted exactly as before; a trunk with
-DOFs is fitted first only when its own markers can fix its pose (at least three,
+has no split, so it stays one part and is fitted exactly as before. The root's trunk
+with DOFs is fitted first only when its own markers can fix its pose (at least three,
 or one for a trunk that only translates): otherwise the whole tree is fitted at
-once.
+once. A branch's own trunk hangs from a fixed base, so counting cannot say it: it is
+split off only where its markers fix its DOFs (:func:`_fixes`, a rank test of their
+Jacobian; a rotation about a fixed point needs two markers not on one line through
+it), else the branch is fitted whole. A branch's own trunk without DOFs is not a part
+(its markers ride on the base); its sub-branches hang from its split.
 
 A branch sees only the detections within its reach (the sphere its joints and
 markers can sweep about its base, projected into each view, with a margin): the

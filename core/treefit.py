@@ -1,18 +1,20 @@
 """One attempt on one image of a tree-shaped model, part by part (``core.tree``).
 
-The trunk is fitted first, then each branch given the trunk, each by the paper's
-SA (``core._kernels.fit_attempt``) over its own DOFs and markers; then the whole
-posture is refined jointly. ε, the SA stop (``AnnealParams.eps``, 1 px), counts per
-:data:`EPS_PROJECTIONS` marker projections of a part, 0.25 px each by default: twice the
-paper's 1 px over 4 markers × 2 views, which the detection noise of real markers (0.1-0.2
-px a projection) keeps out of reach of a part seen in many views, so SA would run every
+The parts are fitted in the tree's order, each by the paper's SA
+(``core._kernels.fit_attempt``) over its own DOFs and markers with its base where the
+parts fitted before it put it (the root's trunk first; a branch's own trunk before its
+sub-branches); then the whole posture is refined jointly. ε, the SA stop
+(``AnnealParams.eps``, 1 px), counts per :data:`EPS_PROJECTIONS` marker projections of a
+part, 0.25 px each by default: twice the paper's 1 px over 4 markers × 2 views, which the
+detection noise of real markers (0.1-0.2 px a projection) keeps out of reach of a part
+seen in many views, so SA would run every
 part to its patience limit.
 
-Branches compete for blobs. Eq. 5 charges each marker its nearest blob and never
-charges a blob no marker explains, so a leg that settles on its neighbour's
-blobs costs nothing: both legs explain the same blobs, and the blobs of the
-stolen leg stay unexplained. After the first pass, any blob claimed by markers of
-two branches is a conflict; each branch in a conflict is fitted again without the
+Branches (every part with a base, a branch's own trunk too) compete for blobs. Eq. 5
+charges each marker its nearest blob and never charges a blob no marker explains, so a leg
+that settles on its neighbour's blobs costs nothing: both legs explain the same blobs, and
+the blobs of the stolen leg stay unexplained. After the first pass, any blob claimed by
+markers of two branches is a conflict; each branch in a conflict is fitted again without the
 blobs the other branches claim (a conflict needs a blob too small to be two markers the
 detector merged), and the new posture is kept where it lowers the
 *two-sided* error (:func:`two_sided_error`: Eq. 5 plus, for every blob within the
