@@ -7,8 +7,7 @@ sub-branches); then the whole posture is refined jointly. ε, the SA stop
 (``AnnealParams.eps``, 1 px), counts per :data:`EPS_PROJECTIONS` marker projections of a
 part, 0.25 px each by default: twice the paper's 1 px over 4 markers × 2 views, which the
 detection noise of real markers (0.1-0.2 px a projection) keeps out of reach of a part
-seen in many views, so SA would run every
-part to its patience limit.
+seen in many views, so SA would run every part to its patience limit.
 
 Branches (every part with a base, a branch's own trunk too) compete for blobs. Eq. 5
 charges each marker its nearest blob and never charges a blob no marker explains, so a leg
