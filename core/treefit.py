@@ -462,9 +462,10 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
                            empty_view_penalty_px: float, huber_px: float,
                            offsets: np.ndarray | None = None) -> list[Candidate]:
     """``core.ambiguity.flip_alternatives`` for a tree, branch by branch: the same depth flips,
-    each branch's scored on that branch's markers alone, then the fit with the flipped
-    branch scored whole and kept within ``tolerance_px`` of it; the trunk's flips (which
-    carry the branches along) on the whole model. Up to ``MAX_ALTERNATIVES``, best first.
+    each branch's (``Part.flips``) scored on that branch's markers alone, then the fit with
+    the flipped branch scored whole and kept within ``tolerance_px`` of it; the trunk's flips
+    and those of a branch's own trunk (which carry other branches along) on the whole model.
+    Up to ``MAX_ALTERNATIVES``, best first.
 
     A flip below a branch joint moves that branch's markers only, so scoring it on the
     whole model (27 markers in 6 views for the hexapod, 180 flips an image) repeats the
@@ -503,7 +504,7 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
 
 def _trunk_masks(geometry: FlipGeometry, model: KinematicModel, tree: Tree) -> np.ndarray:
     """(K,) bool: the masks of ``geometry`` (the whole model's) that flip no branch joint, a
-    joint whose subtree holds markers of one branch only (``Part.flips``, or none)."""
+    joint whose subtree holds markers of one branch only (``Part.flips``) or none."""
     in_branch = np.zeros(len(geometry.flip_joints), dtype=bool)
     for part in tree.branches:
         outside = np.ones(len(model.markers), dtype=bool)
