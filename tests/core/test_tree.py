@@ -18,7 +18,7 @@ from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 from core.sequence import fit_sequence
-from core.tree import _subtrees
+from core.tree import _dof_joints, _subtrees
 from core.treefit import search_floor, two_sided_error
 
 BENCH = Path(__file__).resolve().parents[2] / "bench" / "subjects"
@@ -68,8 +68,12 @@ def test_a_tree_that_splits_once_is_a_trunk_and_whole_subtrees(model):
     assert [int(model.arrays.parent[t]) for t in tops] == [split] * len(tops)
     for part, top in zip(tree.branches, tops, strict=True):
         np.testing.assert_array_equal(part.joints, np.flatnonzero(below[top]))
-    in_parts = np.concatenate([p.joints for p in tree.parts])
-    assert len(np.unique(in_parts)) == len(in_parts)
+        np.testing.assert_array_equal(part.flips, 1 + np.flatnonzero((part.kin.rot_dof[1:] >= 0).any(axis=1)))
+    rest = np.flatnonzero(~below[tops].any(axis=0))  # the trunk: every joint in no branch
+    if tree.trunk is not None:
+        np.testing.assert_array_equal(tree.trunk.joints, rest)
+    else:
+        assert not np.isin(_dof_joints(model), rest).any()  # a trunk without DOFs
     assert len(np.concatenate([p.dofs for p in tree.parts])) == len(model.dofs)
 
 
