@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -260,6 +260,7 @@ def fit_image(
     draw_start: bool = False,
     offsets: np.ndarray | None = None,
     warm: np.ndarray | None = None,
+    ceilings: Mapping[str, float] | None = None,
 ) -> tuple[np.ndarray, float, float, int]:
     """One attempt on one image: SA from the histogram means (paper §3.1), then refinement.
 
@@ -280,6 +281,8 @@ def fit_image(
         first that reaches twice the part's ε replaces its SA (``core.treefit.warm_start``).
         A single chain always runs SA: it costs about a millisecond there, and a warm start
         that reaches ε in a wrong minimum would carry that minimum on to the next images.
+    ceilings : for a tree, per part name, the objective per compared projection under which
+        its warm start replaces SA too (``core.treefit.warm_ceilings`` of the previous image).
 
     Returns
     -------
@@ -289,7 +292,7 @@ def fit_image(
     off = view_offsets(offsets, rig)
     if model.tree is not None:
         return fit_tree(detections, model, rig, model.tree, space, params, stream, draw_start, off,
-                        warm)
+                        warm, ceilings)
     dofs, error, objective, iterations = attempt_kernel(
         np.arange(len(model.dofs)), model.arrays, detections.kernel_points, detections.start,
         model, rig, space, params, params.anneal.eps, stream, draw_start, off,
@@ -309,6 +312,7 @@ def first_attempt(
     geometry: FlipGeometry,
     offsets: np.ndarray | None = None,
     warm: np.ndarray | None = None,
+    ceilings: Mapping[str, float] | None = None,
 ) -> ImageFit:
     """Image ``sample``'s first fit (attempt 1, stream :func:`image_stream` ``(seed, sample,
     1)``) under ``histograms``, with its alternatives; ``no_detections`` without any point.
@@ -316,6 +320,7 @@ def first_attempt(
     geometry : ``FlipGeometry.of(model, rig)``, computed once per chunk.
     offsets : this image's (V, 2) view offsets (root tracking), optional.
     warm : (k, D) warm starts from the chunk's previous images (:func:`fit_image`), optional.
+    ceilings : per part of a tree, where its warm start stands in for SA (:func:`fit_image`).
     """
     counts = tuple(det.counts.tolist())
     if not any(counts):
@@ -323,14 +328,15 @@ def first_attempt(
         return ImageFit(sample, nan, math.nan, math.nan, 0, Status.NO_DETECTIONS, 0, counts)
     best, alternatives, its = _attempt(
         det, model, rig, search_space(model, histograms), params, image_stream(seed, sample, 1),
-        False, offsets, geometry, warm,
+        False, offsets, geometry, warm, ceilings,
     )
     status = image_status(best.error, counts, len(model.markers), params)
     return ImageFit(sample, best.dofs, best.error, best.objective, 1, status, its, counts,
                     alternatives)
 
 
-def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None):
+def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None,
+             ceilings=None):
     """fit_image, then its alternatives: (best candidate, the others, SA iterations).
 
     ``warm`` holds warm starts (:func:`fit_image`; the chunk's previous postures,
@@ -347,7 +353,7 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     """
     dofs, error, objective, its = fit_image(
         det, model=model, rig=rig, space=space, params=params, stream=stream,
-        draw_start=draw_start, offsets=offsets, warm=warm,
+        draw_start=draw_start, offsets=offsets, warm=warm, ceilings=ceilings,
     )
     fit = Candidate(dofs, error, objective)
     others = []

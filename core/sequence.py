@@ -36,7 +36,7 @@ from functools import partial
 import numpy as np
 
 from core.ambiguity import Candidate, FlipGeometry, choose_candidates
-from core.error import Detections
+from core.error import Detections, view_offsets
 from core.fit import (
     FitParams,
     ImageFit,
@@ -49,6 +49,7 @@ from core.fit import (
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
+from core.treefit import warm_ceilings
 
 __all__ = [
     "ChunkResult",
@@ -141,14 +142,18 @@ def fit_chunk(
     geometry = FlipGeometry.of(model, rig)
     offset_iter = iter(offsets) if offsets is not None else None
     fits: list[ImageFit] = []
+    ceilings: dict[str, float] | None = None
     for k, det in enumerate(images):
         if should_stop is not None and should_stop():
             break
+        off = next(offset_iter) if offset_iter is not None else None
+        warm = _warm_starts(fits, model)
         fit = first_attempt(
             det, first_sample + k, model=model, rig=rig, histograms=working, params=params,
-            seed=seed, geometry=geometry, offsets=next(offset_iter) if offset_iter is not None else None,
-            warm=_warm_starts(fits, model),
+            seed=seed, geometry=geometry, offsets=off, warm=warm,
+            ceilings=ceilings if warm is not None else None,
         )
+        ceilings = _ceilings(fit, det, model, rig, params, off)
         if fit.status is Status.OK:
             working.update(fit.dofs[rot])
             observed.update(fit.dofs[rot])
@@ -179,6 +184,16 @@ def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | No
     if len(fits) < 2 or not np.all(np.isfinite(before := fits[-2].dofs)):
         return last[None]
     return np.vstack([np.clip(2.0 * last - before, model.lower, model.upper), last])
+
+
+def _ceilings(fit: ImageFit, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
+              offsets: np.ndarray | None) -> dict[str, float] | None:
+    """Where the next image's warm starts stand in for SA, per part of a tree
+    (``core.treefit.warm_ceilings`` of ``fit`` on ``det``); None for a single chain and an
+    image without a posture."""
+    if model.tree is None or not np.all(np.isfinite(fit.dofs)):
+        return None
+    return warm_ceilings(fit.dofs, det, model, rig, params, view_offsets(offsets, rig))
 
 
 def typical_objective(fits: Iterable[ImageFit]) -> float:

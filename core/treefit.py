@@ -34,6 +34,8 @@ views every branch tries it, kept where it lowers the two-sided error
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -61,7 +63,7 @@ if TYPE_CHECKING:
 
 __all__ = ["attempt_kernel", "epipolar_start", "fit_tree", "part_objective", "refine_whole",
            "search_floor", "shared_projections", "tree_flip_alternatives", "two_sided_error",
-           "warm_start", "world_frames"]
+           "warm_ceilings", "warm_start", "world_frames"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
@@ -90,18 +92,32 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
 
 def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None,
                model: KinematicModel, rig: Rig, params: FitParams, eps: float, off: np.ndarray,
-               unseen: np.ndarray = _kernels.NO_UNSEEN) -> tuple[np.ndarray, float, bool] | None:
+               unseen: np.ndarray = _kernels.NO_UNSEEN,
+               ceiling: float = math.nan) -> tuple[np.ndarray, float, bool] | None:
     """The warm starts ``warm`` (k, D), each one's posture of the DOFs ``dofs`` (a part posed
     by ``kin``) refined on detections ``points`` (N, 3) grouped at ``start`` (V + 1,) by
-    :data:`WARM_STEPS` LM steps: (posture (d,), objective in pixels, whether it reaches
-    :data:`WARM_EPS_FACTOR` times ``eps``, SA's stop) of the first that reaches it, else of
-    the lowest objective; None without ``warm``. One that reaches it leaves SA nothing to do.
+    :data:`WARM_STEPS` LM steps: (posture (d,), objective in pixels, whether it stands in
+    for SA) of the first that does, else of the lowest objective; None without ``warm``.
+    One stands in for SA where it reaches :data:`WARM_EPS_FACTOR` times ``eps`` (SA's stop)
+    or ``ceiling`` (pixels per compared projection, :func:`warm_ceilings`: the part's level
+    in the previous image plus what a residual at that level cannot tell apart).
 
     Why more than ε: where a warm start misses ε by a little, the part's minimum itself is
     above it (a ghost blob merged with a marker in one view, say), and SA only runs to its
     patience to end in the same minimum; a warm start in another minimum costs far more
     (a wrong leg is pixels off in several views), and a depth flip that costs as little is
     offered as an alternative either way (``core.ambiguity``).
+
+    Why the ceiling: with sliding skin markers no posture of a part reaches 2 ε, and the
+    minimum's own level is the markers' slide, which varies slowly from image to image. SA
+    can change the answer only by finding a posture lower than the warm start's by more
+    than the part's residual can tell apart (``core.undetermined.residual_tolerance``); a
+    warm start within that of the previous image's level leaves it none to find unless the
+    slide dropped by more than that in one image. A warm start in another basin costs more
+    than the level by a leg pixels off in several views and runs SA; one that costs less
+    than the tolerance more is one the image does not tell from the truth, and the image's
+    alternatives (depth flips, ``core.ambiguity``; an undetermined DOF,
+    ``core.undetermined``) still offer the other posture, the lower winning.
 
     ``unseen`` (V, m) bool marks projections next to another part's marker
     (:func:`shared_projections`): they are left out of the refinement and of the objective
@@ -119,6 +135,9 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     unseen = _in_seen_views(unseen, start)
     if unseen.size:
         eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(np.diff(start)), 1)
+    limit = WARM_EPS_FACTOR * eps
+    if math.isfinite(ceiling):
+        limit = max(limit, ceiling * _compared(unseen, start, len(kin.marker_joint)))
     best: tuple[np.ndarray, float, bool] | None = None
     for row in warm:
         q = np.ascontiguousarray(row[dofs])
@@ -128,11 +147,52 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
             q = _kernels.refine(q, _kernels.Bounds(model.lower[dofs], model.upper[dofs]), kin, rig.arrays,
                                 image, float(params.anneal.huber_px), WARM_STEPS, _kernels.NO_TARGETS)
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
-        if value < WARM_EPS_FACTOR * eps:
+        if value < limit:
             return q, value, True
         if best is None or value < best[1]:
             best = (q, value, False)
     return best
+
+
+def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
+                  params: FitParams, off: np.ndarray) -> dict[str, float]:
+    """Per part of ``model.tree`` (by name), the objective per compared marker projection
+    below which its warm start stands in for SA in the next image (:func:`warm_start`):
+    the part's objective at this image's fitted posture ``q`` (D,) on detections ``det``,
+    plus ``core.undetermined.residual_tolerance`` of it for another minimum anywhere in the
+    part's DOFs, over its compared projections (markers × views with detections within its
+    reach, less those next to another part's marker, :func:`shared_projections`).
+
+    The level is this image's own, fitted on its merits; per projection, so that a marker
+    next to another part's in the next image does not move it.
+    """
+    from core.undetermined import residual_tolerance  # it imports this module
+
+    tree = model.tree
+    assert tree is not None
+    shared = shared_projections(q, model, rig, tree, params, off)
+    rot, pos = world_frames(q, model)
+    reach = _within_reach(det, rig, pos[[b.base for b in tree.branches]],
+                          np.array([b.reach for b in tree.branches]), off)
+    out = {}
+    for part in tree.parts:
+        if part.base < 0:
+            kin, points, start = part.kin, det.kernel_points, det.start
+        else:
+            kin = part.at(rot[part.base], pos[part.base])
+            points, start = _subset(det, reach[tree.branches.index(part)])
+        unseen = _in_seen_views(shared[part.name], start)
+        counted = _compared(unseen, start, len(part.markers))
+        level = part_objective(q[part.dofs], kin, points, start, unseen, rig, params, off)
+        d = len(part.dofs)
+        out[part.name] = (level + residual_tolerance(level, counted, d, d)) / max(counted, 1)
+    return out
+
+
+def _compared(unseen: np.ndarray, start: np.ndarray, markers: int) -> int:
+    """Marker projections of a part of ``markers`` markers compared with its detections
+    grouped at ``start``: markers × views with detections, less the ``unseen`` (V, m) ones."""
+    return markers * int(np.count_nonzero(np.diff(start))) - int(np.count_nonzero(unseen))
 
 
 def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, unseen: np.ndarray,
@@ -169,11 +229,13 @@ def shared_projections(q: np.ndarray, model: KinematicModel, rig: Rig, tree: Tre
 
 def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
              params: FitParams, stream: np.ndarray, draw_start: bool, off: np.ndarray,
-             warm: np.ndarray | None = None) -> tuple[np.ndarray, float, float, int]:
+             warm: np.ndarray | None = None,
+             ceilings: Mapping[str, float] | None = None) -> tuple[np.ndarray, float, float, int]:
     """One attempt on one image, part by part: (dofs (D,), plain Eq. 5 error, objective, SA
     iterations), as :func:`core.fit.fit_image` returns them. Each part first tries its
     posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
-    where none reaches twice the part's ε, keeping the warm start where SA ends higher.
+    where none reaches twice the part's ε or its ceiling in ``ceilings`` (by part name,
+    :func:`warm_ceilings` of the previous image), keeping the warm start where SA ends higher.
     A branch that SA leaves above its ε tries its triangulated start too
     (:func:`epipolar_start`), kept where it ends lower; with two views, every branch does
     (:func:`_two_view_starts`)."""
@@ -188,7 +250,8 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
         nonlocal iterations
         eps = _part_eps(part, params, views_seen)
         unseen = shared.get(part.name, _kernels.NO_UNSEEN)
-        tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen)
+        tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen,
+                           (ceilings or {}).get(part.name, math.nan))
         if tried is not None and tried[2]:
             q[part.dofs] = tried[0]
             return
