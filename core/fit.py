@@ -153,6 +153,8 @@ class ImageFit:
     detections : number of detected points in each view.
     alternatives : other postures the image supports almost as well (depth flips,
         ``core.ambiguity``), worse objective first excluded: sorted by objective.
+    settled : a re-analysis from a drawn start ended in this posture's minimum
+        (:func:`reanalyse_image`), so :func:`needs_reanalysis` asks for no more attempts.
     """
 
     sample: int
@@ -164,6 +166,7 @@ class ImageFit:
     iterations: int
     detections: tuple[int, ...]
     alternatives: tuple[Candidate, ...] = ()
+    settled: bool = False
 
     def compared(self, n_markers: int) -> int:
         """Marker projections compared with detections: markers × views with any detection."""
@@ -216,6 +219,7 @@ class ImageFit:
                  "objective": _json_float(c.objective)}
                 for c in self.alternatives
             ],
+            "settled": self.settled,
         }
 
     @classmethod
@@ -233,6 +237,7 @@ class ImageFit:
                 Candidate(_float_array(c["dofs"]), _float(c["error"]), _float(c["objective"]))
                 for c in record.get("alternatives", ())
             ),
+            settled=bool(record.get("settled", False)),
         )
 
 
@@ -465,6 +470,15 @@ def reanalyse_image(
     constraints), so that it does not retrace the first attempt's path, and
     uses the stream :func:`image_stream` ``(seed, sample, attempts + 1)``.
     The kept attempt brings its alternatives along.
+
+    Where the attempt ends in the kept posture's minimum (within :data:`DISTINCT_DEG` in
+    every angle, its objective not lower by ε, SA's stop, or more), the fit is ``settled``
+    and :func:`needs_reanalysis` asks for no more: two searches from unrelated starts (the
+    first from the histograms' means or the previous image's posture, this one drawn)
+    agree, and the image's error is what its markers leave in that minimum (sliding skin
+    markers, a marker the model lacks), which more attempts would find again. An attempt
+    that finds a lower minimum, or a posture more than :data:`DISTINCT_DEG` away, leaves it
+    unsettled: the search goes on, as the paper's re-analysis.
     """
     attempt = previous.attempts + 1
     if not needs_reanalysis(previous, model, params, typical):
@@ -473,21 +487,24 @@ def reanalyse_image(
         detections, model, rig, search_space(model, histograms), params,
         image_stream(seed, previous.sample, attempt), True, offsets, FlipGeometry.of(model, rig),
     )
+    settled = (best.objective > previous.objective - params.anneal.eps
+               and not _apart(best.dofs, previous.dofs, model.rotational))
     if not best.objective < previous.objective:
         best = Candidate(previous.dofs, previous.error, previous.objective)
         alternatives = previous.alternatives
     status = image_status(best.error, previous.detections, len(model.markers), params)
     return ImageFit(previous.sample, best.dofs, best.error, best.objective, attempt, status,
-                    previous.iterations + its, previous.detections, alternatives)
+                    previous.iterations + its, previous.detections, alternatives, settled)
 
 
 def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
                      typical: float = math.nan) -> bool:
-    """True while an image has attempts left and is over the error threshold (paper §3.2), or
-    its objective is an outlier: above ``params.outlier_factor`` times ``typical`` (the
-    sequence's ``core.sequence.typical_objective``) and above the level where ``model``'s
-    search stops in the image's views (``core.treefit.search_floor``: ε for a chain, the sum
-    of its parts' ε for a tree).
+    """True while an image has attempts left, is not ``settled`` (:func:`reanalyse_image`)
+    and is over the error threshold (paper §3.2), or its objective is an outlier: above
+    ``params.outlier_factor`` times ``typical`` (the sequence's
+    ``core.sequence.typical_objective``) and above the level where ``model``'s search stops
+    in the image's views (``core.treefit.search_floor``: ε for a chain, the sum of its
+    parts' ε for a tree).
 
     The paper's 10 px threshold was "clearly larger than the expected analysis
     result" (2.9 px); clean footage now fits at ~0.1 px, so a local minimum at
@@ -497,7 +514,7 @@ def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
     animal that fits most images far below it would otherwise send every image
     that stops near it to attempts that stop there again.
     """
-    if fit.attempts >= params.max_attempts or fit.status is Status.NO_DETECTIONS:
+    if fit.attempts >= params.max_attempts or fit.status is Status.NO_DETECTIONS or fit.settled:
         return False
     if fit.status is Status.OVER_THRESHOLD:
         return True
