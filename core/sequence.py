@@ -129,7 +129,8 @@ def fit_chunk(
     histograms : the constraints at the start of the chunk; not modified.
     seed : the job's seed; image ``s`` uses ``core.fit.image_stream`` ``(seed, s, 1)``.
         Each image after the chunk's first starts from the previous images' postures
-        (warm starts, :func:`_warm_starts`) and tries the previous one as an alternative;
+        (warm starts, :func:`_warm_starts`, each part's taken up to its level in the
+        previous image, :func:`_ceilings`) and tries the previous one as an alternative;
         the chunk's first image starts cold, so a chunk's fits depend on its first sample
         and nothing before it: fitted anywhere, the same chunks give the same fits.
     offsets : optional per-image (V, 2) view offsets (root tracking), same length as images.

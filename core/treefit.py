@@ -22,7 +22,9 @@ refitting without the shared blob raises the error, and the first posture stays.
 
 Within a chunk, each part first tries the previous image's posture (:func:`warm_start`):
 refined on the part's detections, it replaces the part's SA where it reaches twice the
-part's ε, and when every part came from a warm start the joint refinement takes
+part's ε or, under sliding skin markers, the part's level in the previous image plus what
+its residual cannot tell apart (:func:`warm_ceilings`), and when every part came from a
+warm start the joint refinement takes
 :data:`WARM_JOINT_STEPS` steps: at 50-200 Hz most parts of most images skip SA (figures in
 docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
 (:func:`tree_flip_alternatives`). A branch that SA leaves above its ε (with two or more
@@ -113,11 +115,12 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     can change the answer only by finding a posture lower than the warm start's by more
     than the part's residual can tell apart (``core.undetermined.residual_tolerance``); a
     warm start within that of the previous image's level leaves it none to find unless the
-    slide dropped by more than that in one image. A warm start in another basin costs more
-    than the level by a leg pixels off in several views and runs SA; one that costs less
-    than the tolerance more is one the image does not tell from the truth, and the image's
-    alternatives (depth flips, ``core.ambiguity``; an undetermined DOF,
-    ``core.undetermined``) still offer the other posture, the lower winning.
+    slide dropped by more than that in one image. Why it is safe: a warm start in another
+    basin costs the level plus a leg pixels off in several views, above the ceiling, and
+    runs SA (kept only where SA ends higher); one within the ceiling is one this image's
+    residual does not tell from the part's minimum. The image's depth flips and
+    undetermined DOFs are still searched (``core.fit``), and a chunk's first image and
+    every re-analysis run SA on every part.
 
     ``unseen`` (V, m) bool marks projections next to another part's marker
     (:func:`shared_projections`): they are left out of the refinement and of the objective
