@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -265,7 +265,7 @@ def fit_image(
     draw_start: bool = False,
     offsets: np.ndarray | None = None,
     warm: np.ndarray | None = None,
-    ceilings: Mapping[str, float] | None = None,
+    ceilings: Callable[[], Mapping[str, float]] | None = None,
 ) -> tuple[np.ndarray, float, float, int]:
     """One attempt on one image: SA from the histogram means (paper §3.1), then refinement.
 
@@ -286,8 +286,9 @@ def fit_image(
         first that reaches twice the part's ε replaces its SA (``core.treefit.warm_start``).
         A single chain always runs SA: it costs about a millisecond there, and a warm start
         that reaches ε in a wrong minimum would carry that minimum on to the next images.
-    ceilings : for a tree, per part name, the objective per compared projection under which
-        its warm start replaces SA too (``core.treefit.warm_ceilings`` of the previous image).
+    ceilings : for a tree, gives per part name the objective per compared projection under
+        which its warm start replaces SA too (``core.treefit.warm_ceilings`` of the previous
+        image), called only where a part's warm start misses twice its ε.
 
     Returns
     -------
@@ -317,7 +318,7 @@ def first_attempt(
     geometry: FlipGeometry,
     offsets: np.ndarray | None = None,
     warm: np.ndarray | None = None,
-    ceilings: Mapping[str, float] | None = None,
+    ceilings: Callable[[], Mapping[str, float]] | None = None,
 ) -> ImageFit:
     """Image ``sample``'s first fit (attempt 1, stream :func:`image_stream` ``(seed, sample,
     1)``) under ``histograms``, with its alternatives; ``no_detections`` without any point.

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
-from functools import partial
+from functools import cache, partial
 
 import numpy as np
 
@@ -130,7 +130,8 @@ def fit_chunk(
     seed : the job's seed; image ``s`` uses ``core.fit.image_stream`` ``(seed, s, 1)``.
         Each image after the chunk's first starts from the previous images' postures
         (warm starts, :func:`_warm_starts`, each part's taken up to its level in the
-        previous image, :func:`_ceilings`) and tries the previous one as an alternative;
+        previous image, ``core.treefit.warm_ceilings``, computed only where a part's warm
+        start misses twice its ε) and tries the previous one as an alternative;
         the chunk's first image starts cold, so a chunk's fits depend on its first sample
         and nothing before it: fitted anywhere, the same chunks give the same fits.
     offsets : optional per-image (V, 2) view offsets (root tracking), same length as images.
@@ -143,7 +144,7 @@ def fit_chunk(
     geometry = FlipGeometry.of(model, rig)
     offset_iter = iter(offsets) if offsets is not None else None
     fits: list[ImageFit] = []
-    ceilings: dict[str, float] | None = None
+    ceilings: Callable[[], dict[str, float]] | None = None
     for k, det in enumerate(images):
         if should_stop is not None and should_stop():
             break
@@ -154,7 +155,8 @@ def fit_chunk(
             seed=seed, geometry=geometry, offsets=off, warm=warm,
             ceilings=ceilings if warm is not None else None,
         )
-        ceilings = _ceilings(fit, det, model, rig, params, off)
+        ceilings = None if model.tree is None or not np.all(np.isfinite(fit.dofs)) else cache(
+            partial(warm_ceilings, fit.dofs, det, model, rig, params, view_offsets(off, rig)))
         if fit.status is Status.OK:
             working.update(fit.dofs[rot])
             observed.update(fit.dofs[rot])
@@ -185,16 +187,6 @@ def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | No
     if len(fits) < 2 or not np.all(np.isfinite(before := fits[-2].dofs)):
         return last[None]
     return np.vstack([np.clip(2.0 * last - before, model.lower, model.upper), last])
-
-
-def _ceilings(fit: ImageFit, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
-              offsets: np.ndarray | None) -> dict[str, float] | None:
-    """Where the next image's warm starts stand in for SA, per part of a tree
-    (``core.treefit.warm_ceilings`` of ``fit`` on ``det``); None for a single chain and an
-    image without a posture."""
-    if model.tree is None or not np.all(np.isfinite(fit.dofs)):
-        return None
-    return warm_ceilings(fit.dofs, det, model, rig, params, view_offsets(offsets, rig))
 
 
 def typical_objective(fits: Iterable[ImageFit]) -> float:

@@ -37,7 +37,7 @@ views every branch tries it, kept where it lowers the two-sided error
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -95,14 +95,15 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
 def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None,
                model: KinematicModel, rig: Rig, params: FitParams, eps: float, off: np.ndarray,
                unseen: np.ndarray = _kernels.NO_UNSEEN,
-               ceiling: float = math.nan) -> tuple[np.ndarray, float, bool] | None:
+               ceiling: Callable[[], float] | None = None) -> tuple[np.ndarray, float, bool] | None:
     """The warm starts ``warm`` (k, D), each one's posture of the DOFs ``dofs`` (a part posed
     by ``kin``) refined on detections ``points`` (N, 3) grouped at ``start`` (V + 1,) by
     :data:`WARM_STEPS` LM steps: (posture (d,), objective in pixels, whether it stands in
-    for SA) of the first that does, else of the lowest objective; None without ``warm``.
-    One stands in for SA where it reaches :data:`WARM_EPS_FACTOR` times ``eps`` (SA's stop)
-    or ``ceiling`` (pixels per compared projection, :func:`warm_ceilings`: the part's level
-    in the previous image plus what a residual at that level cannot tell apart).
+    for SA) of the first that reaches :data:`WARM_EPS_FACTOR` times ``eps`` (SA's stop),
+    else of the lowest objective, which stands in for SA where it is below ``ceiling()``
+    (pixels per compared projection, :func:`warm_ceilings`: the part's level in the
+    previous image plus what a residual at that level cannot tell apart; asked for only
+    there); None without ``warm``.
 
     Why more than ε: where a warm start misses ε by a little, the part's minimum itself is
     above it (a ghost blob merged with a marker in one view, say), and SA only runs to its
@@ -138,9 +139,6 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     unseen = _in_seen_views(unseen, start)
     if unseen.size:
         eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(np.diff(start)), 1)
-    limit = WARM_EPS_FACTOR * eps
-    if math.isfinite(ceiling):
-        limit = max(limit, ceiling * _compared(unseen, start, len(kin.marker_joint)))
     best: tuple[np.ndarray, float, bool] | None = None
     for row in warm:
         q = np.ascontiguousarray(row[dofs])
@@ -150,10 +148,13 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
             q = _kernels.refine(q, _kernels.Bounds(model.lower[dofs], model.upper[dofs]), kin, rig.arrays,
                                 image, float(params.anneal.huber_px), WARM_STEPS, _kernels.NO_TARGETS)
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
-        if value < limit:
+        if value < WARM_EPS_FACTOR * eps:
             return q, value, True
         if best is None or value < best[1]:
             best = (q, value, False)
+    if best is not None and ceiling is not None:
+        limit = ceiling() * _compared(unseen, start, len(kin.marker_joint))
+        best = (best[0], best[1], bool(best[1] < limit))
     return best
 
 
@@ -233,12 +234,14 @@ def shared_projections(q: np.ndarray, model: KinematicModel, rig: Rig, tree: Tre
 def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
              params: FitParams, stream: np.ndarray, draw_start: bool, off: np.ndarray,
              warm: np.ndarray | None = None,
-             ceilings: Mapping[str, float] | None = None) -> tuple[np.ndarray, float, float, int]:
+             ceilings: Callable[[], Mapping[str, float]] | None = None
+             ) -> tuple[np.ndarray, float, float, int]:
     """One attempt on one image, part by part: (dofs (D,), plain Eq. 5 error, objective, SA
     iterations), as :func:`core.fit.fit_image` returns them. Each part first tries its
     posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
-    where none reaches twice the part's ε or its ceiling in ``ceilings`` (by part name,
-    :func:`warm_ceilings` of the previous image), keeping the warm start where SA ends higher.
+    where none reaches twice the part's ε or its ceiling in ``ceilings()`` (by part name,
+    :func:`warm_ceilings` of the previous image, asked for only where a part needs it),
+    keeping the warm start where SA ends higher.
     A branch that SA leaves above its ε tries its triangulated start too
     (:func:`epipolar_start`), kept where it ends lower; with two views, every branch does
     (:func:`_two_view_starts`)."""
@@ -253,8 +256,9 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
         nonlocal iterations
         eps = _part_eps(part, params, views_seen)
         unseen = shared.get(part.name, _kernels.NO_UNSEEN)
+        ceiling = None if ceilings is None else lambda: ceilings().get(part.name, math.nan)
         tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen,
-                           (ceilings or {}).get(part.name, math.nan))
+                           ceiling)
         if tried is not None and tried[2]:
             q[part.dofs] = tried[0]
             return

@@ -49,7 +49,8 @@ def legs() -> tuple[KinematicModel, Rig, np.ndarray, list[Detections]]:
 def _one(model, rig, det, warm=None, ceilings=None):
     space = search_space(model, Histograms.uniform(model))
     return fit_image(det, model=model, rig=rig, space=space, params=FitParams(),
-                     stream=image_stream(0, 1, 1), warm=warm, ceilings=ceilings)
+                     stream=image_stream(0, 1, 1), warm=warm,
+                     ceilings=None if ceilings is None else lambda: ceilings)
 
 
 def test_a_previous_posture_that_fits_replaces_sa(legs):
