@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
-from functools import cache, partial
+from functools import partial
 
 import numpy as np
 
@@ -155,8 +155,8 @@ def fit_chunk(
             seed=seed, geometry=geometry, offsets=off, warm=warm,
             ceilings=ceilings if warm is not None else None,
         )
-        ceilings = None if model.tree is None or not np.all(np.isfinite(fit.dofs)) else cache(
-            partial(warm_ceilings, fit.dofs, det, model, rig, params, view_offsets(off, rig)))
+        if model.tree is not None:  # used only after a posture (``warm`` is None without one)
+            ceilings = partial(_ceilings, fit, det, model, rig, params, off)
         if fit.status is Status.OK:
             working.update(fit.dofs[rot])
             observed.update(fit.dofs[rot])
@@ -187,6 +187,13 @@ def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | No
     if len(fits) < 2 or not np.all(np.isfinite(before := fits[-2].dofs)):
         return last[None]
     return np.vstack([np.clip(2.0 * last - before, model.lower, model.upper), last])
+
+
+def _ceilings(fit: ImageFit, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
+              offsets: np.ndarray | None) -> dict[str, float]:
+    """``core.treefit.warm_ceilings`` of ``fit`` on ``det`` (``offsets``: the image's (V, 2)
+    view offsets, optional): where the next image's warm starts stand in for SA."""
+    return warm_ceilings(fit.dofs, det, model, rig, params, view_offsets(offsets, rig))
 
 
 def typical_objective(fits: Iterable[ImageFit]) -> float:

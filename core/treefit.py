@@ -240,8 +240,8 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     iterations), as :func:`core.fit.fit_image` returns them. Each part first tries its
     posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
     where none reaches twice the part's ε or its ceiling in ``ceilings()`` (by part name,
-    :func:`warm_ceilings` of the previous image, asked for only where a part needs it),
-    keeping the warm start where SA ends higher.
+    :func:`warm_ceilings` of the previous image, asked for once, where a part first needs
+    it), keeping the warm start where SA ends higher.
     A branch that SA leaves above its ε tries its triangulated start too
     (:func:`epipolar_start`), kept where it ends lower; with two views, every branch does
     (:func:`_two_view_starts`)."""
@@ -250,13 +250,19 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     views_seen = int(np.count_nonzero(det.counts))
     shared = {} if warm is None else shared_projections(warm[0], model, rig, tree, params, off)
     candidates: list[Candidates] = []  # triangulated once, when a branch first needs them
+    known: dict[str, float] = {}  # ``ceilings()``, once a part first needs it
+
+    def levels(name: str) -> float:
+        if not known and ceilings is not None:
+            known.update(ceilings())
+        return known.get(name, math.nan)
 
     def fit_part(part: Part, kin, points: np.ndarray, start: np.ndarray,
                  warm: np.ndarray | None = None) -> None:
         nonlocal iterations
         eps = _part_eps(part, params, views_seen)
         unseen = shared.get(part.name, _kernels.NO_UNSEEN)
-        ceiling = None if ceilings is None else lambda: ceilings().get(part.name, math.nan)
+        ceiling = None if ceilings is None else lambda: levels(part.name)
         tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen,
                            ceiling)
         if tried is not None and tried[2]:
