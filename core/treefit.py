@@ -167,8 +167,9 @@ def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
     part's DOFs, over its compared projections (markers × views with detections within its
     reach, less those next to another part's marker, :func:`shared_projections`).
 
-    The level is this image's own, fitted on its merits; per projection, so that a marker
-    next to another part's in the next image does not move it.
+    The level is that of this image's first fit (its parts searched by SA, or warm started
+    under this image's own ceilings); per projection, so that a marker next to another
+    part's in the next image does not move it.
     """
     from core.undetermined import residual_tolerance  # it imports this module
 
@@ -178,13 +179,11 @@ def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
     rot, pos = world_frames(q, model)
     reach = _within_reach(det, rig, pos[[b.base for b in tree.branches]],
                           np.array([b.reach for b in tree.branches]), off)
+    posed = [] if tree.trunk is None else [(tree.trunk, tree.trunk.kin, det.kernel_points, det.start)]
+    posed += [(b, b.at(rot[b.base], pos[b.base]), *_subset(det, keep))
+              for b, keep in zip(tree.branches, reach, strict=True)]
     out = {}
-    for part in tree.parts:
-        if part.base < 0:
-            kin, points, start = part.kin, det.kernel_points, det.start
-        else:
-            kin = part.at(rot[part.base], pos[part.base])
-            points, start = _subset(det, reach[tree.branches.index(part)])
+    for part, kin, points, start in posed:
         unseen = _in_seen_views(shared[part.name], start)
         counted = _compared(unseen, start, len(part.markers))
         level = part_objective(q[part.dofs], kin, points, start, unseen, rig, params, off)
