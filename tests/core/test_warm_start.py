@@ -227,3 +227,19 @@ def test_a_reanalysis_that_ends_in_the_kept_minimum_settles_the_image(sliding):
     moved = reanalyse_image(images[0], stuck, **kwargs)
     assert moved.objective < stuck.objective - params.anneal.eps and not moved.settled
     assert needs_reanalysis(moved, model, params)
+
+
+def test_a_sliding_marker_sequence_skips_sa_and_ends_where_sa_does(sliding):
+    """A chunk of 12 images under sliding markers, first attempts only (they are over the
+    threshold): after the first, most images take every leg from its warm start, and every
+    image's posture is the one SA finds on its own."""
+    model, rig, _, images = sliding
+    params = FitParams(choose_by_continuity=False, max_attempts=1)
+    fits = fit_sequence(images, model=model, rig=rig, histograms=Histograms.uniform(model),
+                        params=params, seed=0).fits
+    assert fits[0].iterations > 0
+    assert sum(f.iterations == 0 for f in fits[1:]) >= 8
+    for k in range(1, len(fits)):
+        cold, _, objective, _ = _one(model, rig, images[k])
+        assert angle_errors(fits[k].dofs, cold).max() < 0.01, k
+        assert fits[k].objective <= objective + 1e-3, k
