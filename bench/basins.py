@@ -1,6 +1,6 @@
 """Why images are off with real markers: a wrong basin, or the minimum itself moved?
 
-    python bench/basins.py --subject stick|locust|biped|hexapod [--images N] [--soft-tissue]
+    python bench/basins.py --subject stick|locust|biped|fullbody|hexapod [--images N] [--soft-tissue]
         [--cameras 6|3|2] [--off DEG] [--seed S] [--huber PX]
 
 Renders and fits a subject as ``bench/animals.py`` does (same seed, same images), then

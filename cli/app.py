@@ -148,6 +148,7 @@ def fit(
         start = None if histograms is None else Histograms.from_xml(histograms, kinematic)
         # Per image, before any video is decoded: the fusion distance does not change the cost.
         check_fit_cost(estimate_fit_cost(kinematic, camera_rig, fit_opts.fit_params(0.0), images=1))
+        warn_undetermined(model, kinematic)
         with flags_in_errors():
             built = build_fit(fit_opts, kinematic, camera_rig, videos, start)
         job = built.job
@@ -163,6 +164,14 @@ def fit(
             _draw_overlay(job, out, OVERLAY_WORST)
         if plots:
             _draw_plots(out, kinematic, built.start, outcome.result.histograms)
+
+
+def warn_undetermined(path: Path, model: KinematicModel) -> None:
+    """One line on stderr when the model's markers cannot determine some DOF in any posture
+    (``core.identifiability``): the fit goes on, each image then has an alternative."""
+    advice = model.identifiability.advice()
+    if advice:
+        typer.echo(f"mocap: warning: {path}: {advice}", err=True)
 
 
 @contextmanager

@@ -355,7 +355,9 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     it. A warm-started fit keeps its depth flips as alternatives, so a previous posture in a
     wrong minimum that this image still supports can be corrected by that choice too.
     Without any other minimum, a posture at least ``core.undetermined.UNDETERMINED_DEG``
-    away in a DOF the image does not determine (``core.undetermined``) is the alternative.
+    away in a DOF the image does not determine (``core.undetermined``) is the alternative:
+    looked for where the residual widens the tolerance, and in every image of a model with
+    DOFs no posture determines (``model.identifiability``).
     """
     dofs, error, objective, its = fit_image(
         det, model=model, rig=rig, space=space, params=params, stream=stream,
@@ -375,11 +377,14 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             others += _warm_alternatives(fit, others, warm, det, model, rig, params, tolerance,
                                          offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
-    # An undetermined DOF is looked for only where the residual, not the fixed floor, sets
-    # the tolerance (markers off the model): on clean footage the flat directions are the
-    # depth flips', and the search costs a Jacobian of the whole model.
+    # An undetermined DOF is looked for where the residual, not the fixed floor, sets the
+    # tolerance (markers off the model): on clean footage the flat directions are the depth
+    # flips', and the search costs a Jacobian of the whole model. A model whose markers
+    # cannot determine some DOF in any posture (``core.identifiability``) leaves it
+    # undetermined in every image, however clean: there the search always runs.
     one_dof = alternative_tolerance(params, det, model, error, 1)
-    if len(ranked) == 1 and one_dof > alternative_tolerance(params, det, model, math.nan, 1):
+    widened = one_dof > alternative_tolerance(params, det, model, math.nan, 1)
+    if len(ranked) == 1 and one_dof > 0 and (widened or model.identifiability.undetermined):
         witness = undetermined_alternative(
             fit, det, model=model, rig=rig, tolerance_px=one_dof,
             fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,

@@ -25,6 +25,7 @@ from core._files import decimal, parse_decimal
 from core.xmlio import attribute, parse
 
 if TYPE_CHECKING:
+    from core.identifiability import Identifiability
     from core.tree import Tree
 
 __all__ = [
@@ -212,6 +213,13 @@ class KinematicModel:
         from core.tree import decompose  # core.tree builds on this module's arrays
 
         return decompose(self)
+
+    @cached_property
+    def identifiability(self) -> Identifiability:
+        """DOFs the markers cannot determine in any posture, and what would (``core.identifiability``)."""
+        from core.identifiability import identifiability  # builds on marker_positions
+
+        return identifiability(self)
 
     # ---- forward kinematics ------------------------------------------------------
     def marker_positions(self, dofs: np.ndarray) -> np.ndarray:

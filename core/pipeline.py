@@ -280,7 +280,8 @@ def write_outputs(out: Path, job: FitJob, outcome: FitOutcome) -> dict[str, Any]
 def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
     """Images, throughput, error statistics (total and per compared marker projection),
     over-threshold and ambiguous images (an alternative posture in angles.csv's
-    ``alternative_deg``), detections and settings."""
+    ``alternative_deg``), the DOFs the model's markers cannot determine in any posture
+    (``core.identifiability``), detections and settings."""
     fits = outcome.result.fits
     fitted = [f for f in fits if f.status is not Status.NO_DETECTIONS]
     errors = np.array([f.error for f in fitted])
@@ -304,6 +305,7 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
         "over_threshold_images": [f.sample for f in fits if f.status is Status.OVER_THRESHOLD],
         "ambiguous": len(ambiguous),
         "ambiguous_images": ambiguous,
+        "undetermined_dofs": _undetermined(job.model),
         "detections_per_view": {
             name: {"mean": round(float(counts[:, v].mean()), 3) if len(fits) else None,
                    "min": int(counts[:, v].min()) if len(fits) else None,
@@ -320,6 +322,13 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
             "detector": asdict(job.source.detector),
         },
     }
+
+
+def _undetermined(model: KinematicModel) -> list[str] | None:
+    """The DOFs the model's markers cannot determine in any posture; None when the model is
+    too large to be analysed (``core.identifiability.MAX_ANALYSED_DOFS``)."""
+    found = model.identifiability
+    return list(found.undetermined) if found.analysed else None
 
 
 def _stats(values: np.ndarray) -> dict[str, float | None]:

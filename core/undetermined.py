@@ -91,7 +91,10 @@ def undetermined_alternative(
     projections), by ±:data:`UNDETERMINED_DEG`, then 2, 4, 8 times as far while the
     objective (as the fit's: fusion, a lost marker per view) stays within the tolerance;
     a step that leaves it by less than :data:`_NEAR` tolerances is refined with d held
-    (towards the profile's minimum, nonlinear).
+    (towards the profile's minimum, nonlinear). A step in a DOF the model's markers cannot
+    determine in any posture (``model.identifiability``) is refined however far it leaves:
+    its flat valley is curved, and a straight step of 10° in a pelvis tilt that the hips
+    follow leaves it by tens of pixels.
     DOFs whose linearised rise at the first step is above :data:`_SCREEN` tolerances are
     not tried (most DOFs of a clean image: the search costs a Jacobian and a few errors).
     Of the postures within the tolerance, the one farthest from the fit.
@@ -132,13 +135,15 @@ def undetermined_alternative(
     rise = np.minimum(step_moves, step_moves**2 / (2 * mean)).sum(axis=1)
     screened = rise <= _SCREEN * tolerance_px
     limit = objective(q) + tolerance_px
+    structural = np.isin(model.dof_names, model.identifiability.undetermined)
     best, best_gap = None, UNDETERMINED_DEG
     for d in np.flatnonzero(rot & screened):
         for sign in (1.0, -1.0):
             for k in range(WITNESS_DOUBLINGS + 1):
                 step = sign * UNDETERMINED_DEG * 2**k
                 p = np.clip(q + step * profiles[d], model.lower, model.upper)
-                if limit < objective(p) <= limit + _NEAR * tolerance_px:
+                if limit < objective(p) <= limit + _NEAR * tolerance_px or (
+                        structural[d] and objective(p) > limit):
                     p = pinned(p, int(d))
                 gap = float(angle_gaps(p, q)[rot].max())
                 if objective(p) > limit or gap < abs(step) * (1 - 1e-9):  # worse, or at a bound

@@ -33,7 +33,8 @@ MODEL_XML = """<model name="locust_hind_leg" units="mm">
 MODEL = {"id": 1, "name": "locust_hind_leg", "dofs": ["phi", "psi", "alpha", "beta", "gamma"],
          "histogram_versions": 1, "sha256": "9f2c" + "0" * 60, "metadata": METADATA, "created_at": CREATED}
 EXISTING = {"model_id": 1, "histogram_versions": 3, "latest_version": 3}
-MODEL_CREATED = {**MODEL, "id": 2, "existing_model_id": 1, "existing": EXISTING, "reused": False}
+MODEL_CREATED = {**MODEL, "id": 2, "existing_model_id": 1, "existing": EXISTING, "reused": False,
+                 "warnings": []}
 RIG_PUBLIC = {"id": 1, "name": "two mirrors", "metadata": {"calibrated": "2026-11-20"},
               "views": ["side", "top"], "videos": 1, "created_at": CREATED}
 VIDEO = {"id": 1, "filename": "trial1_cam0.avi", "name": "walk-07", "metadata": METADATA, "frames": 200,

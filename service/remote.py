@@ -66,6 +66,8 @@ def upload(
         stored_model, stored_rig = api.upload_model(model), api.upload_rig(rig)
         print(f"model {stored_model['id']} ({stored_model['name']}), rig {stored_rig['id']} "
               f"({len(stored_rig['views'])} views in {stored_rig['videos']} video(s) per trial)")
+        for line in stored_model.get("warnings", []):
+            print(f"  {model.name}: warning: {line}")
         _check_counts(trials, stored_rig["videos"], folder)
         video_ids = _upload_trials(api, trials)
         batch = _submit_uploaded(api, stored_model["id"], stored_rig["id"], video_ids, job_options,

@@ -226,6 +226,9 @@ class ModelCreated(ModelPublic):
         description="an identical model this lab uploaded before (the one with the most histogram "
                     "versions): submit jobs with its id to go on with its archive; null: none")
     existing: ExistingArchive | None = Field(description="that model's archive; null: none")
+    warnings: list[str] = Field(description="what is wrong with the model though it can be used, "
+                                "e.g. DOFs its markers cannot determine in any posture and the fix; "
+                                "[]: none")
     reused: bool = Field(description="true: ?reuse=true and this is that existing model, nothing "
                                      "was stored; false: a new model with a new archive (version 1)")
 

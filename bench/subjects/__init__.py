@@ -5,6 +5,7 @@ or ``core/examples/<name>/``, a frame size, a frame rate, and a movement generat
 
 - ``hexapod``: a tethered fruit fly, 6 legs × 7 DOFs, walking in a tripod gait;
 - ``biped``: a human lower body walking along a 2.4 m walkway, pelvis moving forward;
+- ``fullbody``: a whole human (spine, head, arms) walking there, swinging its arms;
 - ``stick`` and ``locust``: the examples, moved by ``core.synth.natural_movements``.
 
 Sources of the anatomy: ``docs/BENCH_SUBJECTS.md``.
@@ -24,7 +25,7 @@ from core.rig import Rig
 from core.synth import natural_movements
 
 ROOT = Path(__file__).resolve().parents[2]
-NAMES = ("hexapod", "biped", "stick", "locust")
+NAMES = ("hexapod", "biped", "fullbody", "stick", "locust")
 # Camera subsets of the hexapod's six (a ring at 30, 90, …, 330° azimuth): every other one,
 # and the two side cameras.
 HEXAPOD_CAMERAS = {6: (0, 1, 2, 3, 4, 5), 3: (0, 2, 4), 2: (1, 4)}
@@ -74,6 +75,9 @@ def load(name: str, cameras: int | None = None) -> Subject:
         raise ValueError(f"only the hexapod has camera variants, not {name!r}")
     if name == "biped":
         return Subject(name, model, rig, (720, 576), 100.0, walkway_gait, ("R_knee", (200.0, 60.0, 0.0)))
+    if name == "fullbody":  # the unmodelled marker: on the back of the right upper arm
+        return Subject(name, model, rig, (1280, 720), 100.0, fullbody_gait,
+                       ("R_shoulder", (120.0, -45.0, 30.0)))
     unmodelled = ("femur_tibia", (12.0, 1.0, 0.0)) if name == "stick" else ("femur_tibia", (14.0, 1.5, 0.0))
     return Subject(name, model, rig, (720, 576), 50.0, _natural, unmodelled)
 
@@ -141,19 +145,26 @@ def walkway_gait(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarr
 
     Returns (n, 16) postures in model order, inside the DOF ranges.
     """
-    names = subject.model.dof_names
-    q = np.empty((n, len(names)))
+    cols, _ = _gait(n, subject.fps, rng)
+    return _inside(subject.model, _in_model_order(subject.model, cols))
+
+
+def _gait(n: int, fps: float, rng: np.random.Generator) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The pelvis's and legs' columns of :func:`walkway_gait` ((n,) each, by DOF name) and
+    the right leg's gait phase ((n,), 0..1 from heel strike)."""
+    cols: dict[str, np.ndarray] = {}
+    phase = np.empty(n)
     start = 0
     while start < n:
         speed, stride = rng.uniform(*_SPEED), rng.uniform(*_STRIDE_S)
-        length = min(n - start, int(_WALKWAY / speed * subject.fps))
-        t = np.arange(length) / subject.fps
+        length = min(n - start, int(_WALKWAY / speed * fps))
+        t = np.arange(length) / fps
         p = (t / stride + rng.uniform()) % 1.0  # right leg's phase
         heading = np.radians(rng.uniform(-8, 8))
         gain = rng.uniform(0.85, 1.1)
         s = speed * t - _WALKWAY / 2
         lateral = rng.uniform(-150, 150)
-        cols = {
+        part = {
             "pelvis_tx": s * np.cos(heading),
             "pelvis_tz": lateral + s * np.sin(heading),
             "pelvis_ty": -25 + 15 * np.cos(4 * np.pi * p),
@@ -162,15 +173,59 @@ def walkway_gait(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarr
             "pelvis_tilt": -2 + 2 * np.cos(4 * np.pi * p),
         }
         for side, ps, mirror in (("R", p, 1.0), ("L", (p + 0.5) % 1.0, -1.0)):
-            cols[f"{side}_hip_flexion"] = gain * _cycle(_HIP, ps)
-            cols[f"{side}_knee_flexion"] = -gain * _cycle(_KNEE, ps)
-            cols[f"{side}_ankle_dorsiflexion"] = gain * _cycle(_ANKLE, ps)
-            cols[f"{side}_hip_adduction"] = mirror * (2 + 4 * np.cos(2 * np.pi * (ps - 0.15)))
-            cols[f"{side}_hip_rotation"] = mirror * 5 * np.cos(2 * np.pi * (ps - 0.3))
-        for name, values in cols.items():
-            q[start : start + length, names.index(name)] = values
+            part[f"{side}_hip_flexion"] = gain * _cycle(_HIP, ps)
+            part[f"{side}_knee_flexion"] = -gain * _cycle(_KNEE, ps)
+            part[f"{side}_ankle_dorsiflexion"] = gain * _cycle(_ANKLE, ps)
+            part[f"{side}_hip_adduction"] = mirror * (2 + 4 * np.cos(2 * np.pi * (ps - 0.15)))
+            part[f"{side}_hip_rotation"] = mirror * 5 * np.cos(2 * np.pi * (ps - 0.3))
+        for name, values in part.items():
+            cols.setdefault(name, np.empty(n))[start : start + length] = values
+        phase[start : start + length] = p
         start += length
-    return _inside(subject.model, q)
+    return cols, phase
+
+
+# ---- fullbody: walking with arm swing ------------------------------------------------------------
+
+
+def fullbody_gait(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
+    """:func:`walkway_gait` for the pelvis and legs, plus arm swing (each shoulder's flexion
+    out of phase with the same side's hip, the elbow more flexed as the arm swings forward),
+    the thorax turning against the pelvis, and the head nodding and looking about; every
+    amplitude and centre drifts over a few seconds.
+
+    Returns (n, 34) postures in model order, inside the DOF ranges.
+    """
+    cols, p = _gait(n, subject.fps, rng)
+    t = np.arange(n) / subject.fps
+
+    def drift(lo: float, hi: float, period_s: float = 2.0) -> np.ndarray:
+        return _smooth_noise(rng, t, period_s, lo, hi)
+
+    swing = 2 * np.pi * p
+    cols["lumbar_extension"] = drift(-6, 0) + 2 * np.cos(2 * swing)
+    cols["lumbar_bending"] = -drift(2, 4) * np.cos(swing - 0.3 * np.pi)  # against the pelvis's list
+    cols["lumbar_rotation"] = -drift(6, 9) * np.cos(swing)  # the thorax turns against the pelvis
+    cols["neck_extension"] = drift(-5, 5) + 1.5 * np.cos(2 * swing)
+    cols["neck_bending"] = drift(-3, 3)
+    cols["neck_rotation"] = drift(-8, 8, 3.0) - 0.5 * cols["lumbar_rotation"]
+    for side, ps, mirror in (("R", swing, 1.0), ("L", swing + np.pi, -1.0)):
+        forward = -np.cos(ps)  # the arm is back when the same side's hip is forward
+        cols[f"{side}_shoulder_flexion"] = drift(0, 6) + drift(20, 30) * forward
+        cols[f"{side}_elbow_flexion"] = 30 + drift(12, 15) * forward
+        cols[f"{side}_shoulder_adduction"] = mirror * (drift(-10, -5) + 2 * np.cos(2 * ps))
+        cols[f"{side}_shoulder_rotation"] = mirror * (drift(-8, 0) + 3 * forward)
+        cols[f"{side}_forearm_pronation"] = mirror * drift(-15, 15)
+        cols[f"{side}_wrist_flexion"] = mirror * (drift(-5, 10) + 4 * forward)
+    return _inside(subject.model, _in_model_order(subject.model, cols))
+
+
+def _in_model_order(model: KinematicModel, cols: dict[str, np.ndarray]) -> np.ndarray:
+    """(n, D) postures from one (n,) column per DOF name; every DOF of ``model`` must be given."""
+    missing = set(model.dof_names) - set(cols)
+    if missing:
+        raise ValueError(f"the movement gives no values for {sorted(missing)}")
+    return np.stack([cols[name] for name in model.dof_names], axis=1)
 
 
 def _cycle(keys: tuple[tuple[float, float], ...], phase: np.ndarray, harmonics: int = 4) -> np.ndarray:

@@ -2,7 +2,7 @@
 
     python bench/subjects/build.py
 
-Rewrites ``bench/subjects/hexapod/`` and ``bench/subjects/biped/``; the files are
+Rewrites ``bench/subjects/hexapod/``, ``biped/`` and ``fullbody/``; the files are
 committed, this script says how they were made. Sources and every number's origin:
 ``docs/BENCH_SUBJECTS.md``.
 """
@@ -132,11 +132,13 @@ def look_at(position, target, *, f: float, size: tuple[int, int], dist=(0, 0, 0,
 
 
 def ring(names, azimuths, *, radius, height, target, f, size, dist) -> dict:
-    """Cameras on a circle around ``target`` (azimuth from +x towards +z, degrees)."""
+    """Cameras on a circle around ``target`` (azimuth from +x towards +z, degrees) at ``height``,
+    one for all or one per camera."""
     views = []
-    for i, (name, az) in enumerate(zip(names, azimuths, strict=True)):
+    heights = np.broadcast_to(np.asarray(height, float), (len(names),))
+    for i, (name, az, h) in enumerate(zip(names, azimuths, heights, strict=True)):
         a = np.radians(az)
-        pos = (target[0] + radius * np.cos(a), height, target[2] + radius * np.sin(a))
+        pos = (target[0] + radius * np.cos(a), h, target[2] + radius * np.sin(a))
         views.append({"name": name, "video": i,
                       "projection": look_at(pos, target, f=f, size=size, dist=dist)})
     return {"views": views}
@@ -169,8 +171,8 @@ HIP_HALF_WIDTH = ASIS_WIDTH / 2 - HJC_FROM_ASIS[2]
 BIPED_SIZE = (720, 576)
 
 
-def biped_xml() -> str:
-    """A pelvis with 3 translations and 3 rotations; per leg hip 3, knee 1, ankle 1; 15 markers."""
+def _pelvis() -> tuple[list[str], list[str]]:
+    """The pelvis root (3 translations, 3 rotations) with RASI, LASI, SACR: (joints, markers)."""
     root = _joint("pelvis", None, (0, THIGH + SHANK + ANKLE_HEIGHT, 0), [
         _dof("tx", "pelvis_tx", -1200, 1200), _dof("ty", "pelvis_ty", -150, 100),
         _dof("tz", "pelvis_tz", -400, 400), _dof("y", "pelvis_rotation", -40, 40),
@@ -178,31 +180,50 @@ def biped_xml() -> str:
     asis = (-HJC_FROM_ASIS[0], -HJC_FROM_ASIS[1], ASIS_WIDTH / 2)
     markers = [_marker("RASI", "pelvis", asis), _marker("LASI", "pelvis", (asis[0], asis[1], -asis[2])),
                _marker("SACR", "pelvis", (asis[0] - 160.0, asis[1], 0.0))]
-    joints = [root]
+    return [root], markers
+
+
+def _leg(side: str) -> tuple[list[str], list[str]]:
+    """One leg on the pelvis (hip 3 DOFs, knee, ankle) with its 6 markers: (joints, markers)."""
+    s = 1.0 if side == "R" else -1.0
+    # Local x down the thigh, y forward, z to the right (rest Rz(-90)); a positive
+    # rotation about y moves the leg to the left: adduction on the right, abduction on the left.
+    add = (-45, 30) if side == "R" else (-30, 45)
+    joints = [
+        _joint(f"{side}_hip", "pelvis", (0, 0, s * HIP_HALF_WIDTH),
+               [_dof("z", f"{side}_hip_flexion", -30, 120),
+                _dof("y", f"{side}_hip_adduction", *add),
+                _dof("x", f"{side}_hip_rotation", -45, 45)], rest=(0, 0, -90)),
+        _joint(f"{side}_knee", f"{side}_hip", (THIGH, 0, 0),
+               [_dof("z", f"{side}_knee_flexion", -140, 5)]),
+        # The foot frame: x forward along the foot, y up (rest Rz(90) from the shank).
+        _joint(f"{side}_ankle", f"{side}_knee", (SHANK, 0, 0),
+               [_dof("z", f"{side}_ankle_dorsiflexion", -50, 20)], rest=(0, 0, 90)),
+    ]
+    markers = [
+        _marker(f"{side}THI", f"{side}_hip", (0.65 * THIGH, 0, s * 75)),
+        _marker(f"{side}KNE", f"{side}_knee", (0, 0, s * 50)),
+        _marker(f"{side}TIB", f"{side}_knee", (0.65 * SHANK, 0, s * 50)),
+        _marker(f"{side}ANK", f"{side}_ankle", (0, 0, s * 35)),
+        _marker(f"{side}HEE", f"{side}_ankle", (-0.21 * FOOT, -0.5 * ANKLE_HEIGHT, 0)),
+        _marker(f"{side}TOE", f"{side}_ankle", (0.55 * FOOT, -0.55 * ANKLE_HEIGHT, 0)),
+    ]
+    return joints, markers
+
+
+def _lower_body() -> tuple[list[str], list[str]]:
+    """The pelvis and both legs, right first: (joints, markers)."""
+    joints, markers = _pelvis()
     for side in "RL":
-        s = 1.0 if side == "R" else -1.0
-        # Local x down the thigh, y forward, z to the right (rest Rz(-90)); a positive
-        # rotation about y moves the leg to the left: adduction on the right, abduction on the left.
-        add = (-45, 30) if side == "R" else (-30, 45)
-        joints += [
-            _joint(f"{side}_hip", "pelvis", (0, 0, s * HIP_HALF_WIDTH),
-                   [_dof("z", f"{side}_hip_flexion", -30, 120),
-                    _dof("y", f"{side}_hip_adduction", *add),
-                    _dof("x", f"{side}_hip_rotation", -45, 45)], rest=(0, 0, -90)),
-            _joint(f"{side}_knee", f"{side}_hip", (THIGH, 0, 0),
-                   [_dof("z", f"{side}_knee_flexion", -140, 5)]),
-            # The foot frame: x forward along the foot, y up (rest Rz(90) from the shank).
-            _joint(f"{side}_ankle", f"{side}_knee", (SHANK, 0, 0),
-                   [_dof("z", f"{side}_ankle_dorsiflexion", -50, 20)], rest=(0, 0, 90)),
-        ]
-        markers += [
-            _marker(f"{side}THI", f"{side}_hip", (0.65 * THIGH, 0, s * 75)),
-            _marker(f"{side}KNE", f"{side}_knee", (0, 0, s * 50)),
-            _marker(f"{side}TIB", f"{side}_knee", (0.65 * SHANK, 0, s * 50)),
-            _marker(f"{side}ANK", f"{side}_ankle", (0, 0, s * 35)),
-            _marker(f"{side}HEE", f"{side}_ankle", (-0.21 * FOOT, -0.5 * ANKLE_HEIGHT, 0)),
-            _marker(f"{side}TOE", f"{side}_ankle", (0.55 * FOOT, -0.55 * ANKLE_HEIGHT, 0)),
-        ]
+        leg_joints, leg_markers = _leg(side)
+        joints += leg_joints
+        markers += leg_markers
+    return joints, markers
+
+
+def biped_xml() -> str:
+    """A pelvis with 3 translations and 3 rotations; per leg hip 3, knee 1, ankle 1; 15 markers."""
+    joints, markers = _lower_body()
     comment = """  <!-- A human lower body (height 1.75 m): pelvis root with 3 translations and 3 rotations,
        hip 3 DOFs, knee 1, ankle 1; Plug-in Gait markers (Davis et al. 1991) without the
        PSIS. Segments from Drillis & Contini 1966 (in Winter 2009, Fig. 4.1), hip joint
@@ -220,9 +241,106 @@ def biped_rig() -> dict:
                 target=target, f=1150.0, size=BIPED_SIZE, dist=(-0.08, 0.02, 0.0, 0.0, 0.0))
 
 
+# ---- fullbody: a whole human, Plug-in Gait full-body markers -----------------------------------
+
+# Heights above the floor, widths and lengths as fractions of body height (Drillis & Contini
+# 1966, in Winter 2009, Fig. 4.1): shoulder 0.818, shoulder width 0.259, upper arm 0.186,
+# forearm 0.146, hand 0.108. The hips are at 0.530 (thigh + shank + ankle height above).
+SHOULDER_HEIGHT, SHOULDER_WIDTH = 0.818 * BODY_HEIGHT, 0.259 * BODY_HEIGHT
+UPPER_ARM, FOREARM, HAND = 0.186 * BODY_HEIGHT, 0.146 * BODY_HEIGHT, 0.108 * BODY_HEIGHT
+# The lumbar (back) joint from the hip joint centres' midpoint, the pelvis origin: OpenSim's
+# gait models (Delp et al. 1990, IEEE Trans Biomed Eng 37:757-767) put the back joint at
+# (-100.7, 81.5, 0) mm and the hips at (-70.7, -66.1, +-83.5) mm in their pelvis frame.
+LUMBAR = (-100.7 + 70.7, 81.5 + 66.1, 0.0)
+# The neck (C7/T1) and shoulder joints sit at shoulder height above the lumbar joint.
+TRUNK = SHOULDER_HEIGHT - (THIGH + SHANK + ANKLE_HEIGHT) - LUMBAR[1]
+# Joint ranges, AAOS 1965 (as tabulated by Norkin & White, Measurement of Joint Motion):
+# thoracolumbar flexion 80, extension 25, lateral flexion 35, rotation 45; cervical flexion
+# and extension 45, lateral flexion 45, rotation 60; shoulder flexion 180, extension 60,
+# abduction 180, internal rotation 70, external 90; elbow flexion 150; pronation and
+# supination 80; wrist flexion 80, extension 70. Shoulder adduction 30 is ours.
+# Marker offsets (mm) on the thorax (frame at the lumbar joint) and head (at the neck joint).
+THORAX_MARKERS = {"C7": (-50, TRUNK + 20, 0), "T10": (-80, 150, 0), "CLAV": (100, TRUNK - 15, 0),
+                  "STRN": (150, 170, 0), "RBAK": (-90, 250, 90)}
+HEAD_MARKERS = {"LFHD": (120, 215, -65), "RFHD": (120, 215, 65), "LBHD": (-50, 215, -55),
+                "RBHD": (-50, 215, 55)}
+FULLBODY_SIZE = (1280, 720)
+
+
+def _arm(side: str) -> tuple[list[str], list[str]]:
+    """One arm on the thorax: shoulder 3 DOFs, elbow flexion, forearm pronation, wrist flexion,
+    with SHO (on the thorax), UPA, ELB, FRM, WRA, WRB, FIN: (joints, markers)."""
+    s = 1.0 if side == "R" else -1.0
+    # Local x down the arm, y forward, z to the right (rest Rz(-90)), as the legs; at zero the
+    # thumb points forward. Positive about y moves the arm to the left and about x turns its
+    # front to the right: adduction and external rotation on the right, the opposite on the left.
+    add, rot = ((-180, 30), (-70, 90)) if side == "R" else ((-30, 180), (-90, 70))
+    wrist = (-70, 80) if side == "R" else (-80, 70)  # about y: flexion on the right
+    joints = [
+        _joint(f"{side}_shoulder", "lumbar", (0, TRUNK, s * SHOULDER_WIDTH / 2),
+               [_dof("z", f"{side}_shoulder_flexion", -60, 180),
+                _dof("y", f"{side}_shoulder_adduction", *add),
+                _dof("x", f"{side}_shoulder_rotation", *rot)], rest=(0, 0, -90)),
+        _joint(f"{side}_elbow", f"{side}_shoulder", (UPPER_ARM, 0, 0),
+               [_dof("z", f"{side}_elbow_flexion", 0, 150)]),
+        # Pronation turns the forearm about its own axis: a joint of its own after the elbow.
+        _joint(f"{side}_forearm", f"{side}_elbow", (0, 0, 0),
+               [_dof("x", f"{side}_forearm_pronation", -80, 80)]),
+        _joint(f"{side}_wrist", f"{side}_forearm", (FOREARM, 0, 0),
+               [_dof("y", f"{side}_wrist_flexion", *wrist)]),
+    ]
+    markers = [
+        _marker(f"{side}SHO", "lumbar", (0, TRUNK + 40, s * SHOULDER_WIDTH / 2)),
+        _marker(f"{side}UPA", f"{side}_shoulder", (0.5 * UPPER_ARM, -20, s * 50)),
+        _marker(f"{side}ELB", f"{side}_shoulder", (UPPER_ARM, 0, s * 45)),
+        _marker(f"{side}FRM", f"{side}_forearm", (0.55 * FOREARM, -25, s * 30)),
+        _marker(f"{side}WRA", f"{side}_forearm", (FOREARM, 35, 0)),
+        _marker(f"{side}WRB", f"{side}_forearm", (FOREARM, -35, 0)),
+        _marker(f"{side}FIN", f"{side}_wrist", (0.45 * HAND, 25, s * 20)),
+    ]
+    return joints, markers
+
+
+def fullbody_xml() -> str:
+    """The biped plus lumbar 3, neck 3 and per arm 6 DOFs (34); 38 Plug-in Gait markers."""
+    joints, markers = _lower_body()
+    joints += [
+        _joint("lumbar", "pelvis", LUMBAR, [_dof("z", "lumbar_extension", -80, 25),
+                                            _dof("x", "lumbar_bending", -35, 35),
+                                            _dof("y", "lumbar_rotation", -45, 45)]),
+        _joint("neck", "lumbar", (0, TRUNK, 0), [_dof("z", "neck_extension", -45, 45),
+                                                 _dof("x", "neck_bending", -45, 45),
+                                                 _dof("y", "neck_rotation", -60, 60)]),
+    ]
+    markers += [_marker(n, "lumbar", p) for n, p in THORAX_MARKERS.items()]
+    markers += [_marker(n, "neck", p) for n, p in HEAD_MARKERS.items()]
+    for side in "RL":
+        arm_joints, arm_markers = _arm(side)
+        joints += arm_joints
+        markers += arm_markers
+    comment = """  <!-- A whole human (height 1.75 m): the biped's pelvis and legs, a lumbar joint (extension,
+       bending, rotation) carrying the thorax, a neck joint carrying the head, and per arm a
+       3-DOF shoulder, elbow flexion, forearm pronation and wrist flexion (34 DOFs); Plug-in
+       Gait full-body markers (Davis et al. 1991) without the PSIS. Segments from Drillis &
+       Contini 1966 (in Winter 2009, Fig. 4.1), the lumbar joint from OpenSim's gait models,
+       ranges from AAOS 1965. x forward (walking), y up, z right; mm. Made by
+       bench/subjects/build.py; docs/BENCH_SUBJECTS.md. -->"""
+    return "\n".join(['<model name="human_whole_body" units="mm">', comment, *joints, *markers,
+                      "</model>", ""])
+
+
+def fullbody_rig() -> dict:
+    """Six cameras on a 6 m circle around the walkway, two of them 3 m up, 1280×720."""
+    target = (0.0, 800.0, 0.0)
+    return ring([f"cam{i}" for i in range(6)], [30, 90, 150, 210, 270, 330], radius=6000.0,
+                height=[3000.0, 1400.0, 1400.0, 3000.0, 1400.0, 1400.0], target=target, f=1600.0,
+                size=FULLBODY_SIZE, dist=(-0.06, 0.01, 0.0, 0.0, 0.0))
+
+
 def main() -> None:
     for name, xml, rig in (("hexapod", hexapod_xml(), hexapod_rig()),
-                           ("biped", biped_xml(), biped_rig())):
+                           ("biped", biped_xml(), biped_rig()),
+                           ("fullbody", fullbody_xml(), fullbody_rig())):
         folder = HERE / name
         folder.mkdir(exist_ok=True)
         (folder / "model.xml").write_text(xml)

@@ -80,6 +80,26 @@ def test_fit_writes_formats_files_and_matches_the_truth(clip, tmp_path):
     assert report["images"] == 40 and report["status"]["ok"] == 40
     assert report["detections_per_view"]["side"]["min"] >= 3
     assert report["settings"]["seed"] == 1
+    assert report["undetermined_dofs"] == [] and "warning" not in result.stderr
+
+
+def test_fit_warns_once_about_a_dof_the_markers_cannot_determine_and_goes_on(clip, tmp_path):
+    """The locust leg with a claw joint that turns and carries no marker: one warning line
+    naming the file, the DOF and the fix, a normal fit, and report.json listing the DOF."""
+    xml = (LOCUST / "model.xml").read_text().replace(
+        "  <marker", '  <joint name="claw" parent="tarsus"><offset x="3"/>'
+        '<dof axis="z" name="claw_z" min="-30" max="30"/></joint>\n  <marker', 1)
+    model = tmp_path / "claw.xml"
+    model.write_text(xml)
+    result = _invoke("fit", clip / "video0.avi", "--model", model, "--rig", LOCUST / "rig.json",
+                     "--out", tmp_path / "out", "--marker-diameter-px", "4")
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.stderr.splitlines() if "warning" in line]
+    assert warnings == [f"mocap: warning: {model}: claw_z moves no marker: add a marker to "
+                        "segment claw"], result.stderr
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["undetermined_dofs"] == ["claw_z"]
+    assert report["ambiguous"] == report["images"] == 40  # claw_z can be anything: every image
 
 
 def test_two_jobs_give_the_same_result_as_one_with_the_same_chunks(clip, tmp_path):

@@ -25,7 +25,7 @@ SUBJECTS = Path(__file__).resolve().parents[2] / "bench" / "subjects"
 MARGIN_PX = 5.0
 
 
-@pytest.mark.parametrize("name", ["hexapod", "biped"])
+@pytest.mark.parametrize("name", ["hexapod", "biped", "fullbody"])
 def test_subject_files_load(name):
     model = KinematicModel.from_xml(SUBJECTS / name / "model.xml")
     rig = Rig.from_json(SUBJECTS / name / "rig.json")
@@ -35,11 +35,32 @@ def test_subject_files_load(name):
         assert not any(d.joint == "thorax" for d in model.dofs)
         assert sum(m.joint == "thorax" for m in model.markers) == 3
     else:  # pelvis with 3 translations and 3 rotations; hip 3 DOFs, knee, ankle
-        assert len(rig.views) == 3
+        assert len(rig.views) == (6 if name == "fullbody" else 3)
         pelvis = [d.axis for d in model.dofs if d.joint == "pelvis"]
         assert sorted(pelvis) == ["tx", "ty", "tz", "x", "y", "z"]
         assert sum(d.joint == "R_hip" for d in model.dofs) == 3
         assert sum(m.joint == "pelvis" for m in model.markers) == 3
+    if name == "fullbody":  # the biped's legs, spine 3, neck 3, arms 6 DOFs with 6 markers below
+        biped = KinematicModel.from_xml(SUBJECTS / "biped" / "model.xml")
+        assert model.dof_names[: len(biped.dofs)] == biped.dof_names
+        assert len(model.dofs) == 34 and len(model.markers) == 38
+        arm = {f"{side}_{j}": side for side in "RL" for j in ("shoulder", "elbow", "forearm", "wrist")}
+        for side in "RL":
+            assert sum(arm.get(d.joint) == side for d in model.dofs) == 6
+            assert sum(arm.get(m.joint) == side for m in model.markers) == 6
+
+
+def test_fullbody_tree_splits_twice():
+    """The pelvis carries two legs and the spine, the thorax carries the neck and two arms:
+    the nested splits a recursive decomposition is measured on."""
+    model = KinematicModel.from_xml(SUBJECTS / "fullbody" / "model.xml")
+
+    def children(joint: str) -> list[str]:
+        return sorted(j.name for j in model.joints if j.parent == joint)
+
+    assert children("pelvis") == ["L_hip", "R_hip", "lumbar"]
+    assert children("lumbar") == ["L_shoulder", "R_shoulder", "neck"]
+    assert sum(m.joint == "lumbar" for m in model.markers) == 7  # C7, T10, CLAV, STRN, RBAK, SHO
 
 
 @pytest.mark.parametrize(("name", "cameras"),

@@ -264,3 +264,17 @@ def _videos(embedded, key: str) -> int:
     listed = httpx.get(embedded.url + "/videos", params={"limit": 200},
                        headers={"Authorization": f"Bearer {key}"})
     return len(listed.json()["items"])
+
+
+def test_upload_prints_the_model_warnings_of_the_service(embedded, key, trials, tmp_path):
+    """A model whose markers leave a DOF undetermined is stored, and ``mocap remote upload``
+    says so in the lab's terms (its file, the DOF, the fix) before it goes on."""
+    claw = tmp_path / "claw.xml"
+    claw.write_text((LOCUST / "model.xml").read_text().replace(
+        "  <marker", '  <joint name="claw" parent="tarsus"><offset x="3"/>'
+        '<dof axis="z" name="claw_z" min="-30" max="30"/></joint>\n  <marker', 1))
+    # Options the server refuses: the batch stops after the upload, no fit is run.
+    done = remote("upload", str(trials), "--model", str(claw), "--rig", str(LOCUST / "rig.json"),
+                  "--options", '{"seeed": 1}', key=key, url=embedded.url)
+    assert "  claw.xml: warning: claw_z moves no marker: add a marker to segment claw\n" in done.stdout, \
+        done.stdout

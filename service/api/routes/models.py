@@ -47,9 +47,10 @@ def _created(session: SessionDep, row: Model, existing: Model | None) -> ModelCr
     archive = None if existing is None else ExistingArchive(
         model_id=existing.id, histogram_versions=crud.histogram_versions(session, existing),
         latest_version=crud.histogram_version(session, existing, None).version)
+    advice = KinematicModel.from_xml(row.xml).identifiability.advice()
     return ModelCreated(**_public(session, row).model_dump(),
                         existing_model_id=None if existing is None else existing.id,
-                        existing=archive, reused=row is existing)
+                        existing=archive, reused=row is existing, warnings=[advice] if advice else [])
 
 
 @router.post("", status_code=201, response_model=ModelCreated,
@@ -64,7 +65,8 @@ async def create_model(request: Request, response: Response, session: SessionDep
     (a JSON object) label it. If this lab already has a model with the same XML bytes, the answer
     names it in ``existing_model_id`` and ``existing`` (its archive's versions): submit jobs with
     that id to go on with its archive; ``?reuse=true`` answers 200 with that model instead of
-    storing a new one. Another lab's identical model is never named.
+    storing a new one. Another lab's identical model is never named. ``warnings`` says what
+    is wrong with a model that can still be fitted (DOFs its markers cannot determine).
 
     Example: ``curl -H "$H" --data-binary @model.xml "$API/models?name=locust&reuse=true"``"""
     checked_name, meta = labels_from_query(name, metadata)
