@@ -1,8 +1,8 @@
 """A start for one branch from triangulated candidates: inverse kinematics onto them.
 
 ``core.triangulate`` proposes 3D points where markers may be, without labels. A branch
-(``core.tree.Part``) whose base frame is known (the trunk is fitted) is posed onto them by a
-beam search over assignments, proximal markers first: each of the branch's markers, in order
+(``core.tree.Part``) whose base frame is known (the parts above it are fitted) is posed onto
+them by a beam search over assignments, proximal markers first: each of the branch's markers, in order
 of its distance from the base at the start posture, is given in turn each free candidate
 that the branch's geometry allows (or none, at a cost), the branch's DOFs are solved by
 inverse kinematics onto the markers assigned so far (``core._kernels.refine`` in target mode: bounded
@@ -94,7 +94,7 @@ def branch_start(candidates: Candidates, *, part: Part, rotation: np.ndarray, or
         fewer views support than the best supported costs up to a skip (:func:`_doubt`).
     part : a branch of ``core.tree.decompose(model)``.
     rotation, origin : ndarray of shape (3, 3) and (3,): the world frame of the part's base
-        joint (model units), from the fitted trunk.
+        joint (model units), from the parts fitted before it.
     q0 : ndarray of shape (d,), float64: the part's DOFs to start from (the histogram mean).
     points, start : the detections as the kernels take them (``Detections.kernel_points``
         (N, 3) and view starts (V + 1,)), for the Eq. 5 error.

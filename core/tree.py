@@ -3,18 +3,28 @@
 Annealing every DOF of a six-legged insect at once cannot work: the search space
 grows with the product of the legs' spaces, while each leg's markers inform only
 that leg. A kinematic tree decomposes. Walking down from the root while a joint
-has a single child carrying markers gives the **trunk**; the subtrees hanging
+has a single child carrying markers (and DOFs) gives the **trunk**; the subtrees hanging
 from the trunk's last joint (where it first splits) are the **branches**. Each
 part is fitted by the paper's SA (Eq. 6 over its own DOFs, Eq. 5 over its own
 markers, the histograms as constraints) with everything above it fixed, then the
 whole posture is refined jointly. The cost of an image grows with the number of
 branches, not with the product of their search spaces.
 
+A branch that splits again is decomposed the same way, recursively: its own trunk (its
+joints above its split) is fitted given its base, then each sub-branch given that trunk.
+A human's upper body (lumbar, then head and two arms: 18 DOFs in ``bench/subjects/fullbody``)
+is four parts of 3-6 DOFs, not one of 18. The parts come in fitting order, parents before
+children; each knows its base, the joint whose world frame the parts before it have fixed.
+
 The decomposition is read from the model alone. A single chain (the locust leg)
-has no split, so it stays one part and is fitted exactly as before; a trunk with
-DOFs is fitted first only when its own markers can fix its pose (at least three,
+has no split, so it stays one part and is fitted exactly as before. The root's trunk
+with DOFs is fitted first only when its own markers can fix its pose (at least three,
 or one for a trunk that only translates): otherwise the whole tree is fitted at
-once.
+once. A branch's own trunk hangs from a fixed base, so counting cannot say it: it is
+split off only where its markers fix its DOFs (:func:`_fixes`, a rank test of their
+Jacobian; a rotation about a fixed point needs two markers not on one line through
+it), else the branch is fitted whole. A branch's own trunk without DOFs is not a part
+(its markers ride on the base); its sub-branches hang from its split.
 
 A branch sees only the detections within its reach (the sphere its joints and
 markers can sweep about its base, projected into each view, with a margin): the
@@ -28,11 +38,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from core import _kernels
 from core.model import KinematicArrays, KinematicModel, _topological_order
 
 __all__ = ["Part", "Tree", "decompose"]
 
 REACH_MARGIN = 1.25  # a branch's projected reach is widened by this factor
+FIX_POSTURES = 4  # postures at which a branch's own trunk must be fixed by its markers
+# Least singular value of a branch trunk's Jacobian (reach per radian): a 1 degree change in
+# its least determined direction moves its markers by 0.1 x reach x pi / 180 or more
+# (0.5 mm for a 300 mm trunk).
+FIX_SINGULAR = 0.1
 _SPHERE = np.array(
     [[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if (x, y, z) != (0, 0, 0)],
     dtype=np.float64,
@@ -45,16 +61,24 @@ class Part:
     """A part of the tree fitted on its own.
 
     name : its top joint's name.
+    joints : (j,) int64, topological indices (in the whole model) of the part's own joints,
+        parents first; its base is not one of them.
+    flips : (f,) int64, rows of ``kin`` whose joints the part's own depth-flip search flips
+        (``core.treefit.tree_flip_alternatives``): those with rotational DOFs whose subtree
+        holds no marker of another part. Empty for the root's trunk and for a branch's own
+        trunk, whose flips carry other parts along (searched on the whole model).
     dofs : (d,) int64, indices into ``model.dofs`` (the part's posture layout).
     markers : (m,) int64, indices into ``model.markers``.
     base : topological index (in the whole model) of the fixed joint the part hangs from,
-        -1 for the trunk, which holds the root.
-    kin : the part alone as kernel arrays; for a branch, joint 0 is the base, whose world
-        frame :meth:`at` sets per image.
+        -1 for the root's trunk. Its world frame is set by the parts fitted before.
+    kin : the part alone as kernel arrays; for a part with a base, joint 0 is the base,
+        whose world frame :meth:`at` sets per image.
     reach : model units, radius about the base origin that the part's markers can reach.
     """
 
     name: str
+    joints: np.ndarray
+    flips: np.ndarray
     dofs: np.ndarray
     markers: np.ndarray
     base: int
@@ -72,50 +96,105 @@ class Part:
 
 @dataclass(frozen=True)
 class Tree:
-    """A model's decomposition: the trunk (None when it has no DOFs), then the branches."""
+    """A model's decomposition: its parts in fitting order, every part after the parts that
+    hold the joints above its base (parents before children)."""
 
-    trunk: Part | None
-    branches: tuple[Part, ...]
+    parts: tuple[Part, ...]
 
     @property
-    def parts(self) -> tuple[Part, ...]:
-        return (self.trunk, *self.branches) if self.trunk is not None else self.branches
+    def trunk(self) -> Part | None:
+        """The root's trunk (the part without a base), None when it has no DOFs."""
+        return self.parts[0] if self.parts[0].base < 0 else None
+
+    @property
+    def branches(self) -> tuple[Part, ...]:
+        """Every part hanging from a base, in fitting order: the parts that compete for blobs."""
+        return tuple(p for p in self.parts if p.base >= 0)
+
+
+@dataclass(frozen=True)
+class _Topology:
+    """What the decomposition reads of a model (J joints, topological order): each joint's
+    children, ``below`` (J, J) (:func:`_subtrees`), ``carrying`` (J,) bool (a subtree with
+    markers and DOFs) and ``dof_joint`` (D,) (each DOF's joint)."""
+
+    children: list[list[int]]
+    below: np.ndarray
+    carrying: np.ndarray
+    dof_joint: np.ndarray
+
+    @classmethod
+    def of(cls, model: KinematicModel) -> _Topology:
+        topo = model.arrays
+        J = len(model.joints)
+        children: list[list[int]] = [[] for _ in range(J)]
+        for k in range(1, J):
+            children[topo.parent[k]].append(k)
+        below = _subtrees(topo.parent)
+        has_marker = np.zeros(J, dtype=bool)
+        has_marker[topo.marker_joint] = True
+        dof_joint = _dof_joints(model)
+        has_dof = np.zeros(J, dtype=bool)
+        has_dof[dof_joint] = True
+        carrying = below[:, has_marker].any(axis=1) & below[:, has_dof].any(axis=1)
+        return cls(children, below, carrying, dof_joint)
+
+    def split(self, top: int) -> tuple[int, list[int]]:
+        """Walking down from joint ``top`` while a joint has a single carrying child: the
+        joint where that stops, and its carrying children (two or more at a split)."""
+        split = top
+        while len(kids := [c for c in self.children[split] if self.carrying[c]]) == 1:
+            split = kids[0]
+        return split, kids
 
 
 def decompose(model: KinematicModel) -> Tree | None:
-    """The trunk and branches of ``model``, or None when it is fitted as a whole.
+    """The parts of ``model`` in fitting order, or None when it is fitted as a whole.
 
     None for a single chain (no joint with two children carrying markers and DOFs)
-    and for a trunk whose DOFs its own markers cannot fix.
+    and for a root trunk whose DOFs its own markers cannot fix. Below the first split,
+    each branch is decomposed again where it splits and its own trunk can be fitted
+    given its base (:func:`_hanging`).
 
     >>> from core.examples import LOCUST
     >>> from core.model import KinematicModel
     >>> decompose(KinematicModel.from_xml(LOCUST / "model.xml")) is None
     True
     """
-    topo = model.arrays
-    J = len(model.joints)
-    children: list[list[int]] = [[] for _ in range(J)]
-    for k in range(1, J):
-        children[topo.parent[k]].append(k)
-    below = _subtrees(topo.parent)
-    has_marker = np.zeros(J, dtype=bool)
-    has_marker[topo.marker_joint] = True
-    dof_joint = _dof_joints(model)
-    has_dof = np.zeros(J, dtype=bool)
-    has_dof[dof_joint] = True
-    carrying = [c for c in range(J) if below[c][has_marker].any() and below[c][has_dof].any()]
-    split = 0
-    while len(kids := [c for c in children[split] if c in carrying]) == 1:
-        split = kids[0]
+    topo = _Topology.of(model)
+    split, kids = topo.split(0)
     if len(kids) < 2:
         return None
-    in_branch = below[kids].any(axis=0)
-    trunk_part = _trunk(model, np.flatnonzero(~in_branch), dof_joint)
+    in_branch = topo.below[kids].any(axis=0)
+    trunk_part = _trunk(model, np.flatnonzero(~in_branch), topo.dof_joint)
     if trunk_part is False:
         return None
-    branches = tuple(_branch(model, split, np.flatnonzero(below[c]), dof_joint) for c in kids)
-    return Tree(trunk_part, branches)
+    parts = [trunk_part] if trunk_part is not None else []
+    for c in kids:
+        parts += _hanging(model, topo, split, c)
+    return Tree(tuple(parts))
+
+
+def _hanging(model: KinematicModel, topo: _Topology, base: int, top: int) -> list[Part]:
+    """The parts, in fitting order, of the subtree from joint ``top`` hanging from joint
+    ``base``: the subtree whole (one branch) unless it splits again and its own trunk (the
+    joints above that split) either has no DOFs or has markers that fix its DOFs given the
+    base (:func:`_fixes`); then that trunk (if it has DOFs) followed by each sub-branch's
+    parts, hanging from the split."""
+    whole = [_branch(model, topo, base, np.flatnonzero(topo.below[top]))]
+    split, kids = topo.split(top)
+    if len(kids) < 2:
+        return whole
+    own = np.flatnonzero(topo.below[top] & ~topo.below[kids].any(axis=0))
+    parts = []
+    if np.isin(topo.dof_joint, own).any():
+        trunk = _branch(model, topo, base, own)
+        if not _fixes(trunk, model):
+            return whole
+        parts.append(trunk)
+    for c in kids:
+        parts += _hanging(model, topo, split, c)
+    return parts
 
 
 def _subtrees(parent: np.ndarray) -> np.ndarray:
@@ -145,15 +224,48 @@ def _trunk(model: KinematicModel, joints: np.ndarray, dof_joint: np.ndarray) -> 
     if len(markers) < (3 if rotates else 1):
         return False
     kin = _part_arrays(model.arrays, joints, dofs, markers, base=-1)
-    return Part(_name(model, int(joints[0])), dofs, markers, -1, kin, np.inf)
+    none = np.zeros(0, dtype=np.int64)
+    return Part(_name(model, int(joints[0])), joints, none, dofs, markers, -1, kin, np.inf)
 
 
-def _branch(model: KinematicModel, base: int, joints: np.ndarray, dof_joint: np.ndarray) -> Part:
-    """The subtree of ``joints`` hanging from joint ``base``, as a part with its base first."""
-    dofs = np.flatnonzero(np.isin(dof_joint, joints))
-    markers = np.flatnonzero(np.isin(model.arrays.marker_joint, joints))
+def _branch(model: KinematicModel, topo: _Topology, base: int, joints: np.ndarray) -> Part:
+    """The joints ``joints`` hanging from joint ``base``, as a part with its base first."""
+    dofs = np.flatnonzero(np.isin(topo.dof_joint, joints))
+    marker_joint = model.arrays.marker_joint
+    markers = np.flatnonzero(np.isin(marker_joint, joints))
     kin = _part_arrays(model.arrays, joints, dofs, markers, base=base)
-    return Part(_name(model, int(joints[0])), dofs, markers, base, kin, _reach(kin))
+    others = np.delete(marker_joint, markers)
+    rotating = np.isin(joints, topo.dof_joint[model.rotational])
+    alone = ~topo.below[joints][:, others].any(axis=1)
+    flips = 1 + np.flatnonzero(rotating & alone)  # rows of kin: the base, then the joints
+    return Part(_name(model, int(joints[0])), joints, flips, dofs, markers, base, kin, _reach(kin))
+
+
+def _fixes(part: Part, model: KinematicModel) -> bool:
+    """Whether the markers of ``part`` fix its DOFs given its base frame: at each of
+    :data:`FIX_POSTURES` postures (fixed draws through the middle 80 % of the DOF ranges), the
+    Jacobian of its marker positions (3m, d), per radian or per model unit in units of the
+    part's reach, has no singular value below :data:`FIX_SINGULAR`.
+
+    Counting markers cannot say it for a chain of several joints: a rotation about the
+    line through the base origin and a lone marker moves nothing, and two joints that each
+    rotate three ways are not fixed by three markers on the second. The root's trunk keeps
+    its count (:func:`_trunk`): nothing fixes its base.
+    """
+    d, reach = len(part.dofs), part.reach
+    if d == 0 or reach <= 0.0 or 3 * len(part.markers) < d:
+        return False
+    lower, upper = model.lower[part.dofs], model.upper[part.dofs]
+    unit = np.random.default_rng(0).uniform(0.1, 0.9, (FIX_POSTURES, d))
+    per = np.where(model.rotational[part.dofs], np.degrees(1.0), 1.0) / reach
+    h = 1e-4  # degrees or model units
+    for q in lower + unit * (upper - lower):
+        steps = np.concatenate([q + h * np.eye(d), q - h * np.eye(d)])
+        moved = _kernels.marker_positions_many(np.ascontiguousarray(steps), part.kin)
+        jac = ((moved[:d] - moved[d:]) / (2 * h)).reshape(d, -1).T * per  # (3m, d)
+        if np.linalg.svd(jac, compute_uv=False)[-1] < FIX_SINGULAR:
+            return False
+    return True
 
 
 def _part_arrays(full: KinematicArrays, joints: np.ndarray, dofs: np.ndarray, markers: np.ndarray,

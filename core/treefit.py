@@ -1,18 +1,19 @@
 """One attempt on one image of a tree-shaped model, part by part (``core.tree``).
 
-The trunk is fitted first, then each branch given the trunk, each by the paper's
-SA (``core._kernels.fit_attempt``) over its own DOFs and markers; then the whole
-posture is refined jointly. ε, the SA stop (``AnnealParams.eps``, 1 px), counts per
-:data:`EPS_PROJECTIONS` marker projections of a part, 0.25 px each by default: twice the
-paper's 1 px over 4 markers × 2 views, which the detection noise of real markers (0.1-0.2
-px a projection) keeps out of reach of a part seen in many views, so SA would run every
-part to its patience limit.
+The parts are fitted in the tree's order, each by the paper's SA
+(``core._kernels.fit_attempt``) over its own DOFs and markers with its base where the
+parts fitted before it put it (the root's trunk first; a branch's own trunk before its
+sub-branches); then the whole posture is refined jointly. ε, the SA stop
+(``AnnealParams.eps``, 1 px), counts per :data:`EPS_PROJECTIONS` marker projections of a
+part, 0.25 px each by default: twice the paper's 1 px over 4 markers × 2 views, which the
+detection noise of real markers (0.1-0.2 px a projection) keeps out of reach of a part
+seen in many views, so SA would run every part to its patience limit.
 
-Branches compete for blobs. Eq. 5 charges each marker its nearest blob and never
-charges a blob no marker explains, so a leg that settles on its neighbour's
-blobs costs nothing: both legs explain the same blobs, and the blobs of the
-stolen leg stay unexplained. After the first pass, any blob claimed by markers of
-two branches is a conflict; each branch in a conflict is fitted again without the
+Branches (every part with a base, a branch's own trunk too) compete for blobs. Eq. 5
+charges each marker its nearest blob and never charges a blob no marker explains, so a leg
+that settles on its neighbour's blobs costs nothing: both legs explain the same blobs, and
+the blobs of the stolen leg stay unexplained. After the first pass, any blob claimed by
+markers of two branches is a conflict; each branch in a conflict is fitted again without the
 blobs the other branches claim (a conflict needs a blob too small to be two markers the
 detector merged), and the new posture is kept where it lowers the
 *two-sided* error (:func:`two_sided_error`: Eq. 5 plus, for every blob within the
@@ -176,14 +177,12 @@ def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
     tree = model.tree
     assert tree is not None
     shared = shared_projections(q, model, rig, tree, params, off)
-    rot, pos = world_frames(q, model)
-    reach = _within_reach(det, rig, pos[[b.base for b in tree.branches]],
-                          np.array([b.reach for b in tree.branches]), off)
-    posed = [] if tree.trunk is None else [(tree.trunk, tree.trunk.kin, det.kernel_points, det.start)]
-    posed += [(b, b.at(rot[b.base], pos[b.base]), *_subset(det, keep))
-              for b, keep in zip(tree.branches, reach, strict=True)]
+    reach = _reaches(q, det, model, rig, list(tree.branches), off)
+    posed = [] if tree.trunk is None else [(tree.trunk, det.kernel_points, det.start)]
+    posed += [(b, *_subset(det, keep)) for b, keep in zip(tree.branches, reach, strict=True)]
     out = {}
-    for part, kin, points, start in posed:
+    for part, points, start in posed:
+        kin = part.at(*_base_frame(q, model, part))
         unseen = _in_seen_views(shared[part.name], start)
         counted = _compared(unseen, start, len(part.markers))
         level = part_objective(q[part.dofs], kin, points, start, unseen, rig, params, off)
@@ -249,16 +248,18 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     views_seen = int(np.count_nonzero(det.counts))
     shared = {} if warm is None else shared_projections(warm[0], model, rig, tree, params, off)
     candidates: list[Candidates] = []  # triangulated once, when a branch first needs them
-    known: dict[str, float] = {}  # ``ceilings()``, once a part first needs it
+    asked: dict[str, float] = {}  # ``ceilings()``, once a part first needs it
 
     def levels(name: str) -> float:
-        if not known and ceilings is not None:
-            known.update(ceilings())
-        return known.get(name, math.nan)
+        if not asked and ceilings is not None:
+            asked.update(ceilings())
+        return asked.get(name, math.nan)
 
-    def fit_part(part: Part, kin, points: np.ndarray, start: np.ndarray,
-                 warm: np.ndarray | None = None) -> None:
+    def fit_part(part: Part, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None = None) -> None:
+        """Fit ``part`` in ``q``, its base where the parts fitted before put it."""
         nonlocal iterations
+        rotation, origin = _base_frame(q, model, part)
+        kin = part.at(rotation, origin)
         eps = _part_eps(part, params, views_seen)
         unseen = shared.get(part.name, _kernels.NO_UNSEEN)
         ceiling = None if ceilings is None else lambda: levels(part.name)
@@ -273,21 +274,25 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
         value = part_objective(q[part.dofs], kin, points, start, unseen, rig, params, off)
         if tried is not None and tried[1] < value:
             q[part.dofs], value = tried[0], tried[1]  # SA ended in a worse minimum than the warm start's
-        if value >= eps and part.base >= 0:  # a branch: its base frame is the fitted trunk's
+        if value >= eps and part.base >= 0:
             if not candidates:
                 candidates.append(triangulate(det, rig=rig, offsets=off))
-            proposed = epipolar_start(part, rot[part.base], pos[part.base], candidates[0], points,
-                                      start, model, rig, space, params, eps, off, unseen)
+            proposed = epipolar_start(part, rotation, origin, candidates[0], points, start, model,
+                                      rig, space, params, eps, off, unseen)
             if proposed is not None and proposed[1] < value:
                 q[part.dofs] = proposed[0]
 
     if tree.trunk is not None:
-        fit_part(tree.trunk, tree.trunk.kin, det.kernel_points, det.start, warm)
-    rot, pos = world_frames(q, model)
-    reach = _within_reach(det, rig, pos[[b.base for b in tree.branches]],
-                          np.array([b.reach for b in tree.branches]), off)
-    for part, keep in zip(tree.branches, reach, strict=True):
-        fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep), warm)
+        fit_part(tree.trunk, det.kernel_points, det.start, warm)
+    branches = tree.branches  # parents first: a branch's base is fitted when it comes
+    reach = np.zeros((len(branches), len(det.points)), dtype=bool)
+    known = np.zeros(len(branches), dtype=bool)
+    for b, part in enumerate(branches):
+        if not known[b]:  # every branch on this base at once: the base is fitted
+            group = [k for k, p in enumerate(branches) if p.base == part.base]
+            reach[group] = _reaches(q, det, model, rig, [branches[k] for k in group], off)
+            known[group] = True
+        fit_part(part, *_subset(det, reach[b]), warm)
     in_reach = reach.any(axis=0)
     score = np.inf  # the two-sided error, computed once there is a conflict to judge
     previous: list[int] = []
@@ -299,9 +304,10 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
         if score == np.inf:
             score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
         for b in conflicted:
-            part, saved = tree.branches[b], q.copy()
-            keep = reach[b] & ~_claimed(q, det, model, rig, tree, off, exclude=b)
-            fit_part(part, part.at(rot[part.base], pos[part.base]), *_subset(det, keep))
+            part, saved = branches[b], q.copy()
+            keep = _reaches(q, det, model, rig, [part], off)[0] & ~_claimed(q, det, model, rig, tree, off,
+                                                                             exclude=b)
+            fit_part(part, *_subset(det, keep))
             new = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
             if new < score:
                 score = new
@@ -310,8 +316,7 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     if views_seen == 2:  # two views: a wrong leg can explain every blob it projects onto
         if not candidates:
             candidates.append(triangulate(det, rig=rig, offsets=off))
-        _two_view_starts(q, det, model, rig, tree, space, params, off, rot, pos, reach,
-                         candidates[0], shared)
+        _two_view_starts(q, det, model, rig, tree, space, params, off, reach, candidates[0], shared)
     # Parts that all came from warm starts arrive at ε on their own projections, refined:
     # the joint steps (each costing D evaluations) only read the blobs parts share as fused.
     steps = JOINT_STEPS if iterations else WARM_JOINT_STEPS
@@ -344,11 +349,11 @@ def search_floor(model: KinematicModel, params: FitParams, views_seen: int) -> f
 
 
 def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
-                     space: SearchSpace, params: FitParams, off: np.ndarray, rot: np.ndarray,
-                     pos: np.ndarray, reach: np.ndarray, candidates: Candidates,
-                     shared: dict[str, np.ndarray]) -> None:
+                     space: SearchSpace, params: FitParams, off: np.ndarray, reach: np.ndarray,
+                     candidates: Candidates, shared: dict[str, np.ndarray]) -> None:
     """Each branch's triangulated start (:func:`epipolar_start`) replaces its posture in ``q``
-    (D,) (changed in place) where that lowers the two-sided error over the blobs in reach.
+    (D,) (changed in place) where that lowers the two-sided error over the blobs in reach
+    (``reach`` (B, N), per branch); a branch's base is where ``q`` puts it when it comes.
 
     With two views every pair of blobs on corresponding epipolar lines is a 3D point, so a
     leg posed on another leg's blobs or on ghosts can explain all it projects onto, below
@@ -359,7 +364,8 @@ def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig:
     score = two_sided_error(q, det, model, rig, off, in_reach, cap)
     for part, keep in zip(tree.branches, reach, strict=True):
         points, start = _subset(det, keep)
-        proposed = epipolar_start(part, rot[part.base], pos[part.base], candidates, points, start,
+        rotation, origin = _base_frame(q, model, part)
+        proposed = epipolar_start(part, rotation, origin, candidates, points, start,
                                   model, rig, space, params, _part_eps(part, params, 2), off,
                                   shared.get(part.name, _kernels.NO_UNSEEN))
         if proposed is None:
@@ -419,6 +425,23 @@ def world_frames(q: np.ndarray, model: KinematicModel) -> tuple[np.ndarray, np.n
     rot, pos = np.empty((J, 3, 3)), np.empty((J, 3))
     _kernels.forward_kinematics(q, model.arrays, rot, pos)
     return rot, pos
+
+
+def _base_frame(q: np.ndarray, model: KinematicModel, part: Part) -> tuple[np.ndarray, np.ndarray]:
+    """World rotation (3, 3) and origin (3,) of ``part``'s base joint at posture ``q`` (D,)
+    (identity and zero for the root's trunk, which has none)."""
+    if part.base < 0:
+        return np.eye(3), np.zeros(3)
+    rot, pos = world_frames(q, model)
+    return rot[part.base], pos[part.base]
+
+
+def _reaches(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, parts: list[Part],
+             off: np.ndarray) -> np.ndarray:
+    """(len(parts), N) bool: the detections each branch of ``parts`` can reach, its base where
+    ``q`` (D,) puts it (:func:`_within_reach`)."""
+    pos = world_frames(q, model)[1]
+    return _within_reach(det, rig, pos[[p.base for p in parts]], np.array([p.reach for p in parts]), off)
 
 
 def _within_reach(det: Detections, rig: Rig, origins: np.ndarray, reach: np.ndarray,
@@ -512,9 +535,10 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
                            empty_view_penalty_px: float, huber_px: float,
                            offsets: np.ndarray | None = None) -> list[Candidate]:
     """``core.ambiguity.flip_alternatives`` for a tree, branch by branch: the same depth flips,
-    each branch's scored on that branch's markers alone, then the fit with the flipped
-    branch scored whole and kept within ``tolerance_px`` of it; the trunk's flips (which
-    carry the branches along) on the whole model. Up to ``MAX_ALTERNATIVES``, best first.
+    each branch's (``Part.flips``) scored on that branch's markers alone, then the fit with
+    the flipped branch scored whole and kept within ``tolerance_px`` of it; the trunk's flips
+    and those of a branch's own trunk (which carry other branches along) on the whole model.
+    Up to ``MAX_ALTERNATIVES``, best first.
 
     A flip below a branch joint moves that branch's markers only, so scoring it on the
     whole model (27 markers in 6 views for the hexapod, 180 flips an image) repeats the
@@ -532,6 +556,8 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
     rot, pos = world_frames(fit.dofs, model)
     for part in tree.branches:
         geo = _branch_geometry(part, geometry)
+        if len(geo.flip_joints) == 0:  # a branch's own trunk: flipped with the whole model
+            continue
         kin, q = part.at(rot[part.base], pos[part.base]), np.ascontiguousarray(fit.dofs[part.dofs])
         out_q, out_objective = np.empty((MAX_ALTERNATIVES, len(q))), np.empty(MAX_ALTERNATIVES)
         own = _kernels.posture_error(q, kin, views, image)
@@ -551,7 +577,7 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
 
 def _trunk_masks(geometry: FlipGeometry, model: KinematicModel, tree: Tree) -> np.ndarray:
     """(K,) bool: the masks of ``geometry`` (the whole model's) that flip no branch joint, a
-    joint whose subtree holds markers of one branch only."""
+    joint whose subtree holds markers of one branch only (``Part.flips``) or none."""
     in_branch = np.zeros(len(geometry.flip_joints), dtype=bool)
     for part in tree.branches:
         outside = np.ones(len(model.markers), dtype=bool)
@@ -562,11 +588,10 @@ def _trunk_masks(geometry: FlipGeometry, model: KinematicModel, tree: Tree) -> n
 
 
 def _branch_geometry(part: Part, geometry: FlipGeometry) -> FlipGeometry:
-    """The depth-flip geometry of one branch alone (its arrays, base first), the views' depth
-    directions from the whole model's ``geometry``."""
+    """The depth-flip geometry of one branch alone (its arrays, base first) over its joints
+    ``part.flips``, the views' depth directions from the whole model's ``geometry``."""
     kin = part.kin
-    flip = np.flatnonzero((kin.rot_dof >= 0).any(axis=1))
-    below = _subtrees(kin.parent)[flip]
-    return geometry._replace(flip_joints=flip.astype(np.int64), subtree_joints=below,
+    below = _subtrees(kin.parent)[part.flips]
+    return geometry._replace(flip_joints=part.flips, subtree_joints=below,
                              subtree_markers=np.ascontiguousarray(below[:, kin.marker_joint]),
-                             masks=flip_masks(len(flip)))
+                             masks=flip_masks(len(part.flips)))

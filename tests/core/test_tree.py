@@ -1,12 +1,15 @@
-"""Whole animals: the tree's decomposition into trunk and branches, and the fit part by part."""
+"""Whole animals: the tree's decomposition into parts (nested where a branch splits again), and
+the fit part by part."""
 
 from __future__ import annotations
 
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
-from tree_subjects import FREE_ROOT, angle_errors, detections, insect, movement, ring_rig
+from tree_subjects import FREE_ROOT, angle_errors, detections, insect, movement, ring_rig, vertebrate
 
 from core import _kernels
 from core.examples import EXAMPLES
@@ -15,7 +18,10 @@ from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 from core.sequence import fit_sequence
+from core.tree import _dof_joints, _subtrees
 from core.treefit import search_floor, two_sided_error
+
+BENCH = Path(__file__).resolve().parents[2] / "bench" / "subjects"
 
 # ---- decomposition ---------------------------------------------------------------------------
 
@@ -48,6 +54,65 @@ def test_a_free_root_its_markers_cannot_fix_makes_the_tree_one_part():
     assert insect(legs=2, root_dofs=FREE_ROOT, thorax_markers=2).tree is None
 
 
+@pytest.mark.parametrize("model", [insect(legs=3), insect(legs=2, root_dofs=FREE_ROOT),
+                                   *(KinematicModel.from_xml(BENCH / n / "model.xml")
+                                     for n in ("hexapod", "biped"))],
+                         ids=["insect", "free", "hexapod", "biped"])
+def test_a_tree_that_splits_once_is_a_trunk_and_whole_subtrees(model):
+    """One level, as before nesting: the trunk, then every subtree hanging from the first
+    split whole, all with that split as their base; no branch's chain is split further."""
+    tree, below = model.tree, _subtrees(model.arrays.parent)
+    split = tree.branches[0].base
+    assert all(p.base == split for p in tree.branches)
+    tops = [int(p.joints[0]) for p in tree.branches]
+    assert [int(model.arrays.parent[t]) for t in tops] == [split] * len(tops)
+    for part, top in zip(tree.branches, tops, strict=True):
+        np.testing.assert_array_equal(part.joints, np.flatnonzero(below[top]))
+        np.testing.assert_array_equal(part.flips, 1 + np.flatnonzero((part.kin.rot_dof[1:] >= 0).any(axis=1)))
+    rest = np.flatnonzero(~below[tops].any(axis=0))  # the trunk: every joint in no branch
+    if tree.trunk is not None:
+        np.testing.assert_array_equal(tree.trunk.joints, rest)
+    else:
+        assert not np.isin(_dof_joints(model), rest).any()  # a trunk without DOFs
+    assert len(np.concatenate([p.dofs for p in tree.parts])) == len(model.dofs)
+
+
+def test_a_branch_that_splits_again_is_its_own_trunk_then_its_sub_branches():
+    """The spine (3 rotations, 2 markers not collinear with its pivot) is fitted given the
+    pelvis, then each arm given the spine's end; parents come before children."""
+    model = vertebrate()
+    tree = model.tree
+    assert tree.trunk is None  # the pelvis has no DOFs
+    assert [p.name for p in tree.parts] == ["leg0_coxa", "leg1_coxa", "spine", "arm0_coxa", "arm1_coxa"]
+    joint = {j.name: k for k, j in enumerate(model.joints)}  # the file lists parents first
+    assert [p.base for p in tree.parts] == [joint["pelvis"]] * 3 + [joint["shoulders"]] * 2
+    spine = tree.parts[2]
+    assert [model.dofs[d].name for d in spine.dofs] == ["spine_yaw", "spine_roll", "spine_pitch"]
+    assert [model.markers[m].name for m in spine.markers] == ["S0", "S1"]
+    np.testing.assert_array_equal(spine.joints, [joint["spine"], joint["shoulders"]])
+    for k, part in enumerate(tree.parts):
+        before = np.concatenate([[joint["pelvis"]], *(p.joints for p in tree.parts[:k])])
+        assert part.base in before
+    every = np.sort(np.concatenate([p.dofs for p in tree.parts]))
+    np.testing.assert_array_equal(every, np.arange(len(model.dofs)))
+
+
+@pytest.mark.parametrize("spine_markers", [((12.0, 0.0, 1.0),), ((12.0, 0.0, 1.0), (6.0, 0.0, 0.5))],
+                         ids=["one marker", "collinear with the pivot"])
+def test_a_branch_whose_own_trunk_its_markers_cannot_fix_stays_whole(spine_markers):
+    """A spine that rotates three ways is not fixed by one marker, nor by two on a line
+    through its pivot (a twist about that line moves neither): spine and arms stay one branch."""
+    model = vertebrate(spine_markers=spine_markers)
+    assert [p.name for p in model.tree.parts] == ["leg0_coxa", "leg1_coxa", "spine"]
+    assert len(model.tree.parts[2].dofs) == 3 + 2 * 5
+
+
+def test_a_free_root_with_a_nested_branch_is_fitted_first():
+    model = vertebrate(root_dofs=FREE_ROOT)
+    assert [p.name for p in model.tree.parts] == ["pelvis", "leg0_coxa", "leg1_coxa", "spine",
+                                                  "arm0_coxa", "arm1_coxa"]
+
+
 def test_the_search_floor_is_the_sum_of_the_parts_eps_or_eps_for_a_chain():
     """A part stops at ε (1 px) per 4 of its marker projections into the views with
     detections; markers on a trunk without DOFs belong to no part."""
@@ -63,9 +128,11 @@ def test_the_search_floor_is_the_sum_of_the_parts_eps_or_eps_for_a_chain():
     assert search_floor(chain, wider, 2) == 2.0
 
 
-def test_a_part_posed_at_its_base_puts_its_markers_where_the_whole_model_does():
-    """The part's arrays, with its base at the trunk's frame, are the model's own kinematics."""
-    model = insect(legs=3, root_dofs=FREE_ROOT)
+@pytest.mark.parametrize("model", [insect(legs=3, root_dofs=FREE_ROOT), vertebrate(root_dofs=FREE_ROOT)],
+                         ids=["insect", "nested"])
+def test_a_part_posed_at_its_base_puts_its_markers_where_the_whole_model_does(model):
+    """The part's arrays, with its base at the frame the whole posture gives it, are the
+    model's own kinematics."""
     q = movement(model, 7, seed=3)[-1]
     world = model.marker_positions(q)
     J = len(model.joints)
@@ -101,6 +168,32 @@ def test_a_root_with_translations_is_found_before_its_legs():
     err = angle_errors(fitted, truth)
     assert err[:, :3].max() < 0.05  # mm
     assert err[:, 3:].max() < 1.0
+
+
+@pytest.mark.parametrize("root_dofs", ["", FREE_ROOT], ids=["fixed pelvis", "free pelvis"])
+def test_a_tree_that_splits_twice_fits_part_by_part(root_dofs):
+    """Spine given the pelvis, arms given the spine: every DOF within a degree (the arms'
+    markers are 4 mm apart, 0.9 px at 200 mm), translations within 0.05 mm."""
+    model, rig = vertebrate(root_dofs=root_dofs), ring_rig(3, distance=200.0)
+    truth = movement(model, 12, seed=1)
+    fitted, fits = _fit(model, rig, truth)
+    err = angle_errors(fitted, truth)
+    assert err[:, ~model.rotational].max(initial=0.0) < 0.05
+    assert err[:, model.rotational].max() < 1.0
+    assert all(f.status.value == "ok" for f in fits)
+
+
+def test_a_nested_tree_fits_the_same_in_two_processes_as_in_one():
+    model, rig = vertebrate(root_dofs=FREE_ROOT), ring_rig(3, distance=200.0)
+    images = detections(model, rig, movement(model, 10, seed=2))
+    kwargs = dict(model=model, rig=rig, histograms=Histograms.uniform(model), params=FitParams(),
+                  seed=0, chunk_size=5)
+    here = fit_sequence(images, **kwargs)
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        there = fit_sequence(images, map_chunks=pool.map, **kwargs)
+    for got, want in zip(there.fits, here.fits, strict=True):
+        np.testing.assert_array_equal(got.dofs, want.dofs)
+        assert got.iterations == want.iterations
 
 
 def test_a_leg_on_its_neighbours_blobs_costs_more_two_sided_than_the_truth():

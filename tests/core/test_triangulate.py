@@ -230,11 +230,9 @@ def test_with_two_views_a_leg_on_the_wrong_blobs_is_replaced_by_its_triangulated
     params = FitParams()
     space = search_space(model, Histograms.uniform(model))
     off = view_offsets(None, rig)
-    rot, pos = treefit.world_frames(wrong, model)
-    reach = treefit._within_reach(det, rig, pos[[b.base for b in tree.branches]],
-                                  np.array([b.reach for b in tree.branches]), off)
+    reach = treefit._reaches(wrong, det, model, rig, list(tree.branches), off)
     q = wrong.copy()
-    treefit._two_view_starts(q, det, model, rig, tree, space, params, off, rot, pos, reach,
+    treefit._two_view_starts(q, det, model, rig, tree, space, params, off, reach,
                              triangulate(det, rig=rig), {})
     assert np.abs(q[leg0.dofs] - q_true[leg0.dofs]).max() < 0.1
     assert np.abs(q[leg1.dofs] - q_true[leg1.dofs]).max() < 1e-6

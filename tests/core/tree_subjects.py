@@ -32,25 +32,54 @@ def insect(legs: int = 2, root_dofs: str = "", thorax_markers: int = 3,
         attach = [(xs[k // 2], 3.0 if k % 2 == 0 else -3.0) for k in range(legs)]
     out = ['<model name="insect" units="mm">', f'<joint name="thorax">{root_dofs}</joint>']
     for k, (x, y) in enumerate(attach):
-        n, s = f"leg{k}", 1 if y >= 0 else -1
-        out += [
-            f'<joint name="{n}_coxa" parent="thorax"><offset x="{x}" y="{y}" z="0"/>'
-            f'<rest y="0" x="0" z="{90 * s}"/>'
-            f'<dof axis="z" name="{n}_yaw" min="-40" max="40"/>'
-            f'<dof axis="x" name="{n}_roll" min="-30" max="30"/>'
-            f'<dof axis="y" name="{n}_pitch" min="-40" max="20"/></joint>',
-            f'<joint name="{n}_femur" parent="{n}_coxa"><offset x="3" y="0" z="0"/>'
-            f'<dof axis="y" name="{n}_lev" min="-80" max="0"/></joint>',
-            f'<joint name="{n}_tibia" parent="{n}_femur"><offset x="10" y="0" z="0"/>'
-            f'<dof axis="y" name="{n}_knee" min="20" max="140"/></joint>',
-            f'<joint name="{n}_claw" parent="{n}_tibia"><offset x="11" y="0" z="0"/></joint>',
-        ]
-        out += [f'<marker name="{n}_{j}" joint="{n}_{j}" x="0" y="0" z="0"/>'
-                for j in ("coxa", "femur", "tibia", "claw")]
+        out += _leg(f"leg{k}", "thorax", x, y)
     thorax = [(14, 0, 1), (-14, 0, 1), (0, 2, 3)][:thorax_markers]
     out += [f'<marker name="T{i}" joint="thorax" x="{x}" y="{y}" z="{z}"/>'
             for i, (x, y, z) in enumerate(thorax)]
     return KinematicModel.from_xml("\n".join([*out, "</model>"]))
+
+
+SPINE_MARKERS = ((12.0, 0.0, 1.0), (8.0, 3.0, 2.0))
+
+
+def vertebrate(root_dofs: str = "", spine_markers: tuple[tuple[float, float, float], ...] = SPINE_MARKERS,
+               spine_dofs: str = "zxy") -> KinematicModel:
+    """A tree that splits twice: a pelvis (3 markers) with two legs at x = -6 mm and a spine
+    (4 mm ahead of it; rotations about ``spine_dofs``, ±25°; markers at ``spine_markers`` in
+    its frame) whose end (16 mm along it) carries two arms. Legs and arms are the insect's
+    legs (5 DOFs, 4 markers each)."""
+    dof = {"z": "yaw", "x": "roll", "y": "pitch"}
+    out = ['<model name="vertebrate" units="mm">', f'<joint name="pelvis">{root_dofs}</joint>']
+    out += _leg("leg0", "pelvis", -6.0, 3.0) + _leg("leg1", "pelvis", -6.0, -3.0)
+    out.append('<joint name="spine" parent="pelvis"><offset x="4" y="0" z="0"/>'
+               + "".join(f'<dof axis="{a}" name="spine_{dof[a]}" min="-25" max="25"/>' for a in spine_dofs)
+               + "</joint>")
+    out.append('<joint name="shoulders" parent="spine"><offset x="16" y="0" z="0"/></joint>')
+    out += _leg("arm0", "shoulders", 0.0, 3.0) + _leg("arm1", "shoulders", 0.0, -3.0)
+    out += [f'<marker name="P{i}" joint="pelvis" x="{x}" y="{y}" z="{z}"/>'
+            for i, (x, y, z) in enumerate([(-14, 0, 1), (-2, 3, 2), (-2, -3, 2)])]
+    out += [f'<marker name="S{i}" joint="spine" x="{x}" y="{y}" z="{z}"/>'
+            for i, (x, y, z) in enumerate(spine_markers)]
+    return KinematicModel.from_xml("\n".join([*out, "</model>"]))
+
+
+def _leg(n: str, parent: str, x: float, y: float) -> list[str]:
+    """A leg ``n`` (5 DOFs, 4 markers) on joint ``parent`` at (x, y), pointing to the side of y."""
+    s = 1 if y >= 0 else -1
+    out = [
+        f'<joint name="{n}_coxa" parent="{parent}"><offset x="{x}" y="{y}" z="0"/>'
+        f'<rest y="0" x="0" z="{90 * s}"/>'
+        f'<dof axis="z" name="{n}_yaw" min="-40" max="40"/>'
+        f'<dof axis="x" name="{n}_roll" min="-30" max="30"/>'
+        f'<dof axis="y" name="{n}_pitch" min="-40" max="20"/></joint>',
+        f'<joint name="{n}_femur" parent="{n}_coxa"><offset x="3" y="0" z="0"/>'
+        f'<dof axis="y" name="{n}_lev" min="-80" max="0"/></joint>',
+        f'<joint name="{n}_tibia" parent="{n}_femur"><offset x="10" y="0" z="0"/>'
+        f'<dof axis="y" name="{n}_knee" min="20" max="140"/></joint>',
+        f'<joint name="{n}_claw" parent="{n}_tibia"><offset x="11" y="0" z="0"/></joint>',
+    ]
+    return out + [f'<marker name="{n}_{j}" joint="{n}_{j}" x="0" y="0" z="0"/>'
+                  for j in ("coxa", "femur", "tibia", "claw")]
 
 
 def ring_rig(cameras: int = 3, distance: float = 150.0, f: float = 900.0,
