@@ -191,9 +191,18 @@ def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | No
 
 def _ceilings(fit: ImageFit, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
               offsets: np.ndarray | None) -> dict[str, float]:
-    """``core.treefit.warm_ceilings`` of ``fit`` on ``det`` (``offsets``: the image's (V, 2)
-    view offsets, optional): where the next image's warm starts stand in for SA."""
-    return warm_ceilings(fit.dofs, det, model, rig, params, view_offsets(offsets, rig))
+    """Where the next image's warm starts stand in for SA, per part: the lowest
+    ``core.treefit.warm_ceilings`` on ``det`` (``offsets``: the image's (V, 2) view offsets,
+    optional) of ``fit`` and of its alternatives.
+
+    The fit is the candidate of lowest *whole* objective; where an alternative fits a part
+    better (a posture the whole objective prefers because a marker of that part counts as
+    lost, say), the part's own level is the alternative's, and a warm start carrying the
+    fit's posture of that part forward must beat it, or the part is searched again."""
+    off = view_offsets(offsets, rig)
+    levels = [warm_ceilings(c.dofs, det, model, rig, params, off)
+              for c in (fit, *fit.alternatives)]
+    return {name: min(level[name] for level in levels) for name in levels[0]}
 
 
 def typical_objective(fits: Iterable[ImageFit]) -> float:
