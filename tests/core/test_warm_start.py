@@ -26,7 +26,7 @@ from core.fit import (
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
-from core.sequence import fit_sequence
+from core.sequence import _ceilings, fit_sequence
 from core.treefit import (
     EPS_PROJECTIONS,
     WARM_EPS_FACTOR,
@@ -243,3 +243,26 @@ def test_a_sliding_marker_sequence_skips_sa_and_ends_where_sa_does(sliding):
         cold, _, objective, _ = _one(model, rig, images[k])
         assert angle_errors(fits[k].dofs, cold).max() < 0.01, k
         assert fits[k].objective <= objective + 1e-3, k
+
+
+def test_a_part_of_the_fit_that_an_alternative_fits_better_is_searched_again(sliding):
+    """The previous image's fit has leg 1 in another minimum and the right posture as its
+    alternative (the whole objective chose the other, as a lost marker can make it): leg 1's
+    level is the alternative's, so its warm start from the fit runs SA, which finds it."""
+    model, rig, _, images = sliding
+    right, _, objective, _ = _one(model, rig, images[0])
+    leg = model.tree.branches[1]
+    flips = tree_flip_alternatives(
+        Candidate(right, math.nan, objective), images[0], model=model, rig=rig,
+        geometry=FlipGeometry.of(model, rig), tolerance_px=1e3, fusion_px=0.0,
+        empty_view_penalty_px=FitParams().empty_view_penalty_px, huber_px=FitParams().anneal.huber_px)
+    wrong = next(c for c in flips if angle_errors(c.dofs[leg.dofs], right[leg.dofs]).max() > 10.0)
+    fit = ImageFit(0, wrong.dofs, wrong.error, wrong.objective, 1, Status.OK, 0,
+                   tuple(images[0].counts.tolist()), (Candidate(right, math.nan, objective),))
+    ceilings = _ceilings(fit, images[0], model, rig, FitParams(), None)
+    assert ceilings[leg.name] == _ceilings_of(model, rig, images[0], right)[leg.name]
+    assert ceilings[leg.name] < _ceilings_of(model, rig, images[0], wrong.dofs)[leg.name]
+    truth, _, _, _ = _one(model, rig, images[1])
+    fitted, _, _, its = _one(model, rig, images[1], warm=wrong.dofs[None], ceilings=ceilings)
+    assert its > 0
+    assert angle_errors(fitted, truth).max() < 0.1
