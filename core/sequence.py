@@ -130,8 +130,8 @@ def fit_chunk(
     seed : the job's seed; image ``s`` uses ``core.fit.image_stream`` ``(seed, s, 1)``.
         Each image after the chunk's first starts from the previous images' postures
         (warm starts, :func:`_warm_starts`, each part's taken up to its level in the
-        previous image, ``core.treefit.warm_ceilings``, computed only where a part's warm
-        start misses twice its ε) and tries the previous one as an alternative;
+        previous image, :func:`_ceilings`, computed only where a part's warm start misses
+        twice its ε) and tries the previous one as an alternative;
         the chunk's first image starts cold, so a chunk's fits depend on its first sample
         and nothing before it: fitted anywhere, the same chunks give the same fits.
     offsets : optional per-image (V, 2) view offsets (root tracking), same length as images.

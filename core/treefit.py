@@ -120,9 +120,11 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     slide dropped by more than that in one image. Why it is safe: a warm start in another
     basin costs the level plus a leg pixels off in several views, above the ceiling, and
     runs SA (kept only where SA ends higher); one within the ceiling is one this image's
-    residual does not tell from the part's minimum. The image's depth flips and
-    undetermined DOFs are still searched (``core.fit``), and a chunk's first image and
-    every re-analysis run SA on every part.
+    residual does not tell from the part's minimum. The level is the part's lowest over the
+    previous fit and its alternatives (``core.sequence.fit_chunk``), so a part that the
+    whole objective put in another minimum than its own best is searched again. The image's
+    depth flips and undetermined DOFs are still searched (``core.fit``), and a chunk's first
+    image and every re-analysis run SA on every part.
 
     ``unseen`` (V, m) bool marks projections next to another part's marker
     (:func:`shared_projections`): they are left out of the refinement and of the objective
