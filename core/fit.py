@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -153,6 +153,8 @@ class ImageFit:
     detections : number of detected points in each view.
     alternatives : other postures the image supports almost as well (depth flips,
         ``core.ambiguity``), worse objective first excluded: sorted by objective.
+    settled : a re-analysis from a drawn start ended in this posture's minimum
+        (:func:`reanalyse_image`), so :func:`needs_reanalysis` asks for no more attempts.
     """
 
     sample: int
@@ -164,6 +166,7 @@ class ImageFit:
     iterations: int
     detections: tuple[int, ...]
     alternatives: tuple[Candidate, ...] = ()
+    settled: bool = False
 
     def compared(self, n_markers: int) -> int:
         """Marker projections compared with detections: markers × views with any detection."""
@@ -216,6 +219,7 @@ class ImageFit:
                  "objective": _json_float(c.objective)}
                 for c in self.alternatives
             ],
+            "settled": self.settled,
         }
 
     @classmethod
@@ -233,6 +237,7 @@ class ImageFit:
                 Candidate(_float_array(c["dofs"]), _float(c["error"]), _float(c["objective"]))
                 for c in record.get("alternatives", ())
             ),
+            settled=bool(record.get("settled", False)),
         )
 
 
@@ -260,6 +265,7 @@ def fit_image(
     draw_start: bool = False,
     offsets: np.ndarray | None = None,
     warm: np.ndarray | None = None,
+    ceilings: Callable[[], Mapping[str, float]] | None = None,
 ) -> tuple[np.ndarray, float, float, int]:
     """One attempt on one image: SA from the histogram means (paper §3.1), then refinement.
 
@@ -280,6 +286,9 @@ def fit_image(
         first that reaches twice the part's ε replaces its SA (``core.treefit.warm_start``).
         A single chain always runs SA: it costs about a millisecond there, and a warm start
         that reaches ε in a wrong minimum would carry that minimum on to the next images.
+    ceilings : for a tree, gives per part name the objective per compared projection under
+        which its warm start replaces SA too (``core.treefit.warm_ceilings`` of the previous
+        image), called only where a part's warm start misses twice its ε.
 
     Returns
     -------
@@ -289,7 +298,7 @@ def fit_image(
     off = view_offsets(offsets, rig)
     if model.tree is not None:
         return fit_tree(detections, model, rig, model.tree, space, params, stream, draw_start, off,
-                        warm)
+                        warm, ceilings)
     dofs, error, objective, iterations = attempt_kernel(
         np.arange(len(model.dofs)), model.arrays, detections.kernel_points, detections.start,
         model, rig, space, params, params.anneal.eps, stream, draw_start, off,
@@ -309,6 +318,7 @@ def first_attempt(
     geometry: FlipGeometry,
     offsets: np.ndarray | None = None,
     warm: np.ndarray | None = None,
+    ceilings: Callable[[], Mapping[str, float]] | None = None,
 ) -> ImageFit:
     """Image ``sample``'s first fit (attempt 1, stream :func:`image_stream` ``(seed, sample,
     1)``) under ``histograms``, with its alternatives; ``no_detections`` without any point.
@@ -316,6 +326,7 @@ def first_attempt(
     geometry : ``FlipGeometry.of(model, rig)``, computed once per chunk.
     offsets : this image's (V, 2) view offsets (root tracking), optional.
     warm : (k, D) warm starts from the chunk's previous images (:func:`fit_image`), optional.
+    ceilings : per part of a tree, where its warm start stands in for SA (:func:`fit_image`).
     """
     counts = tuple(det.counts.tolist())
     if not any(counts):
@@ -323,14 +334,15 @@ def first_attempt(
         return ImageFit(sample, nan, math.nan, math.nan, 0, Status.NO_DETECTIONS, 0, counts)
     best, alternatives, its = _attempt(
         det, model, rig, search_space(model, histograms), params, image_stream(seed, sample, 1),
-        False, offsets, geometry, warm,
+        False, offsets, geometry, warm, ceilings,
     )
     status = image_status(best.error, counts, len(model.markers), params)
     return ImageFit(sample, best.dofs, best.error, best.objective, 1, status, its, counts,
                     alternatives)
 
 
-def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None):
+def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None,
+             ceilings=None):
     """fit_image, then its alternatives: (best candidate, the others, SA iterations).
 
     ``warm`` holds warm starts (:func:`fit_image`; the chunk's previous postures,
@@ -349,7 +361,7 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     """
     dofs, error, objective, its = fit_image(
         det, model=model, rig=rig, space=space, params=params, stream=stream,
-        draw_start=draw_start, offsets=offsets, warm=warm,
+        draw_start=draw_start, offsets=offsets, warm=warm, ceilings=ceilings,
     )
     fit = Candidate(dofs, error, objective)
     others = []
@@ -464,6 +476,15 @@ def reanalyse_image(
     constraints), so that it does not retrace the first attempt's path, and
     uses the stream :func:`image_stream` ``(seed, sample, attempts + 1)``.
     The kept attempt brings its alternatives along.
+
+    Where the attempt ends in the kept posture's minimum (within :data:`DISTINCT_DEG` in
+    every angle, its objective not lower by ε, SA's stop, or more), the fit is ``settled``
+    and :func:`needs_reanalysis` asks for no more: two searches from unrelated starts (the
+    first from the histograms' means or the previous image's posture, this one drawn)
+    agree, and the image's error is what its markers leave in that minimum (sliding skin
+    markers, a marker the model lacks), which more attempts would find again. An attempt
+    that finds a lower minimum, or a posture more than :data:`DISTINCT_DEG` away, leaves it
+    unsettled: the search goes on, as the paper's re-analysis.
     """
     attempt = previous.attempts + 1
     if not needs_reanalysis(previous, model, params, typical):
@@ -472,21 +493,24 @@ def reanalyse_image(
         detections, model, rig, search_space(model, histograms), params,
         image_stream(seed, previous.sample, attempt), True, offsets, FlipGeometry.of(model, rig),
     )
+    settled = (best.objective > previous.objective - params.anneal.eps
+               and not _apart(best.dofs, previous.dofs, model.rotational))
     if not best.objective < previous.objective:
         best = Candidate(previous.dofs, previous.error, previous.objective)
         alternatives = previous.alternatives
     status = image_status(best.error, previous.detections, len(model.markers), params)
     return ImageFit(previous.sample, best.dofs, best.error, best.objective, attempt, status,
-                    previous.iterations + its, previous.detections, alternatives)
+                    previous.iterations + its, previous.detections, alternatives, settled)
 
 
 def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
                      typical: float = math.nan) -> bool:
-    """True while an image has attempts left and is over the error threshold (paper §3.2), or
-    its objective is an outlier: above ``params.outlier_factor`` times ``typical`` (the
-    sequence's ``core.sequence.typical_objective``) and above the level where ``model``'s
-    search stops in the image's views (``core.treefit.search_floor``: ε for a chain, the sum
-    of its parts' ε for a tree).
+    """True while an image has attempts left, is not ``settled`` (:func:`reanalyse_image`)
+    and is over the error threshold (paper §3.2), or its objective is an outlier: above
+    ``params.outlier_factor`` times ``typical`` (the sequence's
+    ``core.sequence.typical_objective``) and above the level where ``model``'s search stops
+    in the image's views (``core.treefit.search_floor``: ε for a chain, the sum of its
+    parts' ε for a tree).
 
     The paper's 10 px threshold was "clearly larger than the expected analysis
     result" (2.9 px); clean footage now fits at ~0.1 px, so a local minimum at
@@ -496,7 +520,7 @@ def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
     animal that fits most images far below it would otherwise send every image
     that stops near it to attempts that stop there again.
     """
-    if fit.attempts >= params.max_attempts or fit.status is Status.NO_DETECTIONS:
+    if fit.attempts >= params.max_attempts or fit.status is Status.NO_DETECTIONS or fit.settled:
         return False
     if fit.status is Status.OVER_THRESHOLD:
         return True

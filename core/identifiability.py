@@ -19,6 +19,7 @@ centroid).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -128,20 +129,28 @@ def sample_postures(model: KinematicModel) -> np.ndarray:
 
 
 def scaled_jacobian(model: KinematicModel, q: np.ndarray) -> np.ndarray:
-    """(3M, D) dimensionless Jacobian of the world marker positions at posture ``q`` (D,):
-    central differences; translation columns per model unit, rotation columns per radian
-    divided by the model's size (:func:`model_size`)."""
+    """(3M, D) dimensionless Jacobian of the world marker positions at posture ``q`` (D,),
+    rotation columns scaled by the model's size (:func:`model_size`)."""
+    return marker_jacobian(model.marker_positions, q, model.rotational, model_size(model, q))
+
+
+def marker_jacobian(positions: Callable[[np.ndarray], np.ndarray], q: np.ndarray,
+                    rotational: np.ndarray, size: float) -> np.ndarray:
+    """(3M, D) dimensionless Jacobian at posture ``q`` (D,) of the marker positions that
+    ``positions`` gives for postures (n, D) as (n, M, 3), model units: central differences;
+    translation columns per model unit, rotation columns (``rotational`` (D,) bool) per
+    radian divided by ``size`` (model units), so that a rank test of it does not depend on
+    the model's units."""
     D = len(q)
-    size = model_size(model, q)
     # Per-DOF step: degrees for rotations, model units for translations, both small
     # against the model (a rotation of _STEP_DEG moves a marker size × 1.7e-5 at most).
-    step = np.where(model.rotational, _STEP_DEG, _STEP_DEG * size)
+    step = np.where(rotational, _STEP_DEG, _STEP_DEG * size)
     postures = np.repeat(q[None], 2 * D, axis=0)
     postures[:D] += np.diag(step)
     postures[D:] -= np.diag(step)
-    positions = model.marker_positions(postures).reshape(2 * D, -1)  # (2D, 3M)
-    J = ((positions[:D] - positions[D:]) / (2 * step[:, None])).T
-    per_unit = np.where(model.rotational, 180.0 / math.pi / size, 1.0)
+    moved = positions(postures).reshape(2 * D, -1)  # (2D, 3M)
+    J = ((moved[:D] - moved[D:]) / (2 * step[:, None])).T
+    per_unit = np.where(rotational, 180.0 / math.pi / size, 1.0)
     return J * per_unit[None, :]
 
 

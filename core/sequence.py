@@ -36,7 +36,7 @@ from functools import partial
 import numpy as np
 
 from core.ambiguity import Candidate, FlipGeometry, choose_candidates
-from core.error import Detections
+from core.error import Detections, view_offsets
 from core.fit import (
     FitParams,
     ImageFit,
@@ -49,6 +49,7 @@ from core.fit import (
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
+from core.treefit import warm_ceilings
 
 __all__ = [
     "ChunkResult",
@@ -128,7 +129,9 @@ def fit_chunk(
     histograms : the constraints at the start of the chunk; not modified.
     seed : the job's seed; image ``s`` uses ``core.fit.image_stream`` ``(seed, s, 1)``.
         Each image after the chunk's first starts from the previous images' postures
-        (warm starts, :func:`_warm_starts`) and tries the previous one as an alternative;
+        (warm starts, :func:`_warm_starts`, each part's taken up to its level in the
+        previous image, :func:`_ceilings`, computed only where a part's warm start misses
+        twice its ε) and tries the previous one as an alternative;
         the chunk's first image starts cold, so a chunk's fits depend on its first sample
         and nothing before it: fitted anywhere, the same chunks give the same fits.
     offsets : optional per-image (V, 2) view offsets (root tracking), same length as images.
@@ -141,14 +144,19 @@ def fit_chunk(
     geometry = FlipGeometry.of(model, rig)
     offset_iter = iter(offsets) if offsets is not None else None
     fits: list[ImageFit] = []
+    ceilings: Callable[[], dict[str, float]] | None = None
     for k, det in enumerate(images):
         if should_stop is not None and should_stop():
             break
+        off = next(offset_iter) if offset_iter is not None else None
+        warm = _warm_starts(fits, model)
         fit = first_attempt(
             det, first_sample + k, model=model, rig=rig, histograms=working, params=params,
-            seed=seed, geometry=geometry, offsets=next(offset_iter) if offset_iter is not None else None,
-            warm=_warm_starts(fits, model),
+            seed=seed, geometry=geometry, offsets=off, warm=warm,
+            ceilings=ceilings if warm is not None else None,
         )
+        if model.tree is not None:  # used only after a posture (``warm`` is None without one)
+            ceilings = partial(_ceilings, fit, det, model, rig, params, off)
         if fit.status is Status.OK:
             working.update(fit.dofs[rot])
             observed.update(fit.dofs[rot])
@@ -179,6 +187,22 @@ def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | No
     if len(fits) < 2 or not np.all(np.isfinite(before := fits[-2].dofs)):
         return last[None]
     return np.vstack([np.clip(2.0 * last - before, model.lower, model.upper), last])
+
+
+def _ceilings(fit: ImageFit, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
+              offsets: np.ndarray | None) -> dict[str, float]:
+    """Where the next image's warm starts stand in for SA, per part: the lowest
+    ``core.treefit.warm_ceilings`` on ``det`` (``offsets``: the image's (V, 2) view offsets,
+    optional) of ``fit`` and of its alternatives.
+
+    The fit is the candidate of lowest *whole* objective; where an alternative fits a part
+    better (a posture the whole objective prefers because a marker of that part counts as
+    lost, say), the part's own level is the alternative's, and a warm start carrying the
+    fit's posture of that part forward must beat it, or the part is searched again."""
+    off = view_offsets(offsets, rig)
+    levels = [warm_ceilings(c.dofs, det, model, rig, params, off)
+              for c in (fit, *fit.alternatives)]
+    return {name: min(level[name] for level in levels) for name in levels[0]}
 
 
 def typical_objective(fits: Iterable[ImageFit]) -> float:

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core import _kernels
+from core.identifiability import marker_jacobian
 from core.model import KinematicArrays, KinematicModel, _topological_order
 
 __all__ = ["Part", "Tree", "decompose"]
@@ -244,8 +245,9 @@ def _branch(model: KinematicModel, topo: _Topology, base: int, joints: np.ndarra
 def _fixes(part: Part, model: KinematicModel) -> bool:
     """Whether the markers of ``part`` fix its DOFs given its base frame: at each of
     :data:`FIX_POSTURES` postures (fixed draws through the middle 80 % of the DOF ranges), the
-    Jacobian of its marker positions (3m, d), per radian or per model unit in units of the
-    part's reach, has no singular value below :data:`FIX_SINGULAR`.
+    Jacobian of its marker positions (3m, d) (``core.identifiability.marker_jacobian``:
+    rotations per radian in units of the part's reach, translations per model unit) has no
+    singular value below :data:`FIX_SINGULAR`.
 
     Counting markers cannot say it for a chain of several joints: a rotation about the
     line through the base origin and a lone marker moves nothing, and two joints that each
@@ -257,12 +259,12 @@ def _fixes(part: Part, model: KinematicModel) -> bool:
         return False
     lower, upper = model.lower[part.dofs], model.upper[part.dofs]
     unit = np.random.default_rng(0).uniform(0.1, 0.9, (FIX_POSTURES, d))
-    per = np.where(model.rotational[part.dofs], np.degrees(1.0), 1.0) / reach
-    h = 1e-4  # degrees or model units
+
+    def positions(postures: np.ndarray) -> np.ndarray:
+        return _kernels.marker_positions_many(np.ascontiguousarray(postures), part.kin)
+
     for q in lower + unit * (upper - lower):
-        steps = np.concatenate([q + h * np.eye(d), q - h * np.eye(d)])
-        moved = _kernels.marker_positions_many(np.ascontiguousarray(steps), part.kin)
-        jac = ((moved[:d] - moved[d:]) / (2 * h)).reshape(d, -1).T * per  # (3m, d)
+        jac = marker_jacobian(positions, q, model.rotational[part.dofs], reach)  # (3m, d)
         if np.linalg.svd(jac, compute_uv=False)[-1] < FIX_SINGULAR:
             return False
     return True

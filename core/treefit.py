@@ -23,7 +23,9 @@ refitting without the shared blob raises the error, and the first posture stays.
 
 Within a chunk, each part first tries the previous image's posture (:func:`warm_start`):
 refined on the part's detections, it replaces the part's SA where it reaches twice the
-part's ε, and when every part came from a warm start the joint refinement takes
+part's ε or, under sliding skin markers, the part's level in the previous image plus what
+its residual cannot tell apart (:func:`warm_ceilings`), and when every part came from a
+warm start the joint refinement takes
 :data:`WARM_JOINT_STEPS` steps: at 50-200 Hz most parts of most images skip SA (figures in
 docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
 (:func:`tree_flip_alternatives`). A branch that SA leaves above its ε (with two or more
@@ -35,6 +37,8 @@ views every branch tries it, kept where it lowers the two-sided error
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -62,7 +66,7 @@ if TYPE_CHECKING:
 
 __all__ = ["attempt_kernel", "epipolar_start", "fit_tree", "part_objective", "refine_whole",
            "search_floor", "shared_projections", "tree_flip_alternatives", "two_sided_error",
-           "warm_start", "world_frames"]
+           "warm_ceilings", "warm_start", "world_frames"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
@@ -91,18 +95,36 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
 
 def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None,
                model: KinematicModel, rig: Rig, params: FitParams, eps: float, off: np.ndarray,
-               unseen: np.ndarray = _kernels.NO_UNSEEN) -> tuple[np.ndarray, float, bool] | None:
+               unseen: np.ndarray = _kernels.NO_UNSEEN,
+               ceiling: Callable[[], float] | None = None) -> tuple[np.ndarray, float, bool] | None:
     """The warm starts ``warm`` (k, D), each one's posture of the DOFs ``dofs`` (a part posed
     by ``kin``) refined on detections ``points`` (N, 3) grouped at ``start`` (V + 1,) by
-    :data:`WARM_STEPS` LM steps: (posture (d,), objective in pixels, whether it reaches
-    :data:`WARM_EPS_FACTOR` times ``eps``, SA's stop) of the first that reaches it, else of
-    the lowest objective; None without ``warm``. One that reaches it leaves SA nothing to do.
+    :data:`WARM_STEPS` LM steps: (posture (d,), objective in pixels, whether it stands in
+    for SA) of the first that reaches :data:`WARM_EPS_FACTOR` times ``eps`` (SA's stop),
+    else of the lowest objective, which stands in for SA where it is below ``ceiling()``
+    (pixels per compared projection, :func:`warm_ceilings`: the part's level in the
+    previous image plus what a residual at that level cannot tell apart; asked for only
+    there); None without ``warm``.
 
     Why more than ε: where a warm start misses ε by a little, the part's minimum itself is
     above it (a ghost blob merged with a marker in one view, say), and SA only runs to its
     patience to end in the same minimum; a warm start in another minimum costs far more
     (a wrong leg is pixels off in several views), and a depth flip that costs as little is
     offered as an alternative either way (``core.ambiguity``).
+
+    Why the ceiling: with sliding skin markers no posture of a part reaches 2 ε, and the
+    minimum's own level is the markers' slide, which varies slowly from image to image. SA
+    can change the answer only by finding a posture lower than the warm start's by more
+    than the part's residual can tell apart (``core.undetermined.residual_tolerance``); a
+    warm start within that of the previous image's level leaves it none to find unless the
+    slide dropped by more than that in one image. Why it is safe: a warm start in another
+    basin costs the level plus a leg pixels off in several views, above the ceiling, and
+    runs SA (kept only where SA ends higher); one within the ceiling is one this image's
+    residual does not tell from the part's minimum. The level is the part's lowest over the
+    previous fit and its alternatives (``core.sequence.fit_chunk``), so a part that the
+    whole objective put in another minimum than its own best is searched again. The image's
+    depth flips and undetermined DOFs are still searched (``core.fit``), and a chunk's first
+    image and every re-analysis run SA on every part.
 
     ``unseen`` (V, m) bool marks projections next to another part's marker
     (:func:`shared_projections`): they are left out of the refinement and of the objective
@@ -133,7 +155,48 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
             return q, value, True
         if best is None or value < best[1]:
             best = (q, value, False)
+    if best is not None and ceiling is not None:
+        limit = ceiling() * _compared(unseen, start, len(kin.marker_joint))
+        best = (best[0], best[1], bool(best[1] < limit))
     return best
+
+
+def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
+                  params: FitParams, off: np.ndarray) -> dict[str, float]:
+    """Per part of ``model.tree`` (by name), the objective per compared marker projection
+    below which its warm start stands in for SA in the next image (:func:`warm_start`):
+    the part's objective at this image's fitted posture ``q`` (D,) on detections ``det``,
+    plus ``core.undetermined.residual_tolerance`` of it for another minimum anywhere in the
+    part's DOFs, over its compared projections (markers × views with detections within its
+    reach, less those next to another part's marker, :func:`shared_projections`).
+
+    The level is that of this image's first fit (its parts searched by SA, or warm started
+    under this image's own ceilings); per projection, so that a marker next to another
+    part's in the next image does not move it.
+    """
+    from core.undetermined import residual_tolerance  # it imports this module
+
+    tree = model.tree
+    assert tree is not None
+    shared = shared_projections(q, model, rig, tree, params, off)
+    reach = _reaches(q, det, model, rig, list(tree.branches), off)
+    posed = [] if tree.trunk is None else [(tree.trunk, det.kernel_points, det.start)]
+    posed += [(b, *_subset(det, keep)) for b, keep in zip(tree.branches, reach, strict=True)]
+    out = {}
+    for part, points, start in posed:
+        kin = part.at(*_base_frame(q, model, part))
+        unseen = _in_seen_views(shared[part.name], start)
+        counted = _compared(unseen, start, len(part.markers))
+        level = part_objective(q[part.dofs], kin, points, start, unseen, rig, params, off)
+        d = len(part.dofs)
+        out[part.name] = (level + residual_tolerance(level, counted, d, d)) / max(counted, 1)
+    return out
+
+
+def _compared(unseen: np.ndarray, start: np.ndarray, markers: int) -> int:
+    """Marker projections of a part of ``markers`` markers compared with its detections
+    grouped at ``start``: markers × views with detections, less the ``unseen`` (V, m) ones."""
+    return markers * int(np.count_nonzero(np.diff(start))) - int(np.count_nonzero(unseen))
 
 
 def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, unseen: np.ndarray,
@@ -170,11 +233,15 @@ def shared_projections(q: np.ndarray, model: KinematicModel, rig: Rig, tree: Tre
 
 def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
              params: FitParams, stream: np.ndarray, draw_start: bool, off: np.ndarray,
-             warm: np.ndarray | None = None) -> tuple[np.ndarray, float, float, int]:
+             warm: np.ndarray | None = None,
+             ceilings: Callable[[], Mapping[str, float]] | None = None
+             ) -> tuple[np.ndarray, float, float, int]:
     """One attempt on one image, part by part: (dofs (D,), plain Eq. 5 error, objective, SA
     iterations), as :func:`core.fit.fit_image` returns them. Each part first tries its
     posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
-    where none reaches twice the part's ε, keeping the warm start where SA ends higher.
+    where none reaches twice the part's ε or its ceiling in ``ceilings()`` (by part name,
+    :func:`warm_ceilings` of the previous image, asked for once, where a part first needs
+    it), keeping the warm start where SA ends higher.
     A branch that SA leaves above its ε tries its triangulated start too
     (:func:`epipolar_start`), kept where it ends lower; with two views, every branch does
     (:func:`_two_view_starts`)."""
@@ -183,6 +250,12 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     views_seen = int(np.count_nonzero(det.counts))
     shared = {} if warm is None else shared_projections(warm[0], model, rig, tree, params, off)
     candidates: list[Candidates] = []  # triangulated once, when a branch first needs them
+    asked: dict[str, float] = {}  # ``ceilings()``, once a part first needs it
+
+    def levels(name: str) -> float:
+        if not asked and ceilings is not None:
+            asked.update(ceilings())
+        return asked.get(name, math.nan)
 
     def fit_part(part: Part, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None = None) -> None:
         """Fit ``part`` in ``q``, its base where the parts fitted before put it."""
@@ -191,7 +264,9 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
         kin = part.at(rotation, origin)
         eps = _part_eps(part, params, views_seen)
         unseen = shared.get(part.name, _kernels.NO_UNSEEN)
-        tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen)
+        ceiling = None if ceilings is None else lambda: levels(part.name)
+        tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen,
+                           ceiling)
         if tried is not None and tried[2]:
             q[part.dofs] = tried[0]
             return

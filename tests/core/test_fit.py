@@ -68,14 +68,16 @@ def test_single_chunk_histograms_equal_sequential_eq4_update(locust):
     assert result.histograms.counts[0] == 10 + 5
 
 
-def test_over_threshold_images_are_reanalysed_up_to_max_attempts(locust):
+def test_over_threshold_images_are_reanalysed_until_settled_or_max_attempts(locust):
+    """A threshold no fit meets: every image is re-analysed, and stops at max_attempts or
+    at the first attempt that ends in its kept minimum (settled)."""
     model, rig = locust
     dets = detections(model, rig, postures(model, 2, seed=7), noise=0.3)
     params = FitParams(anneal=FAST, error_threshold_px=0.01, max_attempts=3)
     result = fit_sequence(dets, model=model, rig=rig, histograms=Histograms.uniform(model),
                           params=params, seed=2)
     for fit in result.fits:
-        assert fit.attempts == 3
+        assert fit.attempts == 3 or (fit.attempts == 2 and fit.settled)
         assert fit.status is Status.OVER_THRESHOLD
         assert fit.error > 0.01
     # Unchanged histograms: no image was accepted.
@@ -100,10 +102,11 @@ def test_reanalyses_in_other_processes_equal_those_in_this_one(locust):
 
         there = fit_sequence(dets, map_chunks=pool_map, **kwargs)
     assert mapped == [2, 4]  # two chunks, then four images to re-analyse
-    assert [f.attempts for f in there.fits] == [3, 3, 3, 3]
+    assert all(f.attempts >= 2 for f in there.fits)
     for got, want in zip(there.fits, here.fits, strict=True):
         np.testing.assert_array_equal(got.dofs, want.dofs)
         assert got.objective == want.objective and got.sample == want.sample
+        assert got.attempts == want.attempts and got.settled == want.settled
 
 
 def test_reanalysis_keeps_the_best_attempt(locust):
@@ -120,7 +123,7 @@ def test_reanalysis_keeps_the_best_attempt(locust):
                               seed=0)
         errors.append(fit.error)
     assert errors == sorted(errors, reverse=True)
-    assert fit.attempts == 4
+    assert fit.attempts == 4 or (fit.settled and fit.attempts >= 2)  # a settled fit is returned as is
     assert fit.error == pytest.approx(view_error(fit.dofs, det, model=model, rig=rig))
 
 

@@ -309,7 +309,8 @@ def test_a_marker_missing_from_one_view_is_survived_or_flagged(view, marker, out
     0.10°. (Top M3 used to bend the leg 18–41° in 8 of 18 frames, one reported ok: SA
     stopped restarting in that basin; ``core._kernels.fit_attempt`` now restarts on.)
     Bounds: every gap frame within 1° or over_threshold; "accurate": every gap frame
-    within 1°; "flagged": every gap frame over_threshold, error_px > 10 px, 5 attempts;
+    within 1°; "flagged": every gap frame over_threshold, error_px > 10 px, 5 attempts or
+    settled (a re-analysis ended in the kept minimum, ``core.fit.reanalyse_image``);
     frames outside the gap ok and within 0.3°. Missing M1 in the side view: see below.
     """
     rest = np.setdiff1d(np.arange(30), GAP)
@@ -326,7 +327,8 @@ def test_a_marker_missing_from_one_view_is_survived_or_flagged(view, marker, out
             assert err[GAP].max() < 1.0, (seed, err[GAP].round(2))
         else:
             assert all(fits[t].status is Status.OVER_THRESHOLD and fits[t].error > 10.0
-                       and fits[t].attempts == PARAMS.max_attempts for t in GAP), seed
+                       and (fits[t].attempts == PARAMS.max_attempts or fits[t].settled)
+                       for t in GAP), seed
 
 
 def test_a_missing_trochanter_marker_in_the_side_view_is_flagged_when_the_fit_goes_wrong():
@@ -511,8 +513,9 @@ def test_garbage_frames_are_flagged_and_the_frames_around_them_are_not(case):
     range, error_px ≥ 122 (random), ≥ 149 (most missing), 20.0 (view lost: 4 markers ×
     the 5 px empty-view charge; the posture itself is right, from the other view), ≥ 77
     (shifted), ≥ 34.9 (zoomed), ≥ 154 px (swapped); the frames around them ok, within
-    0.10°. Bounds: garbage frames over_threshold, error_px > 15 px, attempts = 5, DOFs
-    finite and in range; the other frames ok and within 0.3°.
+    0.10°. Bounds: garbage frames over_threshold, error_px > 15 px, attempts = 5 or
+    settled (``core.fit.reanalyse_image``), DOFs finite and in range; the other frames ok
+    and within 0.3°.
     """
     model, _ = _example(LOCUST)
     good = np.setdiff1d(np.arange(30), BAD)
@@ -523,7 +526,7 @@ def test_garbage_frames_are_flagged_and_the_frames_around_them_are_not(case):
         for t in BAD:
             fit = result.fits[t]
             assert fit.status is Status.OVER_THRESHOLD and fit.error > 15.0, (seed, t, fit.error)
-            assert fit.attempts == PARAMS.max_attempts
+            assert fit.attempts == PARAMS.max_attempts or fit.settled
             assert np.all((fit.dofs >= model.lower) & (fit.dofs <= model.upper))
         assert all(result.fits[t].status is Status.OK for t in good), seed
         assert err[good].max() < 0.3, seed
