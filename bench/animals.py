@@ -9,9 +9,10 @@ is rendered by ``core.synth`` (5 px markers, ``--ghosts`` ghost blobs per view a
 detected by ``core.detect`` and fitted by ``core.sequence.fit_sequence`` with the settings
 ``mocap fit`` uses by default (marker diameter estimated from the blobs). With
 ``--soft-tissue`` every marker slides by a slowly varying 3D offset whose image displacement
-is 2 px RMS, and the markers the model lacks (one, the rat two) are drawn in every view. Prints, per subject,
-the per-DOF RMSE and the issue's figures next to its targets, and writes every image's
-fit to ``bench/out/animals-<subject>[-<cameras>cams][-soft].csv`` (angles.csv).
+is 2 px RMS, and the markers the model lacks (one; the rat two) are drawn in every view.
+Prints, per subject, the per-DOF RMSE and the issue's figures next to its targets, and
+writes every image's fit to ``bench/out/animals-<subject>[-<cameras>cams][-soft].csv``
+(angles.csv).
 """
 
 from __future__ import annotations

@@ -171,12 +171,45 @@ HIP_HALF_WIDTH = ASIS_WIDTH / 2 - HJC_FROM_ASIS[2]
 BIPED_SIZE = (720, 576)
 
 
+def _pelvis_joint(height: float, ranges: dict[str, tuple[float, float]]) -> str:
+    """A pelvis root ``height`` above the floor with 3 translations and 3 rotations; ``ranges``
+    by DOF name without the ``pelvis_`` prefix (tx, ty, tz, rotation, obliquity, tilt)."""
+    axes = {"tx": "tx", "ty": "ty", "tz": "tz", "rotation": "y", "obliquity": "x", "tilt": "z"}
+    return _joint("pelvis", None, (0, height, 0),
+                  [_dof(axis, f"pelvis_{name}", *ranges[name]) for name, axis in axes.items()])
+
+
+def _leg_joints(side: str, half_width: float, thigh: float, shank: float,
+                ranges: dict[str, tuple[float, float]]) -> list[str]:
+    """A leg's hip (flexion, adduction, rotation), knee and ankle joints on the pelvis, the hip
+    ``half_width`` to the side; ``ranges`` by DOF name without the side, adduction the right
+    leg's (the left mirrors it).
+
+    Local x down the thigh, y forward, z to the right (rest Rz(-90)); a positive rotation
+    about y moves the leg to the left: adduction on the right, abduction on the left. The
+    foot frame: x forward along the foot, y up (rest Rz(90) from the shank).
+    """
+    s = 1.0 if side == "R" else -1.0
+    lo, hi = ranges["hip_adduction"]
+    add = (lo, hi) if side == "R" else (-hi, -lo)
+    return [
+        _joint(f"{side}_hip", "pelvis", (0, 0, s * half_width),
+               [_dof("z", f"{side}_hip_flexion", *ranges["hip_flexion"]),
+                _dof("y", f"{side}_hip_adduction", *add),
+                _dof("x", f"{side}_hip_rotation", *ranges["hip_rotation"])], rest=(0, 0, -90)),
+        _joint(f"{side}_knee", f"{side}_hip", (thigh, 0, 0),
+               [_dof("z", f"{side}_knee_flexion", *ranges["knee_flexion"])]),
+        _joint(f"{side}_ankle", f"{side}_knee", (shank, 0, 0),
+               [_dof("z", f"{side}_ankle_dorsiflexion", *ranges["ankle_dorsiflexion"])],
+               rest=(0, 0, 90)),
+    ]
+
+
 def _pelvis() -> tuple[list[str], list[str]]:
     """The pelvis root (3 translations, 3 rotations) with RASI, LASI, SACR: (joints, markers)."""
-    root = _joint("pelvis", None, (0, THIGH + SHANK + ANKLE_HEIGHT, 0), [
-        _dof("tx", "pelvis_tx", -1200, 1200), _dof("ty", "pelvis_ty", -150, 100),
-        _dof("tz", "pelvis_tz", -400, 400), _dof("y", "pelvis_rotation", -40, 40),
-        _dof("x", "pelvis_obliquity", -20, 20), _dof("z", "pelvis_tilt", -25, 25)])
+    root = _pelvis_joint(THIGH + SHANK + ANKLE_HEIGHT, {
+        "tx": (-1200, 1200), "ty": (-150, 100), "tz": (-400, 400), "rotation": (-40, 40),
+        "obliquity": (-20, 20), "tilt": (-25, 25)})
     asis = (-HJC_FROM_ASIS[0], -HJC_FROM_ASIS[1], ASIS_WIDTH / 2)
     markers = [_marker("RASI", "pelvis", asis), _marker("LASI", "pelvis", (asis[0], asis[1], -asis[2])),
                _marker("SACR", "pelvis", (asis[0] - 160.0, asis[1], 0.0))]
@@ -186,20 +219,9 @@ def _pelvis() -> tuple[list[str], list[str]]:
 def _leg(side: str) -> tuple[list[str], list[str]]:
     """One leg on the pelvis (hip 3 DOFs, knee, ankle) with its 6 markers: (joints, markers)."""
     s = 1.0 if side == "R" else -1.0
-    # Local x down the thigh, y forward, z to the right (rest Rz(-90)); a positive
-    # rotation about y moves the leg to the left: adduction on the right, abduction on the left.
-    add = (-45, 30) if side == "R" else (-30, 45)
-    joints = [
-        _joint(f"{side}_hip", "pelvis", (0, 0, s * HIP_HALF_WIDTH),
-               [_dof("z", f"{side}_hip_flexion", -30, 120),
-                _dof("y", f"{side}_hip_adduction", *add),
-                _dof("x", f"{side}_hip_rotation", -45, 45)], rest=(0, 0, -90)),
-        _joint(f"{side}_knee", f"{side}_hip", (THIGH, 0, 0),
-               [_dof("z", f"{side}_knee_flexion", -140, 5)]),
-        # The foot frame: x forward along the foot, y up (rest Rz(90) from the shank).
-        _joint(f"{side}_ankle", f"{side}_knee", (SHANK, 0, 0),
-               [_dof("z", f"{side}_ankle_dorsiflexion", -50, 20)], rest=(0, 0, 90)),
-    ]
+    joints = _leg_joints(side, HIP_HALF_WIDTH, THIGH, SHANK, {
+        "hip_flexion": (-30, 120), "hip_adduction": (-45, 30), "hip_rotation": (-45, 45),
+        "knee_flexion": (-140, 5), "ankle_dorsiflexion": (-50, 20)})
     markers = [
         _marker(f"{side}THI", f"{side}_hip", (0.65 * THIGH, 0, s * 75)),
         _marker(f"{side}KNE", f"{side}_knee", (0, 0, s * 50)),
@@ -355,10 +377,9 @@ RAT_SIZE = (720, 576)
 def _rat_pelvis() -> tuple[list[str], list[str]]:
     """The pelvis root (3 translations, 3 rotations) with both iliac crests and the tail base:
     (joints, markers)."""
-    root = _joint("pelvis", None, (0, RAT_HIP_HEIGHT, 0), [
-        _dof("tx", "pelvis_tx", -120, 120), _dof("ty", "pelvis_ty", -20, 20),
-        _dof("tz", "pelvis_tz", -40, 40), _dof("y", "pelvis_rotation", -30, 30),
-        _dof("x", "pelvis_obliquity", -20, 20), _dof("z", "pelvis_tilt", -25, 25)])
+    root = _pelvis_joint(RAT_HIP_HEIGHT, {
+        "tx": (-120, 120), "ty": (-20, 20), "tz": (-40, 40), "rotation": (-30, 30),
+        "obliquity": (-20, 20), "tilt": (-25, 25)})
     x, y, z = RAT_CREST
     markers = [_marker("R_crest", "pelvis", (x, y, z)), _marker("L_crest", "pelvis", (x, y, -z)),
                _marker("tail_base", "pelvis", RAT_TAIL_BASE)]
@@ -368,19 +389,11 @@ def _rat_pelvis() -> tuple[list[str], list[str]]:
 def _rat_leg(side: str) -> tuple[list[str], list[str]]:
     """One hindlimb on the pelvis (hip 3 DOFs, knee, ankle) with greater trochanter, knee
     (lateral condyle), ankle (lateral malleolus), 5th metatarsal head and toe tip:
-    (joints, markers). Frames and signs as the biped's legs (:func:`_leg`)."""
+    (joints, markers). Frames and signs as the biped's legs (:func:`_leg_joints`)."""
     s = 1.0 if side == "R" else -1.0
-    add = (-40, 30) if side == "R" else (-30, 40)
-    joints = [
-        _joint(f"{side}_hip", "pelvis", (0, 0, s * RAT_HIP_HALF_WIDTH),
-               [_dof("z", f"{side}_hip_flexion", -40, 110),
-                _dof("y", f"{side}_hip_adduction", *add),
-                _dof("x", f"{side}_hip_rotation", -40, 40)], rest=(0, 0, -90)),
-        _joint(f"{side}_knee", f"{side}_hip", (RAT_FEMUR, 0, 0),
-               [_dof("z", f"{side}_knee_flexion", -150, 0)]),
-        _joint(f"{side}_ankle", f"{side}_knee", (RAT_TIBIA, 0, 0),
-               [_dof("z", f"{side}_ankle_dorsiflexion", -80, 60)], rest=(0, 0, 90)),
-    ]
+    joints = _leg_joints(side, RAT_HIP_HALF_WIDTH, RAT_FEMUR, RAT_TIBIA, {
+        "hip_flexion": (-40, 110), "hip_adduction": (-40, 30), "hip_rotation": (-40, 40),
+        "knee_flexion": (-150, 0), "ankle_dorsiflexion": (-80, 60)})
     markers = [
         _marker(f"{side}_trochanter", f"{side}_hip", (-3, 0, s * 5)),
         _marker(f"{side}_knee", f"{side}_hip", (RAT_FEMUR, 0, s * 4)),
