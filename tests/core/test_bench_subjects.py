@@ -96,9 +96,9 @@ def test_hexapod_camera_subsets_are_views_of_the_six():
 
 
 def test_rat_is_small_in_its_images():
-    """The rat's hindlimb markers lie 10-40 px apart (1.4 px per mm at 600 mm), its two lateral
-    views see the markers of both sides nearly on top of each other, and the two-camera
-    variant keeps the lateral pair."""
+    """Consecutive markers from the rat's knee to its toe lie 10-40 px apart (median; 1.4 px per
+    mm at 600 mm), its two lateral views see both iliac crests nearly on top of each other,
+    and the two-camera variant keeps the lateral pair."""
     subject = load("rat")
     model = subject.model
     assert len(model.dofs) == 16 and len(model.markers) == 13 and len(subject.unmodelled) == 2
