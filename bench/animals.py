@@ -1,6 +1,6 @@
 """Whole-animal accuracy and speed benchmark (issue 13): subjects from published anatomy.
 
-    python bench/animals.py [--subject hexapod|biped|fullbody|stick|locust|all] [--images N]
+    python bench/animals.py [--subject hexapod|biped|fullbody|stick|locust|rat|all] [--images N]
         [--cameras 6|3|2] [--soft-tissue] [--ghosts N] [--seed S] [--jobs 1]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
@@ -9,9 +9,10 @@ is rendered by ``core.synth`` (5 px markers, ``--ghosts`` ghost blobs per view a
 detected by ``core.detect`` and fitted by ``core.sequence.fit_sequence`` with the settings
 ``mocap fit`` uses by default (marker diameter estimated from the blobs). With
 ``--soft-tissue`` every marker slides by a slowly varying 3D offset whose image displacement
-is 2 px RMS, and one marker the model lacks is drawn in every view. Prints, per subject,
-the per-DOF RMSE and the issue's figures next to its targets, and writes every image's
-fit to ``bench/out/animals-<subject>[-<cameras>cams][-soft].csv`` (angles.csv).
+is 2 px RMS, and the markers the model lacks (one; the rat two) are drawn in every view.
+Prints, per subject, the per-DOF RMSE and the issue's figures next to its targets, and
+writes every image's fit to ``bench/out/animals-<subject>[-<cameras>cams][-soft].csv``
+(angles.csv).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.subjects import NAMES, Subject, load
+from bench.subjects import NAMES, Subject, camera_choice, load
 from core.detect import detect, marker_diameter
 from core.error import Detections, fusion_distance
 from core.fit import FitParams, ImageFit, Status
@@ -68,7 +69,7 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
     truth = subject.trajectory(n, rng)
     model, offsets = subject.model, None
     if soft:
-        model = subject.with_unmodelled_marker()
+        model = subject.with_unmodelled_markers()
         offsets = soft_tissue_offsets(subject, truth, rng)
     frames = [
         render_frames(model, subject.rig, truth, rng=r, video=k, frame_size=subject.frame_size,
@@ -85,7 +86,7 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
 
 
 def soft_tissue_offsets(subject: Subject, truth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """(T, V, M + 1, 2) pixel offsets of the skin markers (the unmodelled one last, at 0).
+    """(T, V, M + K, 2) pixel offsets of the skin markers (the K unmodelled ones last, at 0).
 
     Each model marker slides by a 3D offset, a sum of three random-direction sinusoids
     of periods near :data:`SOFT_TISSUE_PERIOD_S`, scaled so that its image displacement
@@ -100,7 +101,7 @@ def soft_tissue_offsets(subject: Subject, truth: np.ndarray, rng: np.random.Gene
         slide += direction * np.sin(2 * np.pi * t / period + rng.uniform(0, 2 * np.pi, (m, 1)))
     positions = subject.model.marker_positions(truth)
     base = subject.rig.project(positions)
-    offsets = np.zeros((*base.shape[:2], m + 1, 2))
+    offsets = np.zeros((*base.shape[:2], m + len(subject.unmodelled), 2))
     for _ in range(2):  # projection is nearly linear in the small offset: rescale once more
         shifted = subject.rig.project(positions + slide) - base
         slide *= SOFT_TISSUE_PX / np.sqrt(np.mean(np.sum(shifted**2, axis=-1)))
@@ -244,7 +245,7 @@ def report(subject: Subject, label: str, data: Rendered, result: SequenceResult,
 
 
 def run(name: str, args: argparse.Namespace) -> None:
-    cameras = args.cameras if name == "hexapod" else None
+    cameras = camera_choice(name, args.cameras)
     subject = load(name, cameras)
     label = (name + (f" ({cameras} cameras)" if cameras else "")
              + (" + soft tissue" if args.soft_tissue else ""))
@@ -263,9 +264,10 @@ def main() -> None:
     parser.add_argument("--subject", choices=(*NAMES, "all"), default="all")
     parser.add_argument("--images", type=int, default=20,
                         help="images per subject (the engine of 2026-11-23 fits ~0.05 hexapod images/s)")
-    parser.add_argument("--cameras", type=int, choices=(6, 3, 2), default=6, help="hexapod cameras")
+    parser.add_argument("--cameras", type=int, choices=(6, 3, 2), default=None,
+                        help="hexapod cameras (default 6) or rat cameras (default 3)")
     parser.add_argument("--soft-tissue", action="store_true",
-                        help="skin markers slide 2 px RMS; one unmodelled marker in every view")
+                        help="skin markers slide 2 px RMS; unmodelled markers in every view")
     parser.add_argument("--ghosts", type=int, default=None,
                         help="ghost blobs per view and image (default 2, or 0 with --soft-tissue: "
                              "the issue's two conditions)")
@@ -279,7 +281,7 @@ def main() -> None:
     names = NAMES if args.subject == "all" else (args.subject,)
     print(f"bench/animals.py: seed {args.seed}, {args.images} images per subject, "
           f"{MARKER_DIAMETER_PX:g} px markers, {args.ghosts} ghost blobs per view"
-          + (f", soft tissue {SOFT_TISSUE_PX:g} px RMS + 1 unmodelled marker" if args.soft_tissue else ""))
+          + (f", soft tissue {SOFT_TISSUE_PX:g} px RMS + unmodelled markers" if args.soft_tissue else ""))
     for name in names:
         run(name, args)
 

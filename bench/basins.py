@@ -1,6 +1,6 @@
 """Why images are off with real markers: a wrong basin, or the minimum itself moved?
 
-    python bench/basins.py --subject stick|locust|biped|fullbody|hexapod [--images N] [--soft-tissue]
+    python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|rat [--images N] [--soft-tissue]
         [--cameras 6|3|2] [--off DEG] [--seed S] [--huber PX]
 
 Renders and fits a subject as ``bench/animals.py`` does (same seed, same images), then
@@ -34,7 +34,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.animals import fit, fit_params, render_and_detect
-from bench.subjects import NAMES, load
+from bench.subjects import NAMES, camera_choice, load
 from core.ambiguity import angle_gaps
 from core.error import view_error, view_offsets
 from core.fit import Status, alternative_tolerance
@@ -51,13 +51,14 @@ def main() -> None:
     parser.add_argument("--subject", choices=NAMES, required=True)
     parser.add_argument("--images", type=int, default=300)
     parser.add_argument("--soft-tissue", action="store_true")
-    parser.add_argument("--cameras", type=int, choices=(6, 3, 2), default=6, help="hexapod cameras")
+    parser.add_argument("--cameras", type=int, choices=(6, 3, 2), default=None,
+                        help="hexapod cameras (default 6) or rat cameras (default 3)")
     parser.add_argument("--off", type=float, default=10.0,
                         help="degrees: list the ok images this far off (5: the noise-free target)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--huber", type=float, default=None, help="px, for the truth's refinement")
     args = parser.parse_args()
-    subject = load(args.subject, args.cameras if args.subject == "hexapod" else None)
+    subject = load(args.subject, camera_choice(args.subject, args.cameras))
     model, rig, rot = subject.model, subject.rig, subject.model.rotational
     data = render_and_detect(subject, args.images, soft=args.soft_tissue,
                              ghosts=0 if args.soft_tissue else 2,

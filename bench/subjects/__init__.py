@@ -6,6 +6,7 @@ or ``core/examples/<name>/``, a frame size, a frame rate, and a movement generat
 - ``hexapod``: a tethered fruit fly, 6 legs × 7 DOFs, walking in a tripod gait;
 - ``biped``: a human lower body walking along a 2.4 m walkway, pelvis moving forward;
 - ``fullbody``: a whole human (spine, head, arms) walking there, swinging its arms;
+- ``rat``: a rat's hindquarters trotting on a treadmill, filmed from both sides and below;
 - ``stick`` and ``locust``: the examples, moved by ``core.synth.natural_movements``.
 
 Sources of the anatomy: ``docs/BENCH_SUBJECTS.md``.
@@ -25,18 +26,21 @@ from core.rig import Rig
 from core.synth import natural_movements
 
 ROOT = Path(__file__).resolve().parents[2]
-NAMES = ("hexapod", "biped", "fullbody", "stick", "locust")
+NAMES = ("hexapod", "biped", "fullbody", "stick", "locust", "rat")
 # Camera subsets of the hexapod's six (a ring at 30, 90, …, 330° azimuth): every other one,
 # and the two side cameras.
 HEXAPOD_CAMERAS = {6: (0, 1, 2, 3, 4, 5), 3: (0, 2, 4), 2: (1, 4)}
+# The rat's three (right, left, below) and its two side cameras.
+RAT_CAMERAS = {3: (0, 1, 2), 2: (0, 1)}
+CAMERAS = {"hexapod": HEXAPOD_CAMERAS, "rat": RAT_CAMERAS}
 
 
 @dataclass(frozen=True)
 class Subject:
     """A benchmark subject.
 
-    unmodelled : (joint, position in its frame) of a marker the model lacks, drawn in
-        every view with soft tissue (a real marker the lab did not model).
+    unmodelled : (joint, position in its frame) of each marker the model lacks, drawn in
+        every view with soft tissue (real markers the lab did not model).
     """
 
     name: str
@@ -45,41 +49,56 @@ class Subject:
     frame_size: tuple[int, int]
     fps: float
     movement: Callable[[Subject, int, np.random.Generator], np.ndarray]
-    unmodelled: tuple[str, tuple[float, float, float]]
+    unmodelled: tuple[tuple[str, tuple[float, float, float]], ...]
 
     def trajectory(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """(n, D) true postures, model-file DOF order (degrees, model units)."""
         return self.movement(self, n, rng)
 
-    def with_unmodelled_marker(self) -> KinematicModel:
-        """The model plus the unmodelled marker (last), for rendering only."""
-        joint, pos = self.unmodelled
-        return replace(self.model, markers=(*self.model.markers, Marker("unmodelled", joint, pos)))
+    def with_unmodelled_markers(self) -> KinematicModel:
+        """The model plus the unmodelled markers (last, in order), for rendering only."""
+        extra = tuple(Marker("unmodelled" + (str(i + 1) if i else ""), joint, pos)
+                      for i, (joint, pos) in enumerate(self.unmodelled))
+        return replace(self.model, markers=(*self.model.markers, *extra))
 
 
 def load(name: str, cameras: int | None = None) -> Subject:
-    """The subject ``name`` (one of :data:`NAMES`); ``cameras`` picks the hexapod's 6, 3 or 2."""
+    """The subject ``name`` (one of :data:`NAMES`); ``cameras`` picks a subset of its views
+    (:data:`CAMERAS`: the hexapod's 6, 3 or 2, the rat's 3 or 2; all by default)."""
     if name not in NAMES:
         raise ValueError(f"subject must be one of {', '.join(NAMES)}, got {name!r}")
     folder = {"stick": EXAMPLES / "stick_insect_front_leg",
               "locust": EXAMPLES / "locust_hind_leg"}.get(name, ROOT / "bench" / "subjects" / name)
     model = KinematicModel.from_xml(folder / "model.xml")
     rig = Rig.from_json(folder / "rig.json")
-    if name == "hexapod":
-        views = HEXAPOD_CAMERAS[cameras or 6]
-        # Each camera keeps its own video file: renumber the chosen ones 0..k-1.
-        rig = Rig(tuple(replace(rig.views[v], video=i) for i, v in enumerate(views)))
-        return Subject(name, model, rig, (640, 480), 100.0, tripod_walk,
-                       ("RM_femur_roll", (0.45, 0.03, 0.0)))
     if cameras is not None:
-        raise ValueError(f"only the hexapod has camera variants, not {name!r}")
+        if cameras not in CAMERAS.get(name, {}):
+            raise ValueError(f"{name!r} has no {cameras}-camera variant")
+        # Each camera keeps its own video file: renumber the chosen ones 0..k-1.
+        rig = Rig(tuple(replace(rig.views[v], video=i) for i, v in enumerate(CAMERAS[name][cameras])))
+    if name == "hexapod":
+        return Subject(name, model, rig, (640, 480), 100.0, tripod_walk,
+                       (("RM_femur_roll", (0.45, 0.03, 0.0)),))
     if name == "biped":
-        return Subject(name, model, rig, (720, 576), 100.0, walkway_gait, ("R_knee", (200.0, 60.0, 0.0)))
+        return Subject(name, model, rig, (720, 576), 100.0, walkway_gait,
+                       (("R_knee", (200.0, 60.0, 0.0)),))
     if name == "fullbody":  # the unmodelled marker: on the back of the right upper arm
         return Subject(name, model, rig, (1280, 720), 100.0, fullbody_gait,
-                       ("R_shoulder", (120.0, -45.0, 30.0)))
+                       (("R_shoulder", (120.0, -45.0, 30.0)),))
+    if name == "rat":  # unmodelled: a lumbar spine marker and one on the right mid-thigh
+        return Subject(name, model, rig, (720, 576), 200.0, treadmill_trot,
+                       (("pelvis", (40.0, 14.0, 0.0)), ("R_hip", (17.5, 0.0, 5.0))))
     unmodelled = ("femur_tibia", (12.0, 1.0, 0.0)) if name == "stick" else ("femur_tibia", (14.0, 1.5, 0.0))
-    return Subject(name, model, rig, (720, 576), 50.0, _natural, unmodelled)
+    return Subject(name, model, rig, (720, 576), 50.0, _natural, (unmodelled,))
+
+
+def camera_choice(name: str, asked: int | None) -> int | None:
+    """The ``cameras`` to :func:`load` subject ``name`` with when a run asks for ``asked``
+    (None: the default): ``asked`` if the subject has that variant, else the hexapod's 6
+    (named in its labels) and every other subject's full rig (None)."""
+    if asked in CAMERAS.get(name, {}):
+        return asked
+    return 6 if name == "hexapod" else None
 
 
 def _natural(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -217,6 +236,55 @@ def fullbody_gait(subject: Subject, n: int, rng: np.random.Generator) -> np.ndar
         cols[f"{side}_shoulder_rotation"] = mirror * (drift(-8, 0) + 3 * forward)
         cols[f"{side}_forearm_pronation"] = mirror * drift(-15, 15)
         cols[f"{side}_wrist_flexion"] = mirror * (drift(-5, 10) + 4 * forward)
+    return _inside(subject.model, _in_model_order(subject.model, cols))
+
+
+# ---- rat: trotting on a treadmill ----------------------------------------------------------------
+
+# Sagittal angles over a stride (% of the cycle from touchdown: degrees) in the model's terms:
+# hip flexion (the femur forward of vertical), knee flexion (positive here, negated into the
+# model) and ankle dorsiflexion (0: foot perpendicular to the tibia). Stance ends at about 60 %.
+# Shapes of rat treadmill kinematics as described in docs/BENCH_SUBJECTS.md §6 (ours, not read
+# from a figure): the hip extends through stance, the knee yields then extends, the ankle
+# dorsiflexes in stance and plantarflexes sharply at push-off.
+_RAT_HIP = ((0, 55), (30, 32), (60, 5), (75, 25), (90, 55), (100, 55))
+_RAT_KNEE = ((0, 60), (15, 78), (50, 50), (62, 55), (75, 100), (85, 105), (95, 70), (100, 60))
+_RAT_ANKLE = ((0, 0), (15, 28), (35, 38), (50, 33), (62, -20), (75, 20), (85, 35), (95, 10), (100, 0))
+_RAT_STRIDE_HZ = (3.0, 4.0)
+
+
+def treadmill_trot(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
+    """A rat trotting on a treadmill: the stride rate drifting within 3-4 Hz, the left hindlimb
+    half a cycle behind the right, each leg's amplitude drifting (×0.85-1.1); the pelvis
+    wandering over the belt (±40 mm along, ±10 across over ~2 s), bobbing ±2.5 mm twice per
+    stride, rolling ±4° and yawing ±3° per stride about a drifting heading (±6°), pitching ±3°
+    twice per stride about a drifting ±4°.
+
+    Returns (n, 16) postures in model order, inside the DOF ranges.
+    """
+    t = np.arange(n) / subject.fps
+    rate = _smooth_noise(rng, t, 1.0, *_RAT_STRIDE_HZ)
+    p = (np.cumsum(rate) / subject.fps + rng.uniform()) % 1.0  # right leg's phase
+
+    def drift(lo: float, hi: float, period_s: float = 2.0) -> np.ndarray:
+        return _smooth_noise(rng, t, period_s, lo, hi)
+
+    swing = 2 * np.pi * p
+    cols = {
+        "pelvis_tx": drift(-40, 40),
+        "pelvis_tz": drift(-10, 10),
+        "pelvis_ty": -5 + 2.5 * np.cos(2 * swing),
+        "pelvis_rotation": drift(-6, 6) + 3 * np.cos(swing),
+        "pelvis_obliquity": 4 * np.cos(swing - 0.3 * np.pi),
+        "pelvis_tilt": drift(-4, 4) + 3 * np.cos(2 * swing),
+    }
+    for side, ps, mirror in (("R", p, 1.0), ("L", (p + 0.5) % 1.0, -1.0)):
+        gain = drift(0.85, 1.1, 1.0)
+        cols[f"{side}_hip_flexion"] = gain * _cycle(_RAT_HIP, ps)
+        cols[f"{side}_knee_flexion"] = -gain * _cycle(_RAT_KNEE, ps)
+        cols[f"{side}_ankle_dorsiflexion"] = gain * _cycle(_RAT_ANKLE, ps)
+        cols[f"{side}_hip_adduction"] = mirror * (drift(-3, 3) + 3 * np.cos(2 * np.pi * (ps - 0.15)))
+        cols[f"{side}_hip_rotation"] = mirror * (drift(-5, 5) + 5 * np.cos(2 * np.pi * (ps - 0.3)))
     return _inside(subject.model, _in_model_order(subject.model, cols))
 
 

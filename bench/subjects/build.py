@@ -2,7 +2,7 @@
 
     python bench/subjects/build.py
 
-Rewrites ``bench/subjects/hexapod/``, ``biped/`` and ``fullbody/``; the files are
+Rewrites ``bench/subjects/hexapod/``, ``biped/``, ``fullbody/`` and ``rat/``; the files are
 committed, this script says how they were made. Sources and every number's origin:
 ``docs/BENCH_SUBJECTS.md``.
 """
@@ -171,12 +171,45 @@ HIP_HALF_WIDTH = ASIS_WIDTH / 2 - HJC_FROM_ASIS[2]
 BIPED_SIZE = (720, 576)
 
 
+def _pelvis_joint(height: float, ranges: dict[str, tuple[float, float]]) -> str:
+    """A pelvis root ``height`` above the floor with 3 translations and 3 rotations; ``ranges``
+    by DOF name without the ``pelvis_`` prefix (tx, ty, tz, rotation, obliquity, tilt)."""
+    axes = {"tx": "tx", "ty": "ty", "tz": "tz", "rotation": "y", "obliquity": "x", "tilt": "z"}
+    return _joint("pelvis", None, (0, height, 0),
+                  [_dof(axis, f"pelvis_{name}", *ranges[name]) for name, axis in axes.items()])
+
+
+def _leg_joints(side: str, half_width: float, thigh: float, shank: float,
+                ranges: dict[str, tuple[float, float]]) -> list[str]:
+    """A leg's hip (flexion, adduction, rotation), knee and ankle joints on the pelvis, the hip
+    ``half_width`` to the side; ``ranges`` by DOF name without the side, adduction the right
+    leg's (the left mirrors it).
+
+    Local x down the thigh, y forward, z to the right (rest Rz(-90)); a positive rotation
+    about y moves the leg to the left: adduction on the right, abduction on the left. The
+    foot frame: x forward along the foot, y up (rest Rz(90) from the shank).
+    """
+    s = 1.0 if side == "R" else -1.0
+    lo, hi = ranges["hip_adduction"]
+    add = (lo, hi) if side == "R" else (-hi, -lo)
+    return [
+        _joint(f"{side}_hip", "pelvis", (0, 0, s * half_width),
+               [_dof("z", f"{side}_hip_flexion", *ranges["hip_flexion"]),
+                _dof("y", f"{side}_hip_adduction", *add),
+                _dof("x", f"{side}_hip_rotation", *ranges["hip_rotation"])], rest=(0, 0, -90)),
+        _joint(f"{side}_knee", f"{side}_hip", (thigh, 0, 0),
+               [_dof("z", f"{side}_knee_flexion", *ranges["knee_flexion"])]),
+        _joint(f"{side}_ankle", f"{side}_knee", (shank, 0, 0),
+               [_dof("z", f"{side}_ankle_dorsiflexion", *ranges["ankle_dorsiflexion"])],
+               rest=(0, 0, 90)),
+    ]
+
+
 def _pelvis() -> tuple[list[str], list[str]]:
     """The pelvis root (3 translations, 3 rotations) with RASI, LASI, SACR: (joints, markers)."""
-    root = _joint("pelvis", None, (0, THIGH + SHANK + ANKLE_HEIGHT, 0), [
-        _dof("tx", "pelvis_tx", -1200, 1200), _dof("ty", "pelvis_ty", -150, 100),
-        _dof("tz", "pelvis_tz", -400, 400), _dof("y", "pelvis_rotation", -40, 40),
-        _dof("x", "pelvis_obliquity", -20, 20), _dof("z", "pelvis_tilt", -25, 25)])
+    root = _pelvis_joint(THIGH + SHANK + ANKLE_HEIGHT, {
+        "tx": (-1200, 1200), "ty": (-150, 100), "tz": (-400, 400), "rotation": (-40, 40),
+        "obliquity": (-20, 20), "tilt": (-25, 25)})
     asis = (-HJC_FROM_ASIS[0], -HJC_FROM_ASIS[1], ASIS_WIDTH / 2)
     markers = [_marker("RASI", "pelvis", asis), _marker("LASI", "pelvis", (asis[0], asis[1], -asis[2])),
                _marker("SACR", "pelvis", (asis[0] - 160.0, asis[1], 0.0))]
@@ -186,20 +219,9 @@ def _pelvis() -> tuple[list[str], list[str]]:
 def _leg(side: str) -> tuple[list[str], list[str]]:
     """One leg on the pelvis (hip 3 DOFs, knee, ankle) with its 6 markers: (joints, markers)."""
     s = 1.0 if side == "R" else -1.0
-    # Local x down the thigh, y forward, z to the right (rest Rz(-90)); a positive
-    # rotation about y moves the leg to the left: adduction on the right, abduction on the left.
-    add = (-45, 30) if side == "R" else (-30, 45)
-    joints = [
-        _joint(f"{side}_hip", "pelvis", (0, 0, s * HIP_HALF_WIDTH),
-               [_dof("z", f"{side}_hip_flexion", -30, 120),
-                _dof("y", f"{side}_hip_adduction", *add),
-                _dof("x", f"{side}_hip_rotation", -45, 45)], rest=(0, 0, -90)),
-        _joint(f"{side}_knee", f"{side}_hip", (THIGH, 0, 0),
-               [_dof("z", f"{side}_knee_flexion", -140, 5)]),
-        # The foot frame: x forward along the foot, y up (rest Rz(90) from the shank).
-        _joint(f"{side}_ankle", f"{side}_knee", (SHANK, 0, 0),
-               [_dof("z", f"{side}_ankle_dorsiflexion", -50, 20)], rest=(0, 0, 90)),
-    ]
+    joints = _leg_joints(side, HIP_HALF_WIDTH, THIGH, SHANK, {
+        "hip_flexion": (-30, 120), "hip_adduction": (-45, 30), "hip_rotation": (-45, 45),
+        "knee_flexion": (-140, 5), "ankle_dorsiflexion": (-50, 20)})
     markers = [
         _marker(f"{side}THI", f"{side}_hip", (0.65 * THIGH, 0, s * 75)),
         _marker(f"{side}KNE", f"{side}_knee", (0, 0, s * 50)),
@@ -337,10 +359,83 @@ def fullbody_rig() -> dict:
                 size=FULLBODY_SIZE, dist=(-0.06, 0.01, 0.0, 0.0, 0.0))
 
 
+# ---- rat: a rat's hindquarters, rodent-lab skin markers ----------------------------------------
+
+# Segment lengths (mm) of a ~300 g rat: the order of magnitude of Johnson et al. 2008 (J Biomech
+# 41:610-619) and Hruska et al. 1979 as the brief gives it (femur ~35, tibia ~40, foot ~30), not
+# read from those papers; the foot split into ankle-to-5th-metatarsal-head and on to the toe tip.
+RAT_FEMUR, RAT_TIBIA, RAT_METATARSUS, RAT_TOE = 35.0, 40.0, 20.0, 12.0
+# Ours: hip joint centres 20 mm apart; iliac crests 20 mm ahead of and 12 mm above the hips,
+# 9 mm to each side; the tail base 15 mm behind and 8 mm above them. Markers sit 3-5 mm lateral
+# of the bone (skin and fur).
+RAT_HIP_HALF_WIDTH = 10.0
+RAT_CREST, RAT_TAIL_BASE = (20.0, 12.0, 9.0), (-15.0, 8.0, 0.0)
+RAT_HIP_HEIGHT = 72.0  # the pelvis origin at zero translation: the stance toes near y = 0
+RAT_SIZE = (720, 576)
+
+
+def _rat_pelvis() -> tuple[list[str], list[str]]:
+    """The pelvis root (3 translations, 3 rotations) with both iliac crests and the tail base:
+    (joints, markers)."""
+    root = _pelvis_joint(RAT_HIP_HEIGHT, {
+        "tx": (-120, 120), "ty": (-20, 20), "tz": (-40, 40), "rotation": (-30, 30),
+        "obliquity": (-20, 20), "tilt": (-25, 25)})
+    x, y, z = RAT_CREST
+    markers = [_marker("R_crest", "pelvis", (x, y, z)), _marker("L_crest", "pelvis", (x, y, -z)),
+               _marker("tail_base", "pelvis", RAT_TAIL_BASE)]
+    return [root], markers
+
+
+def _rat_leg(side: str) -> tuple[list[str], list[str]]:
+    """One hindlimb on the pelvis (hip 3 DOFs, knee, ankle) with greater trochanter, knee
+    (lateral condyle), ankle (lateral malleolus), 5th metatarsal head and toe tip:
+    (joints, markers). Frames and signs as the biped's legs (:func:`_leg_joints`)."""
+    s = 1.0 if side == "R" else -1.0
+    joints = _leg_joints(side, RAT_HIP_HALF_WIDTH, RAT_FEMUR, RAT_TIBIA, {
+        "hip_flexion": (-40, 110), "hip_adduction": (-40, 30), "hip_rotation": (-40, 40),
+        "knee_flexion": (-150, 0), "ankle_dorsiflexion": (-80, 60)})
+    markers = [
+        _marker(f"{side}_trochanter", f"{side}_hip", (-3, 0, s * 5)),
+        _marker(f"{side}_knee", f"{side}_hip", (RAT_FEMUR, 0, s * 4)),
+        _marker(f"{side}_ankle", f"{side}_ankle", (0, 0, s * 3)),
+        _marker(f"{side}_mt5", f"{side}_ankle", (RAT_METATARSUS, -2, s * 4)),
+        _marker(f"{side}_toe", f"{side}_ankle", (RAT_METATARSUS + RAT_TOE, -3, 0)),
+    ]
+    return joints, markers
+
+
+def rat_xml() -> str:
+    """A pelvis with 3 translations and 3 rotations; per leg hip 3, knee 1, ankle 1; 13 markers."""
+    joints, markers = _rat_pelvis()
+    for side in "RL":
+        leg_joints, leg_markers = _rat_leg(side)
+        joints += leg_joints
+        markers += leg_markers
+    comment = """  <!-- A rat's hindquarters (~300 g): pelvis root with 3 translations and 3 rotations, hip
+       3 DOFs, knee 1, ankle 1 (16 DOFs); skin markers as rat gait studies place them: both
+       iliac crests and the tail base, greater trochanter, knee, ankle, 5th metatarsal head,
+       toe tip. Femur 35, tibia 40, foot 32 mm. x forward, y up, z right; mm.
+       Made by bench/subjects/build.py; docs/BENCH_SUBJECTS.md. -->"""
+    return "\n".join(['<model name="rat_hindquarters" units="mm">', comment, *joints, *markers,
+                      "</model>", ""])
+
+
+def rat_rig() -> dict:
+    """Two lateral cameras 600 mm from the treadmill and one below its glass floor looking up
+    from the front-right; 720×576, f = 840 px (1.4 px per mm at 600 mm)."""
+    target, dist = (0.0, 35.0, 0.0), (-0.05, 0.01, 0.0, 0.0, 0.0)
+    rig = ring(["right", "left"], [90, 270], radius=600.0, height=target[1] + 80.0,
+               target=target, f=840.0, size=RAT_SIZE, dist=dist)
+    below = look_at((250.0, -480.0, 200.0), target, f=840.0, size=RAT_SIZE, dist=dist)
+    rig["views"].append({"name": "below", "video": 2, "projection": below})
+    return rig
+
+
 def main() -> None:
     for name, xml, rig in (("hexapod", hexapod_xml(), hexapod_rig()),
                            ("biped", biped_xml(), biped_rig()),
-                           ("fullbody", fullbody_xml(), fullbody_rig())):
+                           ("fullbody", fullbody_xml(), fullbody_rig()),
+                           ("rat", rat_xml(), rat_rig())):
         folder = HERE / name
         folder.mkdir(exist_ok=True)
         (folder / "model.xml").write_text(xml)

@@ -19,13 +19,13 @@ from core.rig import Rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from bench.subjects import HEXAPOD_CAMERAS, NAMES, load
+from bench.subjects import CAMERAS, HEXAPOD_CAMERAS, NAMES, camera_choice, load
 
 SUBJECTS = Path(__file__).resolve().parents[2] / "bench" / "subjects"
 MARGIN_PX = 5.0
 
 
-@pytest.mark.parametrize("name", ["hexapod", "biped", "fullbody"])
+@pytest.mark.parametrize("name", ["hexapod", "biped", "fullbody", "rat"])
 def test_subject_files_load(name):
     model = KinematicModel.from_xml(SUBJECTS / name / "model.xml")
     rig = Rig.from_json(SUBJECTS / name / "rig.json")
@@ -36,6 +36,8 @@ def test_subject_files_load(name):
         assert sum(m.joint == "thorax" for m in model.markers) == 3
     else:  # pelvis with 3 translations and 3 rotations; hip 3 DOFs, knee, ankle
         assert len(rig.views) == (6 if name == "fullbody" else 3)
+        assert sum(d.joint == "R_knee" for d in model.dofs) == 1
+        assert sum(d.joint == "R_ankle" for d in model.dofs) == 1
         pelvis = [d.axis for d in model.dofs if d.joint == "pelvis"]
         assert sorted(pelvis) == ["tx", "ty", "tz", "x", "y", "z"]
         assert sum(d.joint == "R_hip" for d in model.dofs) == 3
@@ -64,11 +66,13 @@ def test_fullbody_tree_splits_twice():
 
 
 @pytest.mark.parametrize(("name", "cameras"),
-                         [("hexapod", c) for c in HEXAPOD_CAMERAS] + [(n, None) for n in NAMES[1:]])
+                         [(n, c) for n in CAMERAS for c in CAMERAS[n]]
+                         + [(n, None) for n in NAMES if n not in CAMERAS])
 def test_movement_projects_inside_every_image(name, cameras):
     subject = load(name, cameras)
     truth = subject.trajectory(150, np.random.default_rng(5))
-    model = subject.with_unmodelled_marker()
+    model = subject.with_unmodelled_markers()
+    assert len(model.markers) == len(subject.model.markers) + len(subject.unmodelled)
     assert truth.shape == (150, len(subject.model.dofs))
     assert np.all(truth >= subject.model.lower) and np.all(truth <= subject.model.upper)
     proj = subject.rig.project(model.marker_positions(truth))  # (T, V, M + 1, 2)
@@ -89,6 +93,32 @@ def test_hexapod_camera_subsets_are_views_of_the_six():
         rig = load("hexapod", cameras).rig
         assert rig.n_videos == cameras
         assert [v.projection for v in rig.views] == [six.views[i].projection for i in views]
+
+
+def test_rat_is_small_in_its_images():
+    """Consecutive markers from the rat's knee to its toe lie 10-40 px apart (median; 1.4 px per
+    mm at 600 mm), its two lateral views see both iliac crests nearly on top of each other,
+    and the two-camera variant keeps the lateral pair."""
+    subject = load("rat")
+    model = subject.model
+    assert len(model.dofs) == 16 and len(model.markers) == 13 and len(subject.unmodelled) == 2
+    assert [m.name for m in model.markers if m.joint == "pelvis"] == ["R_crest", "L_crest", "tail_base"]
+    truth = subject.trajectory(200, np.random.default_rng(1))
+    proj = subject.rig.project(model.marker_positions(truth))  # (T, V, M, 2)
+    names = [m.name for m in model.markers]
+    chain = [names.index(f"R_{m}") for m in ("knee", "ankle", "mt5", "toe")]
+    steps = np.linalg.norm(np.diff(proj[:, 0, chain], axis=1), axis=-1)  # right view, px
+    assert 10.0 < np.median(steps) < 40.0
+    crests = np.linalg.norm(proj[:, :2, 0] - proj[:, :2, 1], axis=-1)  # both lateral views
+    assert np.median(crests) < 10.0  # closer than two 5 px markers
+    two = load("rat", 2).rig
+    assert [v.name for v in two.views] == ["right", "left"] and two.n_videos == 2
+
+
+def test_camera_choice_defaults():
+    assert camera_choice("hexapod", None) == 6 and camera_choice("hexapod", 2) == 2
+    assert camera_choice("rat", None) is None and camera_choice("rat", 2) == 2
+    assert camera_choice("rat", 6) is None and camera_choice("biped", 2) is None
 
 
 def test_load_refuses_unknown_subjects_and_cameras():
