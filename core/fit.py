@@ -492,9 +492,13 @@ def reanalyse_image(
     unsettled: the search goes on, as the paper's re-analysis.
 
     A tree (``model.tree``) is re-analysed part by part given the kept posture
-    (``core.treefit.refit_tree``), settled when every part is: a whole attempt from a drawn
-    start searches every part cold at once, and one part landing in a worse minimum made it
-    worse than the kept posture, whose warm-started parts agreed, in almost every image.
+    (``core.treefit.refit_tree``): a whole attempt from a drawn start searches every part
+    cold at once, and one part landing in a worse minimum made it worse than the kept
+    posture, whose warm-started parts agreed, in almost every image. It is settled when
+    every part is, or when the attempt is not lower than the kept posture: each part was
+    searched again from a drawn start and kept its lower posture, and the whole objective
+    still prefers the kept one, so what the parts found lower was blobs another part
+    explains, which another draw would find again.
     """
     attempt = previous.attempts + 1
     if not needs_reanalysis(previous, model, params, typical):
@@ -508,6 +512,8 @@ def reanalyse_image(
     if not tree:
         settled = (best.objective > previous.objective - params.anneal.eps
                    and not distinct(best.dofs, previous.dofs, model.rotational))
+    else:
+        settled = settled or not best.objective < previous.objective
     if not best.objective < previous.objective:
         best = Candidate(previous.dofs, previous.error, previous.objective)
         alternatives = previous.alternatives

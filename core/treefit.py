@@ -278,8 +278,8 @@ def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spa
     it found its kept minimum or something higher, or blobs another part explains (lower on
     its own objective only, or taken back by the conflict sweeps): more attempts search the
     same way. A part whose kept posture reaches twice its ε skips SA (SA stops there) and is
-    settled. ``settled`` is True when every part is: the paper's re-analysis stops at
-    ``max_attempts``; this stops where no part has anything more to gain.
+    settled. ``settled`` is True when every part is (``core.fit.reanalyse_image`` settles an
+    image whose attempt is not lower than the kept posture as well).
     """
     return _fit_tree(det, model, rig, tree, space, params, stream, True, off, keep[None], None,
                      keep)
