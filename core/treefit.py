@@ -580,7 +580,8 @@ def _whole_objective(q: np.ndarray, det: Detections, model: KinematicModel, rig:
                      params: FitParams, off: np.ndarray) -> float:
     """The objective (pixels) of a whole posture ``q`` (D,) on ``det`` as
     ``_kernels.fit_attempt`` reports it (fusion, a lost marker per view): what
-    :func:`refine_whole` minimises and ``core.fit`` keeps the better attempt by."""
+    :func:`refine_whole` minimises before its refit without the markers that look lost
+    (``_kernels._refit_unseen``, which charges each of those the penalty instead)."""
     image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
                               fuse_px=params.fusion_px)
     return float(_kernels.posture_error(q, model.arrays, rig.arrays,
