@@ -324,3 +324,26 @@ def test_a_tree_reanalysis_part_by_part_never_raises_the_objective_and_settles(s
                     objectives.append(image.objective)
                 assert objectives == sorted(objectives, reverse=True), k
                 assert image.settled and image.attempts < params.max_attempts, k
+
+
+def test_a_tree_attempt_not_lower_than_the_kept_posture_settles_the_image(sliding):
+    """A kept posture with one leg in another minimum, recorded at an objective no attempt
+    reaches: the attempt finds the leg's right minimum (a part that gains) but is not kept,
+    and the image is settled; recorded at its own objective, the same attempt is kept and the
+    image is not settled."""
+    model, rig, truth, images = sliding
+    params = FitParams(error_threshold_px=0.1)
+    kwargs = dict(model=model, rig=rig, histograms=Histograms.uniform(model), params=params, seed=0)
+    fit, _, _, _ = _one(model, rig, images[0])
+    leg = model.tree.branches[1]
+    wrong = fit.copy()
+    wrong[leg.dofs] = (model.lower + model.upper - truth[0])[leg.dofs]
+    error = view_error(wrong, images[0], model=model, rig=rig)
+    counts = tuple(images[0].counts.tolist())
+    own = refine_whole(wrong.copy(), images[0], model, rig, params, np.zeros((3, 2)), steps=0)[2]
+    for recorded, kept in ((0.0, True), (own, False)):
+        stuck = ImageFit(0, wrong, error, recorded, 1, Status.OVER_THRESHOLD, 0, counts)
+        again = reanalyse_image(images[0], stuck, **kwargs)
+        assert again.attempts == 2 and again.settled is kept
+        assert (again.objective == recorded) is kept
+        assert bool(angle_errors(again.dofs, wrong).max() == 0.0) is kept
