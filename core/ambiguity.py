@@ -39,9 +39,10 @@ from core.error import Detections, view_offsets
 from core.model import KinematicModel, _topological_order
 from core.rig import Rig
 
-__all__ = ["MAX_FLIP_REFINES", "Candidate", "FlipGeometry", "angle_gaps", "choose_candidates",
-           "flip_alternatives", "flip_masks", "plain_error"]
+__all__ = ["DISTINCT_DEG", "MAX_FLIP_REFINES", "Candidate", "FlipGeometry", "angle_gaps",
+           "choose_candidates", "distinct", "flip_alternatives", "flip_masks", "plain_error"]
 
+DISTINCT_DEG = 5.0  # a posture differs from another (another minimum) by more than this in some angle
 MAX_ALTERNATIVES = 8
 # Flips refined per image at most. A flip that passes the screen (it images within the
 # tolerance) is refined twice (inverse kinematics, then 50 LM steps), each step costing
@@ -190,6 +191,12 @@ def angle_gaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Absolute differences of two postures, degrees the shorter way round (meaningful for
     rotational DOFs only)."""
     return np.abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+def distinct(a: np.ndarray, b: np.ndarray, rotational: np.ndarray) -> bool:
+    """Whether postures ``a`` and ``b`` (same shape) differ by more than :data:`DISTINCT_DEG`
+    in some angle (``rotational``, bool, marks the angles)."""
+    return bool(angle_gaps(a, b)[rotational].max(initial=0.0) > DISTINCT_DEG)
 
 
 def choose_candidates(candidates: Sequence[Sequence[Candidate]]) -> list[int]:

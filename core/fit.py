@@ -23,6 +23,7 @@ from core.ambiguity import (
     Candidate,
     FlipGeometry,
     angle_gaps,
+    distinct,
     flip_alternatives,
 )
 from core.anneal import AnnealParams, SearchSpace, search_space
@@ -40,6 +41,7 @@ from core.treefit import (
     attempt_kernel,
     fit_tree,
     refine_whole,
+    refit_tree,
     search_floor,
     tree_flip_alternatives,
 )
@@ -242,7 +244,6 @@ class ImageFit:
 
 
 _UINT64 = (1 << 64) - 1
-DISTINCT_DEG = 5.0  # an alternative differs from the fit by more than this in some angle
 
 
 def image_stream(seed: int, sample: int, attempt: int) -> np.ndarray:
@@ -332,7 +333,7 @@ def first_attempt(
     if not any(counts):
         nan = np.full(len(model.dofs), np.nan)
         return ImageFit(sample, nan, math.nan, math.nan, 0, Status.NO_DETECTIONS, 0, counts)
-    best, alternatives, its = _attempt(
+    best, alternatives, its, _ = _attempt(
         det, model, rig, search_space(model, histograms), params, image_stream(seed, sample, 1),
         False, offsets, geometry, warm, ceilings,
     )
@@ -342,8 +343,11 @@ def first_attempt(
 
 
 def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None,
-             ceilings=None):
-    """fit_image, then its alternatives: (best candidate, the others, SA iterations).
+             ceilings=None, keep=None):
+    """fit_image, then its alternatives: (best candidate, the others, SA iterations, settled).
+
+    ``keep`` (D,), a tree's kept posture, makes the attempt a re-analysis part by part
+    (``core.treefit.refit_tree``, whose ``settled`` this returns; False otherwise).
 
     ``warm`` holds warm starts (:func:`fit_image`; the chunk's previous postures,
     ``core.sequence.fit_chunk``): at 50-200 Hz the previous image's posture is usually near
@@ -359,10 +363,16 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     looked for where the residual widens the tolerance, and in every image of a model with
     DOFs no posture determines (``model.identifiability``).
     """
-    dofs, error, objective, its = fit_image(
-        det, model=model, rig=rig, space=space, params=params, stream=stream,
-        draw_start=draw_start, offsets=offsets, warm=warm, ceilings=ceilings,
-    )
+    settled = False
+    if keep is None:
+        dofs, error, objective, its = fit_image(
+            det, model=model, rig=rig, space=space, params=params, stream=stream,
+            draw_start=draw_start, offsets=offsets, warm=warm, ceilings=ceilings,
+        )
+    else:
+        check_views(det, rig)
+        dofs, error, objective, its, settled = refit_tree(
+            det, model, rig, model.tree, space, params, stream, view_offsets(offsets, rig), keep)
     fit = Candidate(dofs, error, objective)
     others = []
     tolerance = alternative_tolerance(params, det, model, error, len(model.dofs))
@@ -391,7 +401,7 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             huber_px=params.anneal.huber_px, offsets=offsets,
         )
         ranked += [witness] if witness is not None else []
-    return ranked[0], tuple(ranked[1:]), its
+    return ranked[0], tuple(ranked[1:]), its, settled
 
 
 def alternative_tolerance(params: FitParams, det: Detections, model: KinematicModel,
@@ -417,10 +427,10 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
                        offsets: np.ndarray | None) -> list[Candidate]:
     """The previous image's posture (``warm[-1]``, of the warm starts (k, D)) refined on this
     image, where it lands in another minimum: within ``tolerance`` of the fit's objective
-    (or better) and more than :data:`DISTINCT_DEG` from the fit and every other alternative
+    (or better) and more than :data:`~core.ambiguity.DISTINCT_DEG` from the fit and every other alternative
     in some rotational DOF.
 
-    Only where the fit left the warm starts' basin (moved more than :data:`DISTINCT_DEG`
+    Only where the fit left the warm starts' basin (moved more than :data:`~core.ambiguity.DISTINCT_DEG`
     from each of them; at 50-200 Hz most images do not, and nothing is refined). For a
     tree (``core.tree``), each part that moved is taken from ``warm[-1]`` on its own, the
     rest of the fit kept: one leg that jumped must not need every other leg to be as it
@@ -429,7 +439,7 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     rot = model.rotational
 
     def moved(dofs: np.ndarray) -> bool:
-        return all(_apart(w[dofs], fit.dofs[dofs], rot[dofs]) for w in warm)
+        return all(distinct(w[dofs], fit.dofs[dofs], rot[dofs]) for w in warm)
 
     every = np.arange(len(model.dofs))
     if not moved(every):
@@ -447,14 +457,9 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     for start in starts:
         q, error, objective = refine_whole(start.copy(), det, model, rig, params, off)
         if objective <= fit.objective + tolerance and all(
-                _apart(q, c.dofs, rot) for c in (fit, *others, *found)):
+                distinct(q, c.dofs, rot) for c in (fit, *others, *found)):
             found.append(Candidate(q, error, objective))
     return sorted(found, key=lambda c: c.objective)[:2]
-
-
-def _apart(a: np.ndarray, b: np.ndarray, rotational: np.ndarray) -> bool:
-    """Whether postures ``a`` and ``b`` differ by more than :data:`DISTINCT_DEG` in some angle."""
-    return bool(angle_gaps(a, b)[rotational].max(initial=0.0) > DISTINCT_DEG)
 
 
 def reanalyse_image(
@@ -477,24 +482,38 @@ def reanalyse_image(
     uses the stream :func:`image_stream` ``(seed, sample, attempts + 1)``.
     The kept attempt brings its alternatives along.
 
-    Where the attempt ends in the kept posture's minimum (within :data:`DISTINCT_DEG` in
+    Where the attempt ends in the kept posture's minimum (within :data:`~core.ambiguity.DISTINCT_DEG` in
     every angle, its objective not lower by ε, SA's stop, or more), the fit is ``settled``
     and :func:`needs_reanalysis` asks for no more: two searches from unrelated starts (the
     first from the histograms' means or the previous image's posture, this one drawn)
     agree, and the image's error is what its markers leave in that minimum (sliding skin
     markers, a marker the model lacks), which more attempts would find again. An attempt
-    that finds a lower minimum, or a posture more than :data:`DISTINCT_DEG` away, leaves it
+    that finds a lower minimum, or a posture more than :data:`~core.ambiguity.DISTINCT_DEG` away, leaves it
     unsettled: the search goes on, as the paper's re-analysis.
+
+    A tree (``model.tree``) is re-analysed part by part given the kept posture
+    (``core.treefit.refit_tree``): a whole attempt from a drawn start searches every part
+    cold at once, and one part landing in a worse minimum made it worse than the kept
+    posture, whose warm-started parts agreed, in almost every image. It is settled when
+    every part is, or when the attempt is not lower than the kept posture: each part was
+    searched again from a drawn start and kept its lower posture, and the whole objective
+    still prefers the kept one, so what the parts found lower was blobs another part
+    explains, which another draw would find again.
     """
     attempt = previous.attempts + 1
     if not needs_reanalysis(previous, model, params, typical):
         return previous
-    best, alternatives, its = _attempt(
+    tree = model.tree is not None
+    best, alternatives, its, settled = _attempt(
         detections, model, rig, search_space(model, histograms), params,
         image_stream(seed, previous.sample, attempt), True, offsets, FlipGeometry.of(model, rig),
+        keep=previous.dofs if tree else None,
     )
-    settled = (best.objective > previous.objective - params.anneal.eps
-               and not _apart(best.dofs, previous.dofs, model.rotational))
+    if not tree:
+        settled = (best.objective > previous.objective - params.anneal.eps
+                   and not distinct(best.dofs, previous.dofs, model.rotational))
+    else:
+        settled = settled or not best.objective < previous.objective
     if not best.objective < previous.objective:
         best = Candidate(previous.dofs, previous.error, previous.objective)
         alternatives = previous.alternatives

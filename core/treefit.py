@@ -49,6 +49,7 @@ from core.ambiguity import (
     MAX_FLIP_REFINES,
     Candidate,
     FlipGeometry,
+    distinct,
     flip_alternatives,
     flip_masks,
 )
@@ -65,7 +66,7 @@ if TYPE_CHECKING:
     from core.fit import FitParams
 
 __all__ = ["attempt_kernel", "epipolar_start", "fit_tree", "part_objective", "refine_whole",
-           "search_floor", "shared_projections", "tree_flip_alternatives", "two_sided_error",
+           "refit_tree", "search_floor", "shared_projections", "tree_flip_alternatives", "two_sided_error",
            "warm_ceilings", "warm_start", "world_frames"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
@@ -245,7 +246,54 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     A branch that SA leaves above its ε tries its triangulated start too
     (:func:`epipolar_start`), kept where it ends lower; with two views, every branch does
     (:func:`_two_view_starts`)."""
-    q = space.mean.copy()
+    return _fit_tree(det, model, rig, tree, space, params, stream, draw_start, off, warm,
+                     ceilings)[:4]
+
+
+def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
+               params: FitParams, stream: np.ndarray, off: np.ndarray, keep: np.ndarray
+               ) -> tuple[np.ndarray, float, float, int, bool]:
+    """A re-analysis attempt on a tree (``core.fit.reanalyse_image``), part by part given the
+    kept posture ``keep`` (D,): (dofs (D,), plain Eq. 5 error, objective, SA iterations,
+    settled), the first four as :func:`fit_tree` returns them.
+
+    Each part, its base where the kept posture (or a part this attempt replaced before it)
+    puts it, is searched by SA from a posture drawn from the histograms, and its kept
+    posture, refined, is its warm start (:func:`warm_start`): the lower part objective
+    (:func:`part_objective`) stays, then the whole posture is refined jointly. A whole
+    attempt from a drawn start searches every part cold at once, and a part that lands in a
+    worse minimum than the kept one throws the other parts' agreement away; here each part
+    is the paper's re-analysis (§3.2: search again from a drawn start, keep the better) with
+    the rest of the animal where the kept posture has it.
+
+    Why it cannot make a fit worse: a part is replaced only where its search ends lower on
+    its own objective, the conflict sweeps and two-view starts judge as :func:`fit_tree`
+    does, and ``core.fit.reanalyse_image`` keeps the attempt only where the whole objective
+    is lower than the kept posture's.
+
+    A part is settled unless its drawn-start search gains (:func:`_gains`: lower on its own
+    objective by its ε or in another minimum, ``core.ambiguity.DISTINCT_DEG``, and lower on
+    the whole objective with the rest of the posture as it is) and the attempt ends with
+    the part in another minimum than the kept one. Searched again from an unrelated start
+    it found its kept minimum or something higher, or blobs another part explains (lower on
+    its own objective only, or taken back by the conflict sweeps): more attempts search the
+    same way. A part whose kept posture reaches twice its ε skips SA (SA stops there) and is
+    settled. ``settled`` is True when every part is (``core.fit.reanalyse_image`` settles an
+    image whose attempt is not lower than the kept posture as well).
+    """
+    return _fit_tree(det, model, rig, tree, space, params, stream, True, off, keep[None], None,
+                     keep)
+
+
+def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
+              params: FitParams, stream: np.ndarray, draw_start: bool, off: np.ndarray,
+              warm: np.ndarray | None, ceilings: Callable[[], Mapping[str, float]] | None,
+              keep: np.ndarray | None = None) -> tuple[np.ndarray, float, float, int, bool]:
+    """:func:`fit_tree`, or :func:`refit_tree` given the kept posture ``keep`` (D,) (then
+    ``warm`` is ``keep[None]``); the last value is :func:`refit_tree`'s settled (False
+    without ``keep``)."""
+    q = space.mean.copy() if keep is None else keep.copy()
+    gained: list[Part] = []  # parts whose drawn-start search ended lower than ``keep``'s
     iterations = 0
     views_seen = int(np.count_nonzero(det.counts))
     shared = {} if warm is None else shared_projections(warm[0], model, rig, tree, params, off)
@@ -274,6 +322,9 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
                                                  params, eps, stream, draw_start, off)
         iterations += its
         value = part_objective(q[part.dofs], kin, points, start, unseen, rig, params, off)
+        if keep is not None and tried is not None and _gains(q, part, value, tried, eps, det, model, rig,
+                                                             params, off):
+            gained.append(part)
         if tried is not None and tried[1] < value:
             q[part.dofs], value = tried[0], tried[1]  # SA ended in a worse minimum than the warm start's
         if value >= eps and part.base >= 0:
@@ -322,7 +373,10 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     # Parts that all came from warm starts arrive at ε on their own projections, refined:
     # the joint steps (each costing D evaluations) only read the blobs parts share as fused.
     steps = JOINT_STEPS if iterations else WARM_JOINT_STEPS
-    return (*refine_whole(q, det, model, rig, params, off, steps), iterations)
+    q, error, objective = refine_whole(q, det, model, rig, params, off, steps)
+    rot = model.rotational
+    settled = keep is not None and not any(distinct(q[p.dofs], keep[p.dofs], rot[p.dofs]) for p in gained)
+    return q, error, objective, iterations, settled
 
 
 def _part_eps(part: Part, params: FitParams, views_seen: int) -> float:
@@ -505,6 +559,35 @@ def _conflicts(q, det, model, rig, tree, off) -> list[int]:
     return [k for k in range(len(tree.branches)) if (claims[k] & shared).any()]
 
 
+def _gains(q: np.ndarray, part: Part, value: float, kept: tuple[np.ndarray, float, bool], eps: float,
+           det: Detections, model: KinematicModel, rig: Rig, params: FitParams, off: np.ndarray) -> bool:
+    """Whether ``part``'s drawn-start search in :func:`refit_tree`, its posture in ``q`` (D,)
+    of part objective ``value``, ended lower than its kept posture ``kept`` (posture, part
+    objective, _ from :func:`warm_start`): on the part's own objective, by its ε or in
+    another minimum (``core.ambiguity.DISTINCT_DEG``), and on the whole objective with the
+    rest of ``q`` as it is. A part lower on its own detections only has taken blobs another
+    part explains (its objective never charges a blob it leaves unexplained)."""
+    if not value < kept[1] or (value > kept[1] - eps and not distinct(
+            q[part.dofs], kept[0], model.rotational[part.dofs])):
+        return False
+    other = q.copy()
+    other[part.dofs] = kept[0]
+    return _whole_objective(q, det, model, rig, params, off) < _whole_objective(
+        other, det, model, rig, params, off)
+
+
+def _whole_objective(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
+                     params: FitParams, off: np.ndarray) -> float:
+    """The objective (pixels) of a whole posture ``q`` (D,) on ``det`` as
+    ``_kernels.fit_attempt`` reports it (fusion, a lost marker per view): what
+    :func:`refine_whole` minimises before its refit without the markers that look lost
+    (``_kernels._refit_unseen``, which charges each of those the penalty instead)."""
+    image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
+                              fuse_px=params.fusion_px)
+    return float(_kernels.posture_error(q, model.arrays, rig.arrays,
+                                        image._replace(lost_px=image.penalty)))
+
+
 def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
                  params: FitParams, off: np.ndarray,
                  steps: int = JOINT_STEPS) -> tuple[np.ndarray, float, float]:
@@ -515,10 +598,9 @@ def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig
     bounds = _kernels.Bounds(model.lower, model.upper)
     image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
                               fuse_px=params.fusion_px)
-    charged = image._replace(lost_px=image.penalty)  # every view may lose a marker
 
     def objective(p: np.ndarray) -> float:
-        return _kernels.posture_error(p, kin, views, charged)
+        return _whole_objective(p, det, model, rig, params, off)
 
     value = objective(q)
     if params.refine and steps > 0:

@@ -30,6 +30,8 @@ from core.sequence import _ceilings, fit_sequence
 from core.treefit import (
     EPS_PROJECTIONS,
     WARM_EPS_FACTOR,
+    refine_whole,
+    refit_tree,
     shared_projections,
     tree_flip_alternatives,
     warm_ceilings,
@@ -72,18 +74,34 @@ def test_a_previous_posture_far_from_this_image_is_not_taken(legs):
     assert angle_errors(fitted, truth[1]).max() < 0.5
 
 
-def test_a_chunks_first_image_and_reanalysis_start_cold(legs):
-    model, rig, _, images = legs
+def test_a_chunks_first_image_starts_cold_and_a_reanalysis_searches_only_parts_above_2_eps(legs):
+    """Each chunk's first image runs SA. A re-analysis (``core.treefit.refit_tree``) takes
+    the kept posture part by part: parts whose kept posture reaches 2 ε run no SA and are
+    settled; a leg in another minimum is searched from a drawn start and found, the other
+    leg left where it was."""
+    model, rig, truth, images = legs
     result = fit_sequence(images, model=model, rig=rig, histograms=Histograms.uniform(model),
                           params=FitParams(), seed=0, chunk_size=6)
     its = [f.iterations for f in result.fits]
     assert its[0] > 0 and its[6] > 0  # each chunk's first image
     assert sum(i == 0 for i in its) >= 8  # most others: warm started
-    forced = ImageFit(3, result.fits[3].dofs, result.fits[3].error, 1e3, 1,
-                      Status.OVER_THRESHOLD, 0, result.fits[3].detections)
-    again = reanalyse_image(images[3], forced, model=model, rig=rig,
-                            histograms=Histograms.uniform(model), params=FitParams(), seed=0)
-    assert again.attempts == 2 and again.iterations > 0
+    kwargs = dict(model=model, rig=rig, histograms=Histograms.uniform(model), params=FitParams(),
+                  seed=0)
+    fit = result.fits[3]
+    forced = ImageFit(3, fit.dofs, fit.error, 1e3, 1, Status.OVER_THRESHOLD, 0, fit.detections)
+    again = reanalyse_image(images[3], forced, **kwargs)
+    assert again.attempts == 2 and again.iterations == 0 and again.settled
+    assert angle_errors(again.dofs, fit.dofs).max() < 0.1
+    leg, other = model.tree.branches[1], model.tree.branches[0]
+    wrong = fit.dofs.copy()
+    wrong[leg.dofs] = (model.lower + model.upper - truth[3])[leg.dofs]
+    assert angle_errors(wrong[leg.dofs], truth[3][leg.dofs]).max() > 10.0
+    error = view_error(wrong, images[3], model=model, rig=rig)
+    stuck = ImageFit(3, wrong, error, error, 1, Status.OVER_THRESHOLD, 0, fit.detections)
+    moved = reanalyse_image(images[3], stuck, **kwargs)
+    assert moved.iterations > 0 and not moved.settled and moved.objective < stuck.objective
+    assert angle_errors(moved.dofs, truth[3]).max() < 0.5
+    assert angle_errors(moved.dofs[other.dofs], fit.dofs[other.dofs]).max() < 0.1
 
 
 def test_two_processes_give_what_one_gives_with_warm_starts(legs):
@@ -266,3 +284,66 @@ def test_a_part_of_the_fit_that_an_alternative_fits_better_is_searched_again(sli
     fitted, _, _, its = _one(model, rig, images[1], warm=wrong.dofs[None], ceilings=ceilings)
     assert its > 0
     assert angle_errors(fitted, truth).max() < 0.1
+
+
+def test_a_tree_reanalysis_part_by_part_never_raises_the_objective_and_settles(sliding):
+    """Under sliding markers (no leg reaches 2 ε): each attempt of ``refit_tree`` from a
+    fit, or from that fit with one leg mirrored into another minimum, ends no higher than
+    the posture it was given; the fit's attempt settles (each leg's drawn-start search
+    ends in its kept minimum or higher), the mirrored leg's does not, and the image it
+    leaves settles at the next attempt."""
+    model, rig, truth, images = sliding
+    params = FitParams(error_threshold_px=0.1)
+    space = search_space(model, Histograms.uniform(model))
+    off = np.zeros((len(rig.views), 2))
+    leg = model.tree.branches[1]
+    for k in range(3):
+        fit, _, _, _ = _one(model, rig, images[k])
+        wrong = fit.copy()
+        wrong[leg.dofs] = (model.lower + model.upper - truth[k])[leg.dofs]
+        for keep, settles in ((fit, True), (wrong, False)):
+            given = refine_whole(keep.copy(), images[k], model, rig, params, off, steps=0)[2]
+            dofs, _, objective, its, settled = refit_tree(
+                images[k], model, rig, model.tree, space, params, image_stream(0, k, 2), off, keep)
+            # each part keeps the lower of its own objective, which leaves the whole one a few
+            # micropixels above at most (reanalyse_image then keeps the posture it had)
+            assert its > 0 and objective <= given + 1e-4, k
+            assert settled is settles, k
+            if not settles:
+                assert angle_errors(dofs, fit).max() < 1.0, k  # the fit's minimum
+                again = refit_tree(images[k], model, rig, model.tree, space, params,
+                                   image_stream(0, k, 3), off, dofs)
+                assert again[4] and again[2] <= objective + 1e-4, k
+                error = view_error(wrong, images[k], model=model, rig=rig)
+                image = ImageFit(k, wrong, error, given, 1, Status.OVER_THRESHOLD, 0,
+                                 tuple(images[k].counts.tolist()))
+                objectives = [image.objective]
+                while needs_reanalysis(image, model, params):
+                    image = reanalyse_image(images[k], image, model=model, rig=rig, params=params,
+                                            histograms=Histograms.uniform(model), seed=0)
+                    objectives.append(image.objective)
+                assert objectives == sorted(objectives, reverse=True), k
+                assert image.settled and image.attempts < params.max_attempts, k
+
+
+def test_a_tree_attempt_not_lower_than_the_kept_posture_settles_the_image(sliding):
+    """A kept posture with one leg in another minimum, recorded at an objective no attempt
+    reaches: the attempt finds the leg's right minimum (a part that gains) but is not kept,
+    and the image is settled; recorded at its own objective, the same attempt is kept and the
+    image is not settled."""
+    model, rig, truth, images = sliding
+    params = FitParams(error_threshold_px=0.1)
+    kwargs = dict(model=model, rig=rig, histograms=Histograms.uniform(model), params=params, seed=0)
+    fit, _, _, _ = _one(model, rig, images[0])
+    leg = model.tree.branches[1]
+    wrong = fit.copy()
+    wrong[leg.dofs] = (model.lower + model.upper - truth[0])[leg.dofs]
+    error = view_error(wrong, images[0], model=model, rig=rig)
+    counts = tuple(images[0].counts.tolist())
+    own = refine_whole(wrong.copy(), images[0], model, rig, params, np.zeros((3, 2)), steps=0)[2]
+    for recorded, kept in ((0.0, True), (own, False)):
+        stuck = ImageFit(0, wrong, error, recorded, 1, Status.OVER_THRESHOLD, 0, counts)
+        again = reanalyse_image(images[0], stuck, **kwargs)
+        assert again.attempts == 2 and again.settled is kept
+        assert (again.objective == recorded) is kept
+        assert bool(angle_errors(again.dofs, wrong).max() == 0.0) is kept
