@@ -358,9 +358,9 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
         for b in conflicted:
             part, saved = branches[b], q.copy()
-            keep = _reaches(q, det, model, rig, [part], off)[0] & ~_claimed(q, det, model, rig, tree, off,
+            free = _reaches(q, det, model, rig, [part], off)[0] & ~_claimed(q, det, model, rig, tree, off,
                                                                              exclude=b)
-            fit_part(part, *_subset(det, keep))
+            fit_part(part, *_subset(det, free))
             new = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
             if new < score:
                 score = new
