@@ -142,11 +142,12 @@ def undetermined_alternative(
             for k in range(WITNESS_DOUBLINGS + 1):
                 step = sign * UNDETERMINED_DEG * 2**k
                 p = np.clip(q + step * profiles[d], model.lower, model.upper)
-                if limit < objective(p) <= limit + _NEAR * tolerance_px or (
-                        structural[d] and objective(p) > limit):
+                value = objective(p)
+                if limit < value <= limit + _NEAR * tolerance_px or (structural[d] and value > limit):
                     p = pinned(p, int(d))
+                    value = objective(p)
                 gap = float(angle_gaps(p, q)[rot].max())
-                if objective(p) > limit or gap < abs(step) * (1 - 1e-9):  # worse, or at a bound
+                if value > limit or gap < abs(step) * (1 - 1e-9):  # worse, or at a bound
                     break
                 if gap >= best_gap:
                     best, best_gap = p, gap
