@@ -23,9 +23,10 @@ def test_refit_unseen_leaves_out_every_lost_marker_of_a_view():
     charged the penalty twice. Leaving out only the view's worst one let the other pull
     the posture towards a visible marker's blob (the occluded whole-animal images of
     docs/BENCH_SUBJECTS.md)."""
+    from scenes import dots_model, pixel_rig
+
     from core import _kernels
     from core.error import Detections, view_offsets
-    from tests.core.scenes import dots_model, pixel_rig
 
     model = dots_model((0.0, 0.0), (12.0, 0.0), (0.0, 12.0), (12.0, 12.0))
     rig = pixel_rig(None)
