@@ -492,9 +492,10 @@ def reanalyse_image(
     unsettled: the search goes on, as the paper's re-analysis.
 
     A tree (``model.tree``) is re-analysed part by part given the kept posture
-    (``core.treefit.refit_tree``): a whole attempt from a drawn start searches every part
-    cold at once, and one part landing in a worse minimum made it worse than the kept
-    posture, whose warm-started parts agreed, in almost every image. It is settled when
+    (``core.treefit.refit_tree``, each part's SA stopping as low as its kept posture): a
+    whole attempt from a drawn start searches every part cold at once, and one part landing
+    in a worse minimum made it worse than the kept posture, whose warm-started parts
+    agreed, in almost every image. It is settled when
     every part is, or when the attempt is not lower than the kept posture: each part was
     searched again from a drawn start and kept its lower posture, and the whole objective
     still prefers the kept one, so what the parts found lower was blobs another part

@@ -210,6 +210,19 @@ def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, un
     return float(_kernels.posture_error(q, kin, rig.arrays, image)) - penalty * np.count_nonzero(unseen)
 
 
+def _search_level(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, rig: Rig,
+                  params: FitParams, off: np.ndarray) -> float:
+    """The objective (pixels) of a part's posture ``q`` (d,) posed by ``kin`` on detections
+    ``points`` grouped at ``start`` as ``_kernels.fit_attempt`` compares it with its stop:
+    every marker projection charged (none left out as :func:`part_objective` leaves out
+    the unseen ones), fusion below ``params.fusion_px``, and every view allowed to lose one
+    marker at the empty-view penalty (the restarts' objective; the first run's, which loses
+    none, is never lower)."""
+    penalty = float(params.empty_view_penalty_px)
+    image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, lost_px=penalty)
+    return float(_kernels.posture_error(q, kin, rig.arrays, image))
+
+
 def _in_seen_views(unseen: np.ndarray, start: np.ndarray) -> np.ndarray:
     """``unseen`` (V, m) bool limited to views with detections (an empty view is charged in
     full whatever it marks)."""
@@ -266,6 +279,15 @@ def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spa
     is the paper's re-analysis (§3.2: search again from a drawn start, keep the better) with
     the rest of the animal where the kept posture has it.
 
+    A part's SA (its restarts too) stops below the kept part's level, the kept posture
+    refined in the objective SA compares with its stop (:func:`_search_level`), or below
+    its ε where that is higher: a drawn-start search that gets as low as the kept part has
+    found its minimum or one as low, and running on to its patience and restarting rarely
+    finds a lower one. Under sliding skin markers no part reaches its ε, so with ε alone
+    every part's search would run to its patience and restart in every re-analysis. Only
+    SA's stop changes: whether the part gains, its triangulated start (where it ends at or
+    above its ε) and settled judge by its ε, as in :func:`fit_tree`.
+
     Why it cannot make a fit worse: a part is replaced only where its search ends lower on
     its own objective, the conflict sweeps and two-view starts judge as :func:`fit_tree`
     does, and ``core.fit.reanalyse_image`` keeps the attempt only where the whole objective
@@ -318,8 +340,10 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
         if tried is not None and tried[2]:
             q[part.dofs] = tried[0]
             return
+        stop = eps if keep is None or tried is None else max(eps, _search_level(tried[0], kin, points, start,
+                                                                                rig, params, off))
         q[part.dofs], _, _, its = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
-                                                 params, eps, stream, draw_start, off)
+                                                 params, stop, stream, draw_start, off)
         iterations += its
         value = part_objective(q[part.dofs], kin, points, start, unseen, rig, params, off)
         if keep is not None and tried is not None and _gains(q, part, value, tried, eps, det, model, rig,

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from tree_subjects import angle_errors, detections, insect, movement, ring_rig
 
+from core import treefit
 from core.ambiguity import Candidate, FlipGeometry
 from core.anneal import search_space
 from core.error import Detections, view_error
@@ -324,6 +325,31 @@ def test_a_tree_reanalysis_part_by_part_never_raises_the_objective_and_settles(s
                     objectives.append(image.objective)
                 assert objectives == sorted(objectives, reverse=True), k
                 assert image.settled and image.attempts < params.max_attempts, k
+
+
+def test_a_tree_reanalysis_stops_each_parts_search_at_its_kept_level(sliding, monkeypatch):
+    """Under sliding markers no leg reaches its ε, so SA with ε as its stop runs every leg
+    to its patience and restarts; a re-analysis of a fit (each leg's minimum) stopping each
+    leg's search where it reaches the kept leg's level (``refit_tree``) runs fewer SA
+    iterations and ends in the same posture, settled. (Images 1 and 2: in image 0 the
+    search run to its patience ends a little lower in the same minimum of leg 1, 0.6
+    degrees away.)"""
+    model, rig, _, images = sliding
+    params = FitParams(error_threshold_px=0.1)
+    space = search_space(model, Histograms.uniform(model))
+    off = np.zeros((len(rig.views), 2))
+    for k in (1, 2):
+        fit, _, _, _ = _one(model, rig, images[k])
+        given = (images[k], model, rig, model.tree, space, params)
+        dofs, _, objective, its, settled = refit_tree(*given, image_stream(0, k, 2), off, fit)
+        with monkeypatch.context() as patch:
+            patch.setattr(treefit, "_search_level", lambda *_: 0.0)  # the stop is ε alone
+            at_eps, _, at_eps_objective, at_eps_its, at_eps_settled = refit_tree(
+                *given, image_stream(0, k, 2), off, fit)
+        assert 0 < its < at_eps_its, k
+        assert settled and at_eps_settled, k
+        assert angle_errors(dofs, at_eps).max() < 0.01 and angle_errors(dofs, fit).max() < 0.01, k
+        assert objective <= at_eps_objective + 1e-4, k
 
 
 def test_a_tree_attempt_not_lower_than_the_kept_posture_settles_the_image(sliding):

@@ -37,8 +37,10 @@ REUSE = ("true: if this lab has an identical model (same XML bytes), answer 200 
 XML = "application/xml"
 
 
-def _public(session: SessionDep, row: Model) -> ModelPublic:
-    return ModelPublic(id=row.id, name=row.name, dofs=KinematicModel.from_xml(row.xml).dof_names,
+def _public(session: SessionDep, row: Model, kinematic: KinematicModel | None = None) -> ModelPublic:
+    """``row`` as answered; ``kinematic`` is its XML parsed, where the caller has it already."""
+    kinematic = kinematic or KinematicModel.from_xml(row.xml)
+    return ModelPublic(id=row.id, name=row.name, dofs=kinematic.dof_names,
                        histogram_versions=crud.histogram_versions(session, row), sha256=row.sha256,
                        metadata=row.meta, created_at=row.created_at)
 
@@ -47,8 +49,9 @@ def _created(session: SessionDep, row: Model, existing: Model | None) -> ModelCr
     archive = None if existing is None else ExistingArchive(
         model_id=existing.id, histogram_versions=crud.histogram_versions(session, existing),
         latest_version=crud.histogram_version(session, existing, None).version)
-    advice = KinematicModel.from_xml(row.xml).identifiability.advice()
-    return ModelCreated(**_public(session, row).model_dump(),
+    kinematic = KinematicModel.from_xml(row.xml)
+    advice = kinematic.identifiability.advice()
+    return ModelCreated(**_public(session, row, kinematic).model_dump(),
                         existing_model_id=None if existing is None else existing.id,
                         existing=archive, reused=row is existing, warnings=[advice] if advice else [])
 
