@@ -1,7 +1,7 @@
 """Whole-animal accuracy and speed benchmark (issue 13): subjects from published anatomy.
 
     python bench/animals.py [--subject hexapod|biped|fullbody|stick|locust|rat|all] [--images N]
-        [--cameras 6|3|2] [--soft-tissue] [--ghosts N] [--seed S] [--jobs 1]
+        [--cameras 6|3|2] [--soft-tissue] [--ghosts N] [--occlusion F] [--seed S] [--jobs 1]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
 is rendered by ``core.synth`` (5 px markers, ``--ghosts`` ghost blobs per view and image:
@@ -10,9 +10,15 @@ detected by ``core.detect`` and fitted by ``core.sequence.fit_sequence`` with th
 ``mocap fit`` uses by default (marker diameter estimated from the blobs). With
 ``--soft-tissue`` every marker slides by a slowly varying 3D offset whose image displacement
 is 2 px RMS, and the markers the model lacks (one; the rat two) are drawn in every view.
+With ``--occlusion F`` every (view, marker) pair, the unmodelled markers included, is hidden
+(not drawn: no blob) in runs of images, as a leg hides a marker from one camera: a two-state
+Markov chain per pair, hidden a fraction F of the images on average, in runs of
+:data:`OCCLUSION_RUN_S` seconds on average (at least 2 images), started from its stationary
+state and drawn from the run's generator after the images' noise generators are spawned, so
+the images differ from those of F = 0 by the hidden blobs only.
 Prints, per subject, the per-DOF RMSE and the issue's figures next to its targets, and
-writes every image's fit to ``bench/out/animals-<subject>[-<cameras>cams][-soft].csv``
-(angles.csv).
+writes every image's fit to
+``bench/out/animals-<subject>[-<cameras>cams][-soft][-occ<percent>].csv`` (angles.csv).
 """
 
 from __future__ import annotations
@@ -44,6 +50,7 @@ OUT = Path(__file__).resolve().parent / "out"
 MARKER_DIAMETER_PX = 5.0
 SOFT_TISSUE_PX = 2.0  # RMS image displacement of the skin markers
 SOFT_TISSUE_PERIOD_S = 1.0  # the offsets vary over about this long
+OCCLUSION_RUN_S = 0.05  # mean length of a marker's hidden run in one view
 
 # Targets of issue 13.
 TARGET_MEDIAN_RMSE = 0.5  # degrees
@@ -61,28 +68,62 @@ class Rendered:
     truth: np.ndarray  # (T, D) degrees, model units
     detections: list[Detections]
     detect_seconds: float
+    hidden: np.ndarray | None = None  # (T, V, M) bool: marker m not drawn in view v (occlusion)
 
 
 def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
-                      rng: np.random.Generator) -> Rendered:
-    """Render ``n`` images of the subject's movement in every camera, then detect them (timed)."""
+                      rng: np.random.Generator, occlusion: float = 0.0) -> Rendered:
+    """Render ``n`` images of the subject's movement in every camera, then detect them (timed).
+
+    ``occlusion``: the fraction of (image, view, marker) hidden (:func:`occlusion_mask`).
+    """
     truth = subject.trajectory(n, rng)
     model, offsets = subject.model, None
     if soft:
         model = subject.with_unmodelled_markers()
         offsets = soft_tissue_offsets(subject, truth, rng)
+    noise = rng.spawn(subject.rig.n_videos)
+    hidden = None
+    if occlusion > 0:
+        mean_run = max(2.0, OCCLUSION_RUN_S * subject.fps)
+        hidden = occlusion_mask((n, len(subject.rig.views), len(model.markers)), occlusion,
+                                mean_run, rng)
     frames = [
         render_frames(model, subject.rig, truth, rng=r, video=k, frame_size=subject.frame_size,
                       marker_diameter_px=MARKER_DIAMETER_PX, ghosts_per_view=ghosts,
-                      marker_offsets_px=offsets)
-        for k, r in enumerate(rng.spawn(subject.rig.n_videos))
+                      drop=hidden, marker_offsets_px=offsets)
+        for k, r in enumerate(noise)
     ]
     detections, seconds = [], 0.0
     for image in zip(*frames, strict=True):
         t0 = time.perf_counter()
         detections.append(detect(list(image), rig=subject.rig))
         seconds += time.perf_counter() - t0
-    return Rendered(truth, detections, seconds)
+    return Rendered(truth, detections, seconds, hidden)
+
+
+def occlusion_mask(shape: tuple[int, int, int], fraction: float, mean_run: float,
+                   rng: np.random.Generator) -> np.ndarray:
+    """(T, V, M) bool, True where marker m is hidden from view v in image t.
+
+    Each (view, marker) pair is an independent two-state Markov chain over the images: a
+    hidden marker reappears with probability ``1 / mean_run`` per image (hidden runs last
+    ``mean_run`` images on average, geometric), a visible one disappears with the
+    probability that makes ``fraction`` the stationary hidden share, and the first image
+    is drawn from that stationary share. Raises ValueError when no chain has both (a
+    fraction above ``mean_run / (mean_run + 1)`` would need runs of visibility shorter
+    than one image).
+    """
+    if not (0.0 <= fraction < 1.0 and mean_run >= 1.0) or fraction / (1.0 - fraction) > mean_run:
+        raise ValueError(f"no hidden fraction {fraction} with hidden runs of {mean_run} images")
+    leave = 1.0 / mean_run
+    enter = fraction * leave / (1.0 - fraction)
+    draws = rng.random(shape)
+    hidden = np.empty(shape, dtype=bool)
+    hidden[0] = draws[0] < fraction
+    for t in range(1, shape[0]):
+        hidden[t] = np.where(hidden[t - 1], draws[t] >= leave, draws[t] < enter)
+    return hidden
 
 
 def soft_tissue_offsets(subject: Subject, truth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -250,13 +291,26 @@ def run(name: str, args: argparse.Namespace) -> None:
     label = (name + (f" ({cameras} cameras)" if cameras else "")
              + (" + soft tissue" if args.soft_tissue else ""))
     rng = np.random.default_rng(args.seed)
-    data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts, rng=rng)
+    data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts,
+                             rng=rng, occlusion=args.occlusion)
+    if data.hidden is not None:
+        h = data.hidden
+        print(f"\n{label}: hidden {int(h.sum())} of {h.size} marker projections "
+              f"({100 * h.mean():.1f} %); images with a marker hidden in some view: "
+              f"{int(h.any(axis=(1, 2)).sum())} of {len(h)}; mean hidden run "
+              f"{h.sum() / max(1, _run_starts(h)):.1f} images")
     result, timing = fit(subject, data, seed=args.seed, jobs=args.jobs)
-    tag = name + (f"-{cameras}cams" if cameras else "") + ("-soft" if args.soft_tissue else "")
+    tag = (name + (f"-{cameras}cams" if cameras else "") + ("-soft" if args.soft_tissue else "")
+           + (f"-occ{round(100 * args.occlusion)}" if args.occlusion else ""))
     OUT.mkdir(parents=True, exist_ok=True)
     csv_path = OUT / f"animals-{tag}.csv"
     write_angles_csv(csv_path, subject.model, result.fits, SampleClock(subject.fps))
     report(subject, label, data, result, timing, csv_path, soft=args.soft_tissue)
+
+
+def _run_starts(hidden: np.ndarray) -> int:
+    """The number of hidden runs in a (T, V, M) mask (a run cut by the clip's start counts)."""
+    return int(hidden[0].sum() + (hidden[1:] & ~hidden[:-1]).sum())
 
 
 def main() -> None:
@@ -271,17 +325,21 @@ def main() -> None:
     parser.add_argument("--ghosts", type=int, default=None,
                         help="ghost blobs per view and image (default 2, or 0 with --soft-tissue: "
                              "the issue's two conditions)")
+    parser.add_argument("--occlusion", type=float, default=0.0, metavar="F",
+                        help="fraction of marker projections hidden, in runs of "
+                             f"{OCCLUSION_RUN_S:g} s per view and marker (default 0)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=1, help="processes fitting chunks")
     args = parser.parse_args()
     if args.ghosts is None:
         args.ghosts = 0 if args.soft_tissue else 2
-    if args.images < 1 or args.jobs < 1 or args.ghosts < 0:
-        parser.error("--images and --jobs must be >= 1, --ghosts >= 0")
+    if args.images < 1 or args.jobs < 1 or args.ghosts < 0 or not 0 <= args.occlusion <= 0.5:
+        parser.error("--images and --jobs must be >= 1, --ghosts >= 0, --occlusion in [0, 0.5]")
     names = NAMES if args.subject == "all" else (args.subject,)
     print(f"bench/animals.py: seed {args.seed}, {args.images} images per subject, "
           f"{MARKER_DIAMETER_PX:g} px markers, {args.ghosts} ghost blobs per view"
-          + (f", soft tissue {SOFT_TISSUE_PX:g} px RMS + unmodelled markers" if args.soft_tissue else ""))
+          + (f", soft tissue {SOFT_TISSUE_PX:g} px RMS + unmodelled markers" if args.soft_tissue else "")
+          + (f", {100 * args.occlusion:g} % of marker projections hidden" if args.occlusion else ""))
     for name in names:
         run(name, args)
 

@@ -1,7 +1,7 @@
 """Why images are off with real markers: a wrong basin, or the minimum itself moved?
 
     python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|rat [--images N] [--soft-tissue]
-        [--cameras 6|3|2] [--off DEG] [--seed S] [--huber PX]
+        [--cameras 6|3|2] [--occlusion F] [--off DEG] [--seed S] [--huber PX]
 
 Renders and fits a subject as ``bench/animals.py`` does (same seed, same images), then
 refines the *true* posture on every image (``core.treefit.refine_whole``, as a fit's last
@@ -53,6 +53,8 @@ def main() -> None:
     parser.add_argument("--soft-tissue", action="store_true")
     parser.add_argument("--cameras", type=int, choices=(6, 3, 2), default=None,
                         help="hexapod cameras (default 6) or rat cameras (default 3)")
+    parser.add_argument("--occlusion", type=float, default=0.0, metavar="F",
+                        help="fraction of marker projections hidden, as bench/animals.py")
     parser.add_argument("--off", type=float, default=10.0,
                         help="degrees: list the ok images this far off (5: the noise-free target)")
     parser.add_argument("--seed", type=int, default=0)
@@ -62,7 +64,7 @@ def main() -> None:
     model, rig, rot = subject.model, subject.rig, subject.model.rotational
     data = render_and_detect(subject, args.images, soft=args.soft_tissue,
                              ghosts=0 if args.soft_tissue else 2,
-                             rng=np.random.default_rng(args.seed))
+                             rng=np.random.default_rng(args.seed), occlusion=args.occlusion)
     result, _ = fit(subject, data, seed=args.seed, jobs=1)
     params = fit_params(data)[0]
     truth_params = params if args.huber is None else replace(

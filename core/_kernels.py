@@ -1006,7 +1006,7 @@ def _polish(q, e_q, bounds, kin, views, image, huber_c, out) -> float:
     """
     unseen = image.unseen
     if image.lost_px > 0.0:
-        mask, lost = _lost_markers(q, kin, views, image, image.lost_px)
+        mask, lost = _lost_markers(q, kin, views, image, image.lost_px, False)
         if lost:
             unseen = mask
     polished = refine(q, bounds, kin, views, _with(image, image.fuse_px, image.lost_px, unseen),
@@ -1176,9 +1176,10 @@ def draw_posture(lower, upper, hist, state, out) -> None:
 
 
 @njit(cache=True, nogil=True)
-def _lost_markers(q, kin, views, image, beyond):
+def _lost_markers(q, kin, views, image, beyond, every):
     """In every view of ``image``, the worst-matched marker if it is farther than ``beyond`` px
-    from its detection (what losing it costs): (V, M) mask, and whether any was found."""
+    from its detection (what losing it costs), or with ``every`` each marker that far:
+    (V, M) mask, and whether any was found."""
     det, start, penalty, fuse_px = image.det, image.start, image.penalty, image.fuse_px
     V, M = views.kind.shape[0], kin.marker_joint.shape[0]
     work = workspace(kin, views, q.shape[0], det.shape[0])
@@ -1195,8 +1196,9 @@ def _lost_markers(q, kin, views, image, beyond):
         _match_view(fused if merged else raw, v, det, a, b, index, dist, seen, penalty)
         worst = np.argmax(dist)
         if dist[worst] > beyond:
-            unseen[v, worst] = True
             lost = True
+            for m in range(M):
+                unseen[v, m] = m == worst or (every and dist[m] > beyond)
     return unseen, lost
 
 
@@ -1205,14 +1207,16 @@ def _refit_unseen(q, objective, bounds, kin, views, image, huber_c):
     """Refit ``q`` (in place) without the markers that look lost; return the objective kept.
 
     A marker the camera lost (occluded) is charged its distance to some other
-    blob, and the fit leans towards it. After an attempt, in every view the worst
-    matched marker farther than ``image.penalty`` (:func:`_lost_markers`) is taken as
-    not seen: the posture is refined without those markers, and kept if its
+    blob, and the fit leans towards it. After an attempt, in every view every
+    marker farther than ``image.penalty`` from its detection (:func:`_lost_markers`) is
+    taken as not seen: the posture is refined without those markers, and kept if its
     objective, with them charged ``penalty`` (and ``image.lost_px``, ``image.unseen`` not
-    read), is lower than ``objective``.
+    read), is lower than ``objective``. Every one, not only each view's worst: a limb
+    can hide several markers from one camera, and each one left in pulls the refit
+    onto another blob (docs/BENCH_SUBJECTS.md, occlusion).
     Images whose markers are all within ``penalty`` are left as they are.
     """
-    unseen, lost = _lost_markers(q, kin, views, image, image.penalty)
+    unseen, lost = _lost_markers(q, kin, views, image, image.penalty, True)
     if not lost:
         return objective
     masked = _with(image, image.fuse_px, 0.0, unseen)
@@ -1239,7 +1243,7 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state):
     ``penalty`` or more, a whole lost marker's charge: there, SA is likely in a basin
     that puts a hidden marker on another blob while the true posture scores the
     penalty alone (docs/ENGINE_NOTES.md: a hidden tarsus marker). Each run's result is refit
-    without a marker that looks lost (:func:`_refit_unseen`). Restarts search an
+    without the markers that look lost (:func:`_refit_unseen`). Restarts search an
     objective that lets every view lose one marker (charged ``penalty``): an
     image that stays above ``eps`` is where a marker may be occluded, and its
     distance to some other blob would otherwise lead the search astray; runs

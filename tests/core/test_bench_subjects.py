@@ -126,3 +126,19 @@ def test_load_refuses_unknown_subjects_and_cameras():
         load("spider")
     with pytest.raises(ValueError, match="camera"):
         load("biped", 3)
+
+
+def test_occlusion_hides_the_asked_share_in_runs():
+    """bench/animals.py's occlusion: the stationary hidden share and mean run length asked,
+    reproducible from the generator; impossible pairs refused."""
+    from bench.animals import _run_starts, occlusion_mask
+
+    hidden = occlusion_mask((4000, 3, 10), 0.2, 5.0, np.random.default_rng(3))
+    assert hidden.dtype == bool and hidden.shape == (4000, 3, 10)
+    assert abs(hidden.mean() - 0.2) < 0.01
+    assert abs(hidden.sum() / _run_starts(hidden) - 5.0) < 0.2
+    again = occlusion_mask((4000, 3, 10), 0.2, 5.0, np.random.default_rng(3))
+    assert np.array_equal(hidden, again)
+    assert not occlusion_mask((50, 2, 4), 0.0, 2.0, np.random.default_rng(0)).any()
+    with pytest.raises(ValueError, match="no hidden fraction"):
+        occlusion_mask((10, 1, 1), 0.8, 2.0, np.random.default_rng(0))
