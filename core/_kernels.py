@@ -890,22 +890,18 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     length (robust to fused or missing markers, as Eq. 5 is); ``image.lost_px`` is not
     read, markers ``image.unseen`` marks count nothing. Target mode (``targets`` (M, 3)):
     inverse kinematics onto world marker positions (``image`` not read).
-    Jacobian by forward differences of :data:`FD_STEP`. A DOF whose range is one value
-    (``lower == upper``) is held there: it gets no Jacobian column (no residual
-    evaluation), so a caller refines a subset of the DOFs at the cost of that subset
-    (``core.treefit.refine_whole``). Stops after
+    Jacobian by forward differences of :data:`FD_STEP`. Stops after
     ``max_iter`` steps, or when a step moves less than 1e-6 (degrees, model
     units) or gains less than 1e-10 of the cost. Returns the refined posture.
     """
     M, D = kin.marker_joint.shape[0], q0.shape[0]
     G, C = (M, 3) if targets.shape[0] > 0 else (views.kind.shape[0] * M, 2)
     lower, upper, h_fd = bounds.lower, bounds.upper, FD_STEP
-    free = np.nonzero(lower < upper)[0]
     q, trial = q0.copy(), q0.copy()
     work = workspace(kin, views, D, image.det.shape[0])
     res, res2 = np.empty((G, C)), np.empty((G, C))
     valid = np.empty(G, dtype=np.bool_)
-    jac = np.zeros((G, C, D))
+    jac = np.empty((G, C, D))
     A, H, L = np.empty((D, D)), np.empty((D, D)), np.empty((D, D))
     g, delta = np.empty(D), np.empty(D)
     _residuals(q, kin, views, image, targets, work, res, valid)
@@ -913,7 +909,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     lam = 1e-3
     step, gain = np.inf, np.inf
     for _ in range(max_iter):
-        for i in free:
+        for i in range(D):
             _copy(trial, q)
             trial[i] += h_fd
             _residuals(trial, kin, views, image, targets, work, res2, valid)
@@ -928,9 +924,9 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
             e = _norm(res, k)
             w = 1.0 if e <= huber_c else huber_c / e
             for a in range(C):
-                for i in free:
+                for i in range(D):
                     g[i] -= w * jac[k, a, i] * res[k, a]
-                    for j in free:
+                    for j in range(D):
                         A[i, j] += w * jac[k, a, i] * jac[k, a, j]
         improved = False
         while lam < 1e8:

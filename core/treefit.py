@@ -58,7 +58,7 @@ from core.epipolar_start import branch_start
 from core.error import Detections, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
-from core.tree import Part, Tree, _dof_joints, _subtrees, reach_points
+from core.tree import Part, Tree, _subtrees, reach_points
 from core.triangulate import Candidates, triangulate
 
 if TYPE_CHECKING:
@@ -615,10 +615,9 @@ def _whole_objective(q: np.ndarray, det: Detections, model: KinematicModel, rig:
 def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
                  params: FitParams, off: np.ndarray,
                  steps: int = JOINT_STEPS) -> tuple[np.ndarray, float, float]:
-    """Joint refinement of a whole posture ``q`` (changed in place) by ``steps`` LM steps, then
-    its refit without the markers that look lost in the DOFs that move them
-    (:func:`_refit_bounds`): (posture, plain Eq. 5 error, objective), the objective as
-    ``_kernels.fit_attempt`` reports it (fusion, a lost marker per view)."""
+    """Joint refinement of a whole posture ``q`` (changed in place) by ``steps`` LM steps:
+    (posture, plain Eq. 5 error, objective), the objective as ``_kernels.fit_attempt``
+    reports it (fusion, a lost marker per view)."""
     a, kin, views = params.anneal, model.arrays, rig.arrays
     bounds = _kernels.Bounds(model.lower, model.upper)
     image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
@@ -634,31 +633,9 @@ def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig
         if (e := objective(polished)) <= value:
             q, value = polished, e
     if params.refine:
-        value = _kernels._refit_unseen(q, value, _refit_bounds(q, model, rig, image), kin, views, image,
-                                       float(a.huber_px))
+        value = _kernels._refit_unseen(q, value, bounds, kin, views, image, float(a.huber_px))
     error = _kernels.posture_error(q, kin, views, image._replace(fuse_px=0.0))
     return q, float(error), float(value)
-
-
-def _refit_bounds(q: np.ndarray, model: KinematicModel, rig: Rig, image: _kernels.Image) -> _kernels.Bounds:
-    """The DOF bounds of the refit without the markers that look lost
-    (``_kernels._refit_unseen``; ``_kernels._lost_markers``: in a view, the worst-matched
-    marker where it is farther than the empty-view penalty): the model's, but every DOF that
-    moves none of those markers (not of their joint or a joint above it) held at ``q`` (D,)
-    (a range of one value, which ``_kernels.refine`` leaves out of its steps).
-
-    Why: leaving markers out changes the objective's gradient in the DOFs that move them
-    alone; the others arrive refined on every marker (the joint LM steps before), and each
-    DOF costs the refit a residual evaluation per LM step, up to 50 steps where sliding skin
-    markers keep it creeping. A whole body's lost wrist marker (LWRA) frees 14 of its 34
-    DOFs: the pelvis's, the lumbar joint's, and the arm's down to the forearm.
-    """
-    unseen, lost = _kernels._lost_markers(q, model.arrays, rig.arrays, image, image.penalty)
-    if not lost:
-        return _kernels.Bounds(model.lower, model.upper)
-    moves = _subtrees(model.arrays.parent)[_dof_joints(model)][:, model.arrays.marker_joint]  # (D, M)
-    free = moves[:, unseen.any(axis=0)].any(axis=1)
-    return _kernels.Bounds(np.where(free, model.lower, q), np.where(free, model.upper, q))
 
 
 def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: KinematicModel,

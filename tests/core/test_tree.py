@@ -12,7 +12,6 @@ import pytest
 from tree_subjects import FREE_ROOT, angle_errors, detections, insect, movement, ring_rig, vertebrate
 
 from core import _kernels
-from core.error import Detections
 from core.examples import EXAMPLES
 from core.fit import FitParams
 from core.histogram import Histograms
@@ -20,7 +19,7 @@ from core.model import KinematicModel
 from core.rig import Rig
 from core.sequence import fit_sequence
 from core.tree import _dof_joints, _subtrees
-from core.treefit import refine_whole, search_floor, two_sided_error, world_frames
+from core.treefit import search_floor, two_sided_error
 
 BENCH = Path(__file__).resolve().parents[2] / "bench" / "subjects"
 
@@ -227,48 +226,3 @@ def _onto(model, rig, q, thief, victim) -> np.ndarray:
         if cost < best_cost:
             best, best_cost = trial[thief.dofs], cost
     return best
-
-
-# ---- the joint refinement's refit without lost markers ----------------------------------------
-
-
-def test_a_dof_whose_range_is_one_value_is_held_and_the_others_step_as_on_their_own():
-    """``_kernels.refine`` with every DOF but one leg's held (range of one value) moves that
-    leg as refining the leg alone, at its base, does: the held DOFs (here the thorax's,
-    which move the leg's markers too) take no part in the step, not merely clamped after."""
-    model, rig = insect(legs=2, root_dofs=FREE_ROOT), ring_rig(3)
-    truth = movement(model, 1, seed=2)[0]
-    det = detections(model, rig, truth)[0]
-    leg = model.tree.branches[1]
-    start = truth.copy()
-    start[leg.dofs] = np.clip(start[leg.dofs] + 3.0, model.lower[leg.dofs], model.upper[leg.dofs])
-    start[model.tree.trunk.dofs] += 0.5
-    free = np.zeros(len(truth), dtype=bool)
-    free[leg.dofs] = True
-    held = _kernels.Bounds(np.where(free, model.lower, start), np.where(free, model.upper, start))
-    image = _kernels.Image.of(det.kernel_points, det.start, np.zeros((3, 2)), penalty=5.0, fuse_px=0.0)
-    whole = _kernels.refine(start, held, model.arrays, rig.arrays, image, 1.0, 1, _kernels.NO_TARGETS)
-    rot, pos = world_frames(start, model)
-    own = _kernels.Bounds(model.lower[leg.dofs], model.upper[leg.dofs])
-    alone = _kernels.refine(start[leg.dofs].copy(), own, leg.at(rot[leg.base], pos[leg.base]), rig.arrays,
-                            image, 1.0, 1, _kernels.NO_TARGETS)
-    assert np.array_equal(whole[~free], start[~free])
-    assert np.abs(whole[leg.dofs] - start[leg.dofs]).max() > 0.1
-    np.testing.assert_allclose(whole[leg.dofs], alone, atol=1e-5)
-
-
-def test_the_refit_without_a_lost_marker_moves_only_the_dofs_that_move_it():
-    """A leg's claw hidden in one view: its nearest blob is another marker's, pixels away, so
-    the joint refinement refits without it (``_kernels._refit_unseen``) in the DOFs that
-    move the claw, its leg's and the thorax's; the other leg stays where it arrived."""
-    model, rig = insect(legs=2, root_dofs=FREE_ROOT), ring_rig(3)
-    truth = movement(model, 1, seed=2)[0]
-    leg, other = model.tree.branches[1], model.tree.branches[0]
-    proj = rig.project(model.marker_positions(truth))
-    views = [np.delete(p, leg.markers[-1], axis=0) if v == 0 else p for v, p in enumerate(proj)]
-    start = truth + 0.3
-    q, _, _ = refine_whole(start.copy(), Detections.from_views(views), model, rig, FitParams(),
-                           np.zeros((3, 2)), steps=0)
-    assert np.array_equal(q[other.dofs], start[other.dofs])
-    assert np.abs(q[leg.dofs] - start[leg.dofs]).max() > 0.1
-    assert np.abs(q[model.tree.trunk.dofs] - start[model.tree.trunk.dofs]).max() > 0.01
