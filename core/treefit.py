@@ -24,8 +24,9 @@ refitting without the shared blob raises the error, and the first posture stays.
 Within a chunk, each part first tries the previous image's posture (:func:`warm_start`):
 refined on the part's detections, it replaces the part's SA where it reaches twice the
 part's ε or, under sliding skin markers, the part's level in the previous image plus what
-its residual cannot tell apart (:func:`warm_ceilings`), and when every part came from a
-warm start the joint refinement takes
+its residual cannot tell apart (:func:`warm_ceilings`), or on its other projections with
+those of markers that look hidden left out (:func:`_without_lost`); when every part came
+from a warm start the joint refinement takes
 :data:`WARM_JOINT_STEPS` steps: at 50-200 Hz most parts of most images skip SA (figures in
 docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
 (:func:`tree_flip_alternatives`). A branch that SA leaves above its ε (with two or more
@@ -76,6 +77,7 @@ JOINT_STEPS = 10  # LM steps of the joint refinement: the parts arrive refined
 WARM_STEPS = 10  # LM steps refining the previous image's posture of a part (a warm start)
 WARM_JOINT_STEPS = 2  # joint refinement of parts that all came from warm starts
 WARM_EPS_FACTOR = 2.0  # a warm start stands in for SA within this many times the part's ε
+MAX_LOST_SHARE = 0.25  # of a part's projections, at most this share may look hidden in a warm start
 
 
 def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
@@ -101,9 +103,10 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     """The warm starts ``warm`` (k, D), each one's posture of the DOFs ``dofs`` (a part posed
     by ``kin``) refined on detections ``points`` (N, 3) grouped at ``start`` (V + 1,) by
     :data:`WARM_STEPS` LM steps: (posture (d,), objective in pixels, whether it stands in
-    for SA) of the first that reaches :data:`WARM_EPS_FACTOR` times ``eps`` (SA's stop),
-    else of the lowest objective, which stands in for SA where it is below ``ceiling()``
-    (pixels per compared projection, :func:`warm_ceilings`: the part's level in the
+    for SA) of the first that reaches :data:`WARM_EPS_FACTOR` times ``eps`` (SA's stop), or
+    does on its other projections once those that look hidden are left out
+    (:func:`_without_lost`), else of the lowest objective, which stands in for SA where it
+    is below ``ceiling()`` (pixels per compared projection, :func:`warm_ceilings`: the part's level in the
     previous image plus what a residual at that level cannot tell apart; asked for only
     there); None without ``warm``.
 
@@ -154,12 +157,51 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
         if value < WARM_EPS_FACTOR * eps:
             return q, value, True
+        if params.refine and (seen := _without_lost(q, row[dofs], dofs, kin, points, start, model, rig,
+                                                    params, eps, off, unseen)) is not None:
+            return seen, part_objective(seen, kin, points, start, unseen, rig, params, off), True
         if best is None or value < best[1]:
             best = (q, value, False)
     if best is not None and ceiling is not None:
         limit = ceiling() * _compared(unseen, start, len(kin.marker_joint))
         best = (best[0], best[1], bool(best[1] < limit))
     return best
+
+
+def _without_lost(q: np.ndarray, row: np.ndarray, dofs: np.ndarray, kin, points: np.ndarray,
+                  start: np.ndarray, model: KinematicModel, rig: Rig, params: FitParams, eps: float,
+                  off: np.ndarray, unseen: np.ndarray) -> np.ndarray | None:
+    """A part's warm start ``row`` (d,) of the DOFs ``dofs`` refined without its projections
+    that look hidden, where that reaches :data:`WARM_EPS_FACTOR` times ``eps`` (already
+    shrunk for ``unseen``) shrunk in proportion again, else None. Hidden: farther than the
+    empty-view penalty from every blob at ``q`` (d,), the warm start refined with them
+    (``_kernels._lost_markers``); at most :data:`MAX_LOST_SHARE` of the part's compared
+    projections, else None.
+
+    Why: a marker hidden from one camera (a leg in front of it) is charged its distance to
+    some other blob and keeps the part above 2 ε however right the warm start is, so with
+    occluded markers almost every part ran SA in every image. Why it is safe: the
+    projections left must still be explained at 0.5 px each (2 ε), which a posture in
+    another basin is not in the views that see its markers, and a posture that only moves
+    the hidden marker (a flip about the axis of the segment before it) is still offered as
+    an alternative (``core.fit``). Where a marker merely slid (skin), it is within the
+    penalty and nothing is left out."""
+    penalty = float(params.empty_view_penalty_px)
+    image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, unseen=unseen)
+    lost = _in_seen_views(_kernels._lost_markers(q, kin, rig.arrays, image, penalty, True)[0], start)
+    if unseen.size:
+        lost &= ~unseen
+    compared = _compared(unseen, start, len(kin.marker_joint))
+    hidden = int(np.count_nonzero(lost))
+    if hidden == 0 or hidden > MAX_LOST_SHARE * compared:
+        return None
+    without = np.ascontiguousarray(lost | unseen) if unseen.size else np.ascontiguousarray(lost)
+    bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
+    refined = _kernels.refine(np.ascontiguousarray(row), bounds, kin, rig.arrays,
+                              image._replace(unseen=without), float(params.anneal.huber_px),
+                              WARM_STEPS, _kernels.NO_TARGETS)
+    value = part_objective(refined, kin, points, start, without, rig, params, off)
+    return refined if value < WARM_EPS_FACTOR * eps * (1.0 - hidden / compared) else None
 
 
 def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
