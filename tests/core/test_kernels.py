@@ -40,3 +40,60 @@ def test_refit_unseen_leaves_out_every_lost_marker_of_a_view():
                                        model.arrays, rig.arrays, image, 1.0)
     np.testing.assert_allclose(q, truth, atol=1e-6)
     assert objective == pytest.approx(10.0, abs=1e-6)
+
+
+def _two_hidden_scene():
+    """A 4-marker dots model whose view shows m0 and m1 (m2, m3 hidden) at ``truth``, and
+    three ghost blobs 3 px around where m0–m2 project at ``other``: (model, rig, detections,
+    truth, other). At ``other`` three markers are 3 px off and m3 9.5 px; at ``truth`` m2 and
+    m3 are 12–14 px from the nearest blob."""
+    from scenes import dots_model, pixel_rig
+
+    from core.error import Detections
+
+    model = dots_model((0.0, 0.0), (12.0, 0.0), (0.0, 12.0), (14.0, 12.0))
+    rig = pixel_rig(None)
+    truth, other = np.array([40.0, 20.0]), np.array([40.0, 50.0])
+
+    def project(q: np.ndarray) -> np.ndarray:
+        return rig.project(model.marker_positions(q[None]))[0, 0]
+
+    turns = np.radians([0.0, 120.0, 240.0])
+    ghosts = project(other)[:3] + 3.0 * np.stack([np.cos(turns), np.sin(turns)], axis=1)
+    det = Detections.from_views([np.vstack([project(truth)[:2], ghosts])])
+    return model, rig, det, truth, other
+
+
+def test_every_marker_beyond_the_penalty_is_charged_the_penalty():
+    """The restarts' objective (``lost_px`` = penalty) of the true posture with two markers of
+    a view hidden: the seen markers' Eq. 5 plus twice the penalty, not the second hidden
+    marker's distance to another blob; and it ranks the truth below a posture that puts three
+    markers 3 px from ghosts (which charging only each view's worst marker ranked lower)."""
+    from core import _kernels
+    from core.error import view_offsets
+
+    model, rig, det, truth, other = _two_hidden_scene()
+    image = _kernels.Image.of(det.kernel_points, det.start, view_offsets(None, rig), penalty=5.0,
+                              fuse_px=4.0, lost_px=5.0)
+
+    def objective(q: np.ndarray) -> float:
+        return float(_kernels.posture_error(q, model.arrays, rig.arrays, image))
+
+    assert objective(truth) == pytest.approx(0.0 + 2 * 5.0, abs=1e-9)
+    assert objective(other) == pytest.approx(3 * 3.0 + 5.0, abs=1e-9)
+    assert objective(truth) < objective(other)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_fit_with_two_hidden_markers_in_a_view_prefers_the_truth(seed):
+    """The scene above fitted (fusion on, so restarts search the lost-marker objective): the
+    fit ends at the truth, charged twice the penalty."""
+    from core.fit import FitParams
+    from core.histogram import Histograms
+    from core.sequence import fit_chunk
+
+    model, rig, det, truth, _ = _two_hidden_scene()
+    fit = fit_chunk([det], model=model, rig=rig, histograms=Histograms.uniform(model),
+                    params=FitParams(fusion_px=4.0, empty_view_penalty_px=5.0), seed=seed).fits[0]
+    np.testing.assert_allclose(fit.dofs, truth, atol=1e-3)
+    assert fit.objective == pytest.approx(10.0, abs=1e-6)
