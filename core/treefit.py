@@ -203,10 +203,15 @@ def _compared(unseen: np.ndarray, start: np.ndarray, markers: int) -> int:
 def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, unseen: np.ndarray,
                    rig: Rig, params: FitParams, off: np.ndarray) -> float:
     """The objective (pixels) of a part's posture ``q`` (d,) posed by ``kin`` on detections
-    ``points`` grouped at ``start``, without the projections ``unseen`` (V, m) marks."""
+    ``points`` grouped at ``start``, without the projections ``unseen`` (V, m) marks, every
+    marker farther than the empty-view penalty from its detection charged the penalty (the
+    measure the whole fit compares, :func:`_whole_objective`: a part whose search is judged
+    by the distances of its hidden markers to other blobs keeps a posture that puts them
+    there, and the whole objective then scores it higher than the part's true minimum)."""
     penalty = float(params.empty_view_penalty_px)
     unseen = _in_seen_views(unseen, start)
-    image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, unseen=unseen)
+    image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, lost_px=penalty,
+                              unseen=unseen)
     return float(_kernels.posture_error(q, kin, rig.arrays, image)) - penalty * np.count_nonzero(unseen)
 
 
