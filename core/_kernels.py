@@ -1003,13 +1003,14 @@ def _polish(q, e_q, bounds, kin, views, image, huber_c, out) -> float:
     """Refine ``q`` (:data:`_POLISH_STEPS` LM steps) into ``out`` if that lowers its error on
     ``image``; return the error of ``out``.
 
-    With ``image.lost_px`` (the objective charges every marker farther than it that much),
+    Where the objective charges every marker farther than ``image.lost_px`` that much
+    (``lost_px`` and ``fuse_px`` > 0, :func:`_truncate`; plain Eq. 5 charges every distance),
     the refinement leaves out the markers :func:`_lost_markers` finds at ``q``: otherwise it
     pulls a lost marker onto the nearest other blob, the very pull the objective is there to
     stop.
     """
     unseen = image.unseen
-    if image.lost_px > 0.0:
+    if image.lost_px > 0.0 and image.fuse_px > 0.0:
         mask, lost = _lost_markers(q, kin, views, image, image.lost_px)
         if lost:
             unseen = mask
