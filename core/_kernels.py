@@ -77,8 +77,7 @@ class Image(NamedTuple):
     start : (V + 1,) int64.  offset : (V, 2) float64, pixels added to each view's projections.
     penalty : float, px a marker of a view without detections costs (and an unseen one).
     fuse_px : float, markers projecting closer are one blob; 0: plain Eq. 5.
-    lost_px : float, > 0: every marker farther than this from its detection (occluded, say) is
-        charged this instead (a truncated distance).
+    lost_px : float, > 0 lets every view lose its worst marker, charged this instead.
     unseen : (V, M) bool, markers charged ``penalty`` whatever they project on; (0, 0): none.
     """
 
@@ -532,19 +531,18 @@ def _unexplained(raw, proj, v, det, a, b, index, claims, reach2) -> float:
 
 
 @njit(cache=True, inline="always")
-def _truncate(total, dist, lost_px):
-    """``total`` (the sum of ``dist``, px) with every ``dist`` above ``lost_px`` charged
-    ``lost_px`` instead: each marker that far is taken as lost (occluded), however many a
-    view loses. ``lost_px`` <= 0: ``total`` unchanged.
+def _lose_worst(total, dist, lost_px):
+    """``total`` with the largest of ``dist`` charged ``lost_px`` instead, if that is less.
 
-    A plain loop without allocation, after the ``lost_px`` test: SA's inner loop calls it.
-    ``dist`` is left as it is (:func:`_merge_closer` reads it again).
+    A plain loop, after the ``lost_px`` test: cheaper than ``np.max`` in SA's inner loop,
+    most of all when no marker may be lost.
     """
     if not lost_px > 0.0:
         return total
-    for m in range(dist.shape[0]):
-        total -= dist[m] - lost_px if dist[m] > lost_px else 0.0
-    return total
+    worst = dist[0]
+    for m in range(1, dist.shape[0]):
+        worst = dist[m] if dist[m] > worst else worst
+    return total - (worst - lost_px) if lost_px < worst else total
 
 
 @njit(cache=True, inline="always")
@@ -562,14 +560,13 @@ def _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, lost_px, unseen, i
     merged only if the view shows a detection large enough to be merged markers
     (``det[:, 2]``, ``core.error.Detections.kernel_points``): with one view, merging would
     otherwise let a wrong posture squeeze two markers onto one blob. With
-    ``lost_px`` > 0 either reading charges every marker farther than ``lost_px`` from its
-    detection ``lost_px`` instead of its distance (occluded markers, :func:`_truncate`).
-    ``index``, ``dist``, ``claims``: scratch (:class:`Workspace`'s last three), passed apart:
-    taking them out of the tuple in SA's inner loop costs reference counting at every
-    iteration.
+    ``lost_px`` > 0 either reading may lose its worst marker, charged ``lost_px``
+    instead of its distance (an occluded marker). ``index``, ``dist``, ``claims``: scratch
+    (:class:`Workspace`'s last three), passed apart: taking them out of the tuple in SA's
+    inner loop costs reference counting at every iteration.
     """
     reach2 = fuse_px * fuse_px
-    apart = _truncate(_match_view(raw, v, det, a, b, index, dist, unseen, penalty), dist, lost_px)
+    apart = _lose_worst(_match_view(raw, v, det, a, b, index, dist, unseen, penalty), dist, lost_px)
     apart += _unexplained(raw, raw, v, det, a, b, index, claims, reach2)
     differs = large = False
     for m in range(raw.shape[1]):
@@ -598,7 +595,7 @@ def _nested_reading(raw, fused, v, det, a, b, reach2, lost_px, apart, unseen, in
     level = _next_level(raw, v, det, a, b, close, -1.0, reach2)
     while level >= 0.0:
         total = _merge_closer(raw, fused, v, level, close, det, a, b, index, dist, unseen)
-        merged = _truncate(total, dist, lost_px) + _unexplained(raw, fused, v, det, a, b, index,
+        merged = _lose_worst(total, dist, lost_px) + _unexplained(raw, fused, v, det, a, b, index,
                                                                   claims, reach2)
         if merged < best:
             best, best_level = merged, level
@@ -679,7 +676,7 @@ def blob_error(raw, fused, det, start, penalty, fuse_px, lost_px, limit, index, 
     up to ~1.3 diameters apart, depending on the threshold); each reading is Eq. 5 plus
     the charge of :func:`_unexplained` detections. A view without detections adds ``penalty``
     per marker, and so does a marker ``unseen`` (V,M) marks (empty: none);
-    ``lost_px`` > 0 charges every marker farther than that ``lost_px`` (:func:`_truncate`).
+    ``lost_px`` > 0 lets every view lose one marker (:func:`_view_reading`).
     ``index``, ``dist``, ``claims``: scratch as :func:`_view_reading`'s. Stops summing once
     above ``limit`` (between views), as :func:`eq5`.
     """
@@ -1003,15 +1000,13 @@ def _polish(q, e_q, bounds, kin, views, image, huber_c, out) -> float:
     """Refine ``q`` (:data:`_POLISH_STEPS` LM steps) into ``out`` if that lowers its error on
     ``image``; return the error of ``out``.
 
-    Where the objective charges every marker farther than ``image.lost_px`` that much
-    (``lost_px`` and ``fuse_px`` > 0, :func:`_truncate`; plain Eq. 5 charges every distance),
-    the refinement leaves out the markers :func:`_lost_markers` finds at ``q``: otherwise it
-    pulls a lost marker onto the nearest other blob, the very pull the objective is there to
-    stop.
+    With ``image.lost_px`` (the objective lets each view lose a marker), the refinement leaves
+    out the markers :func:`_lost_markers` finds at ``q``: otherwise it pulls a lost
+    marker onto the nearest other blob, the very pull the objective is there to stop.
     """
     unseen = image.unseen
-    if image.lost_px > 0.0 and image.fuse_px > 0.0:
-        mask, lost = _lost_markers(q, kin, views, image, image.lost_px)
+    if image.lost_px > 0.0:
+        mask, lost = _lost_markers(q, kin, views, image, image.lost_px, False)
         if lost:
             unseen = mask
     polished = refine(q, bounds, kin, views, _with(image, image.fuse_px, image.lost_px, unseen),
@@ -1181,9 +1176,10 @@ def draw_posture(lower, upper, hist, state, out) -> None:
 
 
 @njit(cache=True, nogil=True)
-def _lost_markers(q, kin, views, image, beyond):
-    """In every view of ``image``, each marker farther than ``beyond`` px from its detection
-    (what losing it costs): (V, M) mask, and whether any was found."""
+def _lost_markers(q, kin, views, image, beyond, every):
+    """In every view of ``image``, the worst-matched marker if it is farther than ``beyond`` px
+    from its detection (what losing it costs), or with ``every`` each marker that far:
+    (V, M) mask, and whether any was found."""
     det, start, penalty, fuse_px = image.det, image.start, image.penalty, image.fuse_px
     V, M = views.kind.shape[0], kin.marker_joint.shape[0]
     work = workspace(kin, views, q.shape[0], det.shape[0])
@@ -1198,9 +1194,11 @@ def _lost_markers(q, kin, views, image, beyond):
         merged = fuse_px > 0.0 and _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, 0.0,
                                                   seen, index, dist, claims)[1]
         _match_view(fused if merged else raw, v, det, a, b, index, dist, seen, penalty)
-        for m in range(M):
-            unseen[v, m] = dist[m] > beyond
-            lost = lost or unseen[v, m]
+        worst = np.argmax(dist)
+        if dist[worst] > beyond:
+            lost = True
+            for m in range(M):
+                unseen[v, m] = m == worst or (every and dist[m] > beyond)
     return unseen, lost
 
 
@@ -1213,12 +1211,12 @@ def _refit_unseen(q, objective, bounds, kin, views, image, huber_c):
     marker farther than ``image.penalty`` from its detection (:func:`_lost_markers`) is
     taken as not seen: the posture is refined without those markers, and kept if its
     objective, with them charged ``penalty`` (and ``image.lost_px``, ``image.unseen`` not
-    read), is lower than ``objective``: the measure the restarts search (:func:`_truncate`).
-    Every one, not only each view's worst: a limb can hide several markers from one camera,
-    and each one left in pulls the refit onto another blob (docs/BENCH_SUBJECTS.md, occlusion).
+    read), is lower than ``objective``. Every one, not only each view's worst: a limb
+    can hide several markers from one camera, and each one left in pulls the refit
+    onto another blob (docs/BENCH_SUBJECTS.md, occlusion).
     Images whose markers are all within ``penalty`` are left as they are.
     """
-    unseen, lost = _lost_markers(q, kin, views, image, image.penalty)
+    unseen, lost = _lost_markers(q, kin, views, image, image.penalty, True)
     if not lost:
         return objective
     masked = _with(image, image.fuse_px, 0.0, unseen)
@@ -1246,8 +1244,7 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state):
     that puts a hidden marker on another blob while the true posture scores the
     penalty alone (docs/ENGINE_NOTES.md: a hidden tarsus marker). Each run's result is refit
     without the markers that look lost (:func:`_refit_unseen`). Restarts search an
-    objective that charges every marker farther than ``penalty`` from its detection
-    ``penalty`` (:func:`_truncate`; however many one view loses): an
+    objective that lets every view lose one marker (charged ``penalty``): an
     image that stays above ``eps`` is where a marker may be occluded, and its
     distance to some other blob would otherwise lead the search astray; runs
     are compared, and the objective returned, in that objective (the same as the
@@ -1258,7 +1255,7 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state):
     ``fuse_px``.
     """
     penalty, fuse_px, unseen = image.penalty, image.fuse_px, image.unseen
-    charged = _with(image, fuse_px, penalty, unseen)  # far markers charged the penalty
+    charged = _with(image, fuse_px, penalty, unseen)  # every view may lose a marker
     q0, best = start_q.copy(), start_q.copy()
     objective, iterations = np.inf, 0
     for run in range(sa.restarts + 1):

@@ -203,15 +203,10 @@ def _compared(unseen: np.ndarray, start: np.ndarray, markers: int) -> int:
 def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, unseen: np.ndarray,
                    rig: Rig, params: FitParams, off: np.ndarray) -> float:
     """The objective (pixels) of a part's posture ``q`` (d,) posed by ``kin`` on detections
-    ``points`` grouped at ``start``, without the projections ``unseen`` (V, m) marks, every
-    marker farther than the empty-view penalty from its detection charged the penalty (the
-    measure the whole fit compares, :func:`_whole_objective`: a part whose search is judged
-    by the distances of its hidden markers to other blobs keeps a posture that puts them
-    there, and the whole objective then scores it higher than the part's true minimum)."""
+    ``points`` grouped at ``start``, without the projections ``unseen`` (V, m) marks."""
     penalty = float(params.empty_view_penalty_px)
     unseen = _in_seen_views(unseen, start)
-    image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, lost_px=penalty,
-                              unseen=unseen)
+    image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, unseen=unseen)
     return float(_kernels.posture_error(q, kin, rig.arrays, image)) - penalty * np.count_nonzero(unseen)
 
 
@@ -220,9 +215,9 @@ def _search_level(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, rig
     """The objective (pixels) of a part's posture ``q`` (d,) posed by ``kin`` on detections
     ``points`` grouped at ``start`` as ``_kernels.fit_attempt`` compares it with its stop:
     every marker projection charged (none left out as :func:`part_objective` leaves out
-    the unseen ones), fusion below ``params.fusion_px``, and every marker farther than the
-    empty-view penalty from its detection charged the penalty (the restarts' objective; the
-    first run's, which charges every distance, is never lower)."""
+    the unseen ones), fusion below ``params.fusion_px``, and every view allowed to lose one
+    marker at the empty-view penalty (the restarts' objective; the first run's, which loses
+    none, is never lower)."""
     penalty = float(params.empty_view_penalty_px)
     image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, lost_px=penalty)
     return float(_kernels.posture_error(q, kin, rig.arrays, image))
@@ -608,9 +603,9 @@ def _gains(q: np.ndarray, part: Part, value: float, kept: tuple[np.ndarray, floa
 def _whole_objective(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
                      params: FitParams, off: np.ndarray) -> float:
     """The objective (pixels) of a whole posture ``q`` (D,) on ``det`` as
-    ``_kernels.fit_attempt`` reports it (fusion, every marker farther than the penalty
-    charged the penalty): what :func:`refine_whole` minimises before its refit without the
-    markers that look lost (``_kernels._refit_unseen``, which charges them alike)."""
+    ``_kernels.fit_attempt`` reports it (fusion, a lost marker per view): what
+    :func:`refine_whole` minimises before its refit without the markers that look lost
+    (``_kernels._refit_unseen``, which charges each of those the penalty instead)."""
     image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
                               fuse_px=params.fusion_px)
     return float(_kernels.posture_error(q, model.arrays, rig.arrays,
@@ -622,7 +617,7 @@ def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig
                  steps: int = JOINT_STEPS) -> tuple[np.ndarray, float, float]:
     """Joint refinement of a whole posture ``q`` (changed in place) by ``steps`` LM steps:
     (posture, plain Eq. 5 error, objective), the objective as ``_kernels.fit_attempt``
-    reports it (fusion, every marker farther than the penalty charged the penalty)."""
+    reports it (fusion, a lost marker per view)."""
     a, kin, views = params.anneal, model.arrays, rig.arrays
     bounds = _kernels.Bounds(model.lower, model.upper)
     image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,

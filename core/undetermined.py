@@ -89,7 +89,7 @@ def undetermined_alternative(
     Each rotational DOF d is moved along its profile, the linearised best way to move d
     with every other DOF following (column d of (JᵀJ)⁻¹, J the Jacobian of the
     projections), by ±:data:`UNDETERMINED_DEG`, then 2, 4, 8 times as far while the
-    objective (as the fit's: fusion, far markers charged the penalty) stays within the tolerance;
+    objective (as the fit's: fusion, a lost marker per view) stays within the tolerance;
     a step that leaves it by less than :data:`_NEAR` tolerances is refined with d held
     (towards the profile's minimum, nonlinear). A step in a DOF the model's markers cannot
     determine in any posture (``model.identifiability``) is refined however far it leaves:

@@ -117,7 +117,7 @@ def _compile_aside() -> None:
     view_error(q, det, model=m, rig=rig, fusion_px=8.0)
     image = _kernels.Image.of(det.kernel_points, det.start, view_offsets(None, rig), penalty=1.0, fuse_px=8.0)
     _draw(m)
-    _kernels._lost_markers(q, m.arrays, rig.arrays, image, 1.0)
+    _kernels._lost_markers(q, m.arrays, rig.arrays, image, 1.0, False)
     _detect(rig)
     _kernels._refit_unseen(q, np.inf, _kernels.Bounds(m.lower, m.upper), m.arrays, rig.arrays, image, 1.0)
     flip_alternatives(Candidate(q, 1.0, 1.0), det, model=m, rig=rig, geometry=FlipGeometry.of(m, rig),
