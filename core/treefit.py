@@ -147,18 +147,19 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     if unseen.size:
         eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(np.diff(start)), 1)
     best: tuple[np.ndarray, float, bool] | None = None
+    image = _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
+                              fuse_px=params.fusion_px, unseen=unseen)
+    bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
     for row in warm:
         q = np.ascontiguousarray(row[dofs])
         if params.refine:
-            image = _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
-                                      fuse_px=params.fusion_px, unseen=unseen)
-            q = _kernels.refine(q, _kernels.Bounds(model.lower[dofs], model.upper[dofs]), kin, rig.arrays,
-                                image, float(params.anneal.huber_px), WARM_STEPS, _kernels.NO_TARGETS)
+            q = _kernels.refine(q, bounds, kin, rig.arrays, image, float(params.anneal.huber_px), WARM_STEPS,
+                                _kernels.NO_TARGETS)
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
         if value < WARM_EPS_FACTOR * eps:
             return q, value, True
-        if params.refine and (seen := _without_lost(q, row[dofs], dofs, kin, points, start, model, rig,
-                                                    params, eps, off, unseen)) is not None:
+        if params.refine and (seen := _without_lost(q, row[dofs], kin, image, bounds, rig, params,
+                                                    eps)) is not None:
             return seen, part_objective(seen, kin, points, start, unseen, rig, params, off), True
         if best is None or value < best[1]:
             best = (q, value, False)
@@ -168,15 +169,15 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     return best
 
 
-def _without_lost(q: np.ndarray, row: np.ndarray, dofs: np.ndarray, kin, points: np.ndarray,
-                  start: np.ndarray, model: KinematicModel, rig: Rig, params: FitParams, eps: float,
-                  off: np.ndarray, unseen: np.ndarray) -> np.ndarray | None:
-    """A part's warm start ``row`` (d,) of the DOFs ``dofs`` refined without its projections
-    that look hidden, where that reaches :data:`WARM_EPS_FACTOR` times ``eps`` (already
-    shrunk for ``unseen``) shrunk in proportion again, else None. Hidden: farther than the
-    empty-view penalty from every blob at ``q`` (d,), the warm start refined with them
-    (``_kernels._lost_markers``); at most :data:`MAX_LOST_SHARE` of the part's compared
-    projections, else None.
+def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bounds: _kernels.Bounds,
+                  rig: Rig, params: FitParams, eps: float) -> np.ndarray | None:
+    """A part's warm start ``row`` (d,) refined within ``bounds`` on its detections
+    ``image`` (``_kernels.Image``, the projections its ``unseen`` marks left out) without
+    its projections that look hidden as well, where that reaches :data:`WARM_EPS_FACTOR`
+    times ``eps`` (already shrunk for ``image.unseen``) shrunk in proportion again, else
+    None. Hidden: farther than the empty-view penalty from every blob at ``q`` (d,), the
+    warm start refined with them (``_kernels._lost_markers``); at most
+    :data:`MAX_LOST_SHARE` of the part's compared projections, else None.
 
     Why: a marker hidden from one camera (a leg in front of it) is charged its distance to
     some other blob and keeps the part above 2 ε however right the warm start is, so with
@@ -186,21 +187,19 @@ def _without_lost(q: np.ndarray, row: np.ndarray, dofs: np.ndarray, kin, points:
     the hidden marker (a flip about the axis of the segment before it) is still offered as
     an alternative (``core.fit``). Where a marker merely slid (skin), it is within the
     penalty and nothing is left out."""
-    penalty = float(params.empty_view_penalty_px)
-    image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, unseen=unseen)
-    lost = _in_seen_views(_kernels._lost_markers(q, kin, rig.arrays, image, penalty, True)[0], start)
+    unseen, start = image.unseen, image.start
+    lost = _in_seen_views(_kernels._lost_markers(q, kin, rig.arrays, image, image.penalty, True)[0], start)
     if unseen.size:
         lost &= ~unseen
     compared = _compared(unseen, start, len(kin.marker_joint))
     hidden = int(np.count_nonzero(lost))
     if hidden == 0 or hidden > MAX_LOST_SHARE * compared:
         return None
-    without = np.ascontiguousarray(lost | unseen) if unseen.size else np.ascontiguousarray(lost)
-    bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
+    without = lost | unseen if unseen.size else lost
     refined = _kernels.refine(np.ascontiguousarray(row), bounds, kin, rig.arrays,
-                              image._replace(unseen=without), float(params.anneal.huber_px),
-                              WARM_STEPS, _kernels.NO_TARGETS)
-    value = part_objective(refined, kin, points, start, without, rig, params, off)
+                              image._replace(unseen=without), float(params.anneal.huber_px), WARM_STEPS,
+                              _kernels.NO_TARGETS)
+    value = part_objective(refined, kin, image.det, start, without, rig, params, image.offset)
     return refined if value < WARM_EPS_FACTOR * eps * (1.0 - hidden / compared) else None
 
 
@@ -252,17 +251,25 @@ def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, un
     return float(_kernels.posture_error(q, kin, rig.arrays, image)) - penalty * np.count_nonzero(unseen)
 
 
-def _search_level(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, rig: Rig,
-                  params: FitParams, off: np.ndarray) -> float:
-    """The objective (pixels) of a part's posture ``q`` (d,) posed by ``kin`` on detections
-    ``points`` grouped at ``start`` as ``_kernels.fit_attempt`` compares it with its stop:
-    every marker projection charged (none left out as :func:`part_objective` leaves out
-    the unseen ones), fusion below ``params.fusion_px``, and every view allowed to lose one
-    marker at the empty-view penalty (the restarts' objective; the first run's, which loses
-    none, is never lower)."""
+def _charged_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, rig: Rig,
+                       params: FitParams, off: np.ndarray) -> float:
+    """The objective (pixels) of a posture ``q`` posed by ``kin`` (a part's or the whole
+    model's) on detections ``points`` grouped at ``start`` as ``_kernels.fit_attempt``
+    reports it and compares it with its stop: every marker projection charged (none left
+    out as :func:`part_objective` leaves out the unseen ones), fusion below
+    ``params.fusion_px``, and every view allowed to lose one marker at the empty-view
+    penalty (the restarts' objective; the first run's, which loses none, is never lower)."""
     penalty = float(params.empty_view_penalty_px)
     image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, lost_px=penalty)
     return float(_kernels.posture_error(q, kin, rig.arrays, image))
+
+
+def _reanalysis_stop(kept: np.ndarray, eps: float, kin, points: np.ndarray, start: np.ndarray, rig: Rig,
+                     params: FitParams, off: np.ndarray) -> float:
+    """SA's stop (pixels) for a part in :func:`refit_tree`: its kept posture ``kept`` (d,)
+    posed by ``kin``, in the objective SA compares with its stop (:func:`_charged_objective`),
+    or its ε ``eps`` where that is higher."""
+    return max(eps, _charged_objective(kept, kin, points, start, rig, params, off))
 
 
 def _in_seen_views(unseen: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -322,8 +329,8 @@ def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spa
     the rest of the animal where the kept posture has it.
 
     A part's SA (its restarts too) stops below the kept part's level, the kept posture
-    refined in the objective SA compares with its stop (:func:`_search_level`), or below
-    its ε where that is higher: a drawn-start search that gets as low as the kept part has
+    refined in the objective SA compares with its stop, or below its ε where that is higher
+    (:func:`_reanalysis_stop`): a drawn-start search that gets as low as the kept part has
     found its minimum or one as low, and running on to its patience and restarting rarely
     finds a lower one. Under sliding skin markers no part reaches its ε, so with ε alone
     every part's search would run to its patience and restart in every re-analysis. Only
@@ -382,8 +389,8 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
         if tried is not None and tried[2]:
             q[part.dofs] = tried[0]
             return
-        stop = eps if keep is None or tried is None else max(eps, _search_level(tried[0], kin, points, start,
-                                                                                rig, params, off))
+        stop = eps if keep is None or tried is None else _reanalysis_stop(tried[0], eps, kin, points, start,
+                                                                          rig, params, off)
         q[part.dofs], _, _, its = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
                                                  params, stop, stream, draw_start, off)
         iterations += its
@@ -644,14 +651,10 @@ def _gains(q: np.ndarray, part: Part, value: float, kept: tuple[np.ndarray, floa
 
 def _whole_objective(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
                      params: FitParams, off: np.ndarray) -> float:
-    """The objective (pixels) of a whole posture ``q`` (D,) on ``det`` as
-    ``_kernels.fit_attempt`` reports it (fusion, a lost marker per view): what
+    """:func:`_charged_objective` of a whole posture ``q`` (D,) on ``det``: what
     :func:`refine_whole` minimises before its refit without the markers that look lost
     (``_kernels._refit_unseen``, which charges each of those the penalty instead)."""
-    image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
-                              fuse_px=params.fusion_px)
-    return float(_kernels.posture_error(q, model.arrays, rig.arrays,
-                                        image._replace(lost_px=image.penalty)))
+    return _charged_objective(q, model.arrays, det.kernel_points, det.start, rig, params, off)
 
 
 def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,

@@ -367,7 +367,7 @@ def test_a_tree_reanalysis_stops_each_parts_search_at_its_kept_level(sliding, mo
         given = (images[k], model, rig, model.tree, space, params)
         dofs, _, objective, its, settled = refit_tree(*given, image_stream(0, k, 2), off, fit)
         with monkeypatch.context() as patch:
-            patch.setattr(treefit, "_search_level", lambda *_: 0.0)  # the stop is ε alone
+            patch.setattr(treefit, "_reanalysis_stop", lambda kept, eps, *_: eps)  # the stop is ε alone
             at_eps, _, at_eps_objective, at_eps_its, at_eps_settled = refit_tree(
                 *given, image_stream(0, k, 2), off, fit)
         assert 0 < its < at_eps_its, k
