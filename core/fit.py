@@ -392,11 +392,12 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     # flips', and the search costs a Jacobian of the whole model. A model whose markers
     # cannot determine some DOF in any posture (``core.identifiability``) leaves it
     # undetermined in every image, however clean: there the search always runs.
-    one_dof = alternative_tolerance(params, det, model, error, 1)
-    widened = one_dof > alternative_tolerance(params, det, model, math.nan, 1)
-    if len(ranked) == 1 and one_dof > 0 and (widened or model.identifiability.undetermined):
+    floor, residual = tolerance_readings(params, det, model, error, 1)
+    widened = residual > floor
+    if len(ranked) == 1 and floor > 0 and (widened or model.identifiability.undetermined):
         witness = undetermined_alternative(
-            fit, det, model=model, rig=rig, tolerance_px=one_dof,
+            fit, det, model=model, rig=rig, tolerance_px=max(floor, residual),
+            residual_px=residual,
             fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
             huber_px=params.anneal.huber_px, offsets=offsets,
         )
@@ -407,19 +408,26 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
 def alternative_tolerance(params: FitParams, det: Detections, model: KinematicModel,
                           error: float, tested_dofs: int) -> float:
     """Pixels of objective within which another posture is an alternative of an image's fit
-    of plain Eq. 5 error ``error``: ``params.alternative_tolerance_px`` per 8 compared
-    marker projections (never less), or what the image's own residual cannot tell apart
-    for postures differing in ``tested_dofs`` DOFs (``core.undetermined.residual_tolerance``:
-    ``len(model.dofs)`` for another minimum, 1 for one DOF's interval), whichever is
-    larger; 0 when ``params.alternative_tolerance_px`` is 0 (the search is off). Clean
-    footage (0.05 px a projection) keeps the fixed tolerance; sliding skin markers (1 px)
-    widen it.
+    of plain Eq. 5 error ``error``: the larger of :func:`tolerance_readings`. Clean footage
+    (0.05 px a projection) keeps the fixed tolerance; sliding skin markers (1 px) widen it.
+    """
+    return max(tolerance_readings(params, det, model, error, tested_dofs))
+
+
+def tolerance_readings(params: FitParams, det: Detections, model: KinematicModel,
+                       error: float, tested_dofs: int) -> tuple[float, float]:
+    """The two readings of :func:`alternative_tolerance`, pixels: the fixed floor,
+    ``params.alternative_tolerance_px`` per 8 compared marker projections (never less), and
+    what the image's own residual cannot tell apart for postures differing in
+    ``tested_dofs`` DOFs (``core.undetermined.residual_tolerance``: ``len(model.dofs)`` for
+    another minimum, 1 for one DOF's interval). Both 0 when
+    ``params.alternative_tolerance_px`` is 0 (the search is off).
     """
     if params.alternative_tolerance_px == 0:
-        return 0.0
+        return 0.0, 0.0
     compared = _compared(tuple(det.counts.tolist()), len(model.markers))
-    return max(params.alternative_tolerance_px * max(1.0, compared / 8.0),
-               residual_tolerance(error, compared, len(model.dofs), tested_dofs))
+    return (params.alternative_tolerance_px * max(1.0, compared / 8.0),
+            residual_tolerance(error, compared, len(model.dofs), tested_dofs))
 
 
 def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray, det: Detections,
