@@ -36,7 +36,12 @@ from core.ambiguity import Candidate, angle_gaps
 from core.error import Detections, view_offsets
 from core.fit import FitParams, tolerance_readings
 from core.treefit import refine_whole
-from core.undetermined import UNDETERMINED_DEG, undetermined_alternative
+from core.undetermined import (
+    UNDETERMINED_DEG,
+    hidden_projections,
+    scatter_error,
+    undetermined_alternative,
+)
 
 REFINE_STEPS = 30  # LM steps from the truth into the slid markers' minimum
 
@@ -57,9 +62,11 @@ def witnesses(subject: Subject, det: Detections, q: np.ndarray,
     """The true posture ``q`` refined on ``det``, and whether a witness is found with the
     shared reading and with the independent reading alone."""
     model, rig = subject.model, subject.rig
-    fit, error, objective = refine_whole(q.copy(), det, model, rig, params,
-                                         view_offsets(None, rig), steps=REFINE_STEPS)
-    floor, residual = tolerance_readings(params, det, model, error, 1)
+    off = view_offsets(None, rig)
+    fit, error, objective = refine_whole(q.copy(), det, model, rig, params, off, steps=REFINE_STEPS)
+    hidden = hidden_projections(fit, det, model, rig, off, params.empty_view_penalty_px)
+    scatter = scatter_error(fit, det, model, rig, off, hidden)
+    floor, residual = tolerance_readings(params, det, model, scatter, 1)
     found = tuple(undetermined_alternative(
         Candidate(fit, error, objective), det, model=model, rig=rig,
         tolerance_px=max(floor, residual), residual_px=widen, fusion_px=params.fusion_px,

@@ -45,7 +45,12 @@ from core.treefit import (
     search_floor,
     tree_flip_alternatives,
 )
-from core.undetermined import residual_tolerance, undetermined_alternative
+from core.undetermined import (
+    hidden_projections,
+    residual_tolerance,
+    scatter_error,
+    undetermined_alternative,
+)
 
 __all__ = [
     "FitParams",
@@ -387,28 +392,46 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             others += _warm_alternatives(fit, others, warm, det, model, rig, params, tolerance,
                                          offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
-    # An undetermined DOF is looked for where the residual, not the fixed floor, sets the
-    # tolerance (markers off the model): on clean footage the flat directions are the depth
-    # flips', and the search costs a Jacobian of the whole model. A model whose markers
-    # cannot determine some DOF in any posture (``core.identifiability``) leaves it
-    # undetermined in every image, however clean: there the search always runs.
-    floor, residual = tolerance_readings(params, det, model, error, 1)
-    widened = residual > floor
-    if len(ranked) == 1 and floor > 0 and (widened or model.identifiability.undetermined):
-        witness = undetermined_alternative(
-            fit, det, model=model, rig=rig, tolerance_px=max(floor, residual),
-            residual_px=residual,
-            fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
-            huber_px=params.anneal.huber_px, offsets=offsets,
-        )
+    if len(ranked) == 1:
+        witness = _undetermined_witness(fit, det, model, rig, params, offsets)
         ranked += [witness] if witness is not None else []
     return ranked[0], tuple(ranked[1:]), its, settled
+
+
+def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel, rig: Rig,
+                          params: FitParams, offsets: np.ndarray | None) -> Candidate | None:
+    """An image's fit with no other minimum may still not determine a DOF: a posture
+    ``core.undetermined.UNDETERMINED_DEG`` away within the one-DOF tolerance, or None.
+
+    Looked for where the residual, not the fixed floor, sets the tolerance (markers off the
+    model): on clean footage the flat directions are the depth flips', and the search costs
+    a Jacobian of the whole model. A model whose markers cannot determine some DOF in any
+    posture (``core.identifiability``) leaves it undetermined in every image, however clean:
+    there the search always runs. The residual is read without the projections that look
+    hidden (``core.undetermined.hidden_projections``, ``scatter_error``): a marker hidden
+    from a camera is not scatter, and a noise-free image with one would otherwise read as
+    sliding skin. Another
+    minimum's tolerance (:func:`_attempt`) keeps the plain error: read without them, it
+    dropped flip alternatives that the choice by continuity needed (docs/BENCH_SUBJECTS.md).
+    """
+    off = view_offsets(offsets, rig)
+    hidden = hidden_projections(fit.dofs, det, model, rig, off, params.empty_view_penalty_px)
+    floor, residual = tolerance_readings(
+        params, det, model, scatter_error(fit.dofs, det, model, rig, off, hidden), 1)
+    if floor == 0 or not (residual > floor or model.identifiability.undetermined):
+        return None
+    return undetermined_alternative(
+        fit, det, model=model, rig=rig, tolerance_px=max(floor, residual), residual_px=residual,
+        fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
+        huber_px=params.anneal.huber_px, offsets=offsets,
+    )
 
 
 def alternative_tolerance(params: FitParams, det: Detections, model: KinematicModel,
                           error: float, tested_dofs: int) -> float:
     """Pixels of objective within which another posture is an alternative of an image's fit
-    of plain Eq. 5 error ``error``: the larger of :func:`tolerance_readings`. Clean footage
+    whose residual reads as Eq. 5 error ``error`` (``core.undetermined.scatter_error``): the
+    larger of :func:`tolerance_readings`. Clean footage
     (0.05 px a projection) keeps the fixed tolerance; sliding skin markers (1 px) widen it.
     """
     return max(tolerance_readings(params, det, model, error, tested_dofs))

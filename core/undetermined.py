@@ -20,13 +20,14 @@ import numpy as np
 
 from core import _kernels
 from core.ambiguity import Candidate, angle_gaps, plain_error
-from core.error import Detections, view_offsets
+from core.error import Detections, marker_errors, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
-from core.treefit import world_frames
+from core.treefit import MAX_LOST_SHARE, world_frames
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "confidence_chi2",
-           "residual_tolerance", "shared_scatter_inflation", "undetermined_alternative"]
+           "hidden_projections", "residual_tolerance", "scatter_error", "shared_scatter_inflation",
+           "undetermined_alternative"]
 
 # An image does not determine a DOF when a posture this far from its fit in that DOF (degrees,
 # the issue's "more than 10 degrees off the truth") explains it within its tolerance.
@@ -46,6 +47,38 @@ def confidence_chi2(k: int) -> float:
     """
     c = 2.0 / (9.0 * k)
     return k * (1.0 - c + _Z_CONFIDENCE * math.sqrt(c)) ** 3
+
+
+def hidden_projections(q: np.ndarray, detections: Detections, model: KinematicModel, rig: Rig,
+                       offsets: np.ndarray, penalty: float) -> np.ndarray:
+    """(V, M) bool: the projections of posture ``q`` (D,) farther than ``penalty`` px from
+    every blob of their view (``core.error.marker_errors``, views shifted by ``offsets``
+    (V, 2)): markers hidden from that camera, charged their distance to some other blob.
+    None (all False) where more than ``core.treefit.MAX_LOST_SHARE`` of the compared
+    projections are that far: that fit is not one with a few hidden markers."""
+    distances = marker_errors(rig.project(model.marker_positions(q)) + offsets[:, None, :], detections)
+    far = np.isfinite(distances) & (distances > penalty)
+    if np.count_nonzero(far) > MAX_LOST_SHARE * np.count_nonzero(np.isfinite(distances)):
+        return np.zeros_like(far)
+    return far
+
+
+def scatter_error(q: np.ndarray, detections: Detections, model: KinematicModel, rig: Rig,
+                  offsets: np.ndarray, hidden: np.ndarray) -> float:
+    """Eq. 5 (px) of posture ``q`` (D,) read as the markers' scatter about the model: the
+    mean distance of the compared projections to their nearest blob
+    (``core.error.marker_errors``, views shifted by ``offsets`` (V, 2)) times their number,
+    the mean taken without the ``hidden`` ones ((V, M), :func:`hidden_projections`). A
+    hidden marker is not scatter:
+    read as scatter, one made a noise-free image read as one with sliding skin. NaN with no
+    compared projection.
+    """
+    distances = marker_errors(rig.project(model.marker_positions(q)) + offsets[:, None, :], detections)
+    compared = np.isfinite(distances)
+    if not compared.any():
+        return math.nan
+    kept = compared & ~hidden
+    return float(np.mean(distances[kept])) * np.count_nonzero(compared)
 
 
 def residual_tolerance(error_px: float, compared: int, n_dofs: int, tested_dofs: int) -> float:

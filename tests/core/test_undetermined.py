@@ -26,7 +26,9 @@ from core.treefit import refine_whole
 from core.undetermined import (
     UNDETERMINED_DEG,
     confidence_chi2,
+    hidden_projections,
     residual_tolerance,
+    scatter_error,
     shared_scatter_inflation,
     undetermined_alternative,
 )
@@ -180,7 +182,9 @@ def test_markers_slid_in_3d_leave_no_fit_10_degrees_off_without_a_witness():
         if angle_gaps(fit, q)[model.rotational].max() <= UNDETERMINED_DEG:
             continue
         off += 1
-        floor, residual = tolerance_readings(params, det, model, error, 1)
+        scatter = scatter_error(fit, det, model, rig, view_offsets(None, rig),
+                                np.zeros((len(rig.views), len(model.markers)), bool))
+        floor, residual = tolerance_readings(params, det, model, scatter, 1)
         found = [undetermined_alternative(
             Candidate(fit, error, objective), det, model=model, rig=rig,
             tolerance_px=max(floor, residual), residual_px=widen, fusion_px=params.fusion_px,
@@ -189,3 +193,35 @@ def test_markers_slid_in_3d_leave_no_fit_10_degrees_off_without_a_witness():
         assert found[0] is not None
         missed_independent += found[1] is None
     assert off >= 10 and missed_independent >= 1
+
+
+def _hidden(model: KinematicModel, rig: Rig, q: np.ndarray, drop: dict[int, list[int]]) -> Detections:
+    """Exact projections of ``q`` without the markers ``drop[view]`` (hidden from that view)."""
+    proj = rig.project(model.marker_positions(q))
+    return Detections.from_views([np.delete(p, drop.get(v, []), axis=0) for v, p in enumerate(proj)])
+
+
+def test_a_hidden_marker_is_not_read_as_scatter():
+    model, rig = _subject("locust_hind_leg")
+    off = view_offsets(None, rig)
+    det = _hidden(model, rig, LOCUST, {1: [2]})
+    hidden = hidden_projections(LOCUST, det, model, rig, off, 5.0)
+    assert np.argwhere(hidden).tolist() == [[1, 2]]
+    assert view_error(LOCUST, det, model=model, rig=rig) > 10.0  # charged its nearest other blob
+    assert scatter_error(LOCUST, det, model, rig, off, hidden) == pytest.approx(0.0, abs=1e-9)
+    # More than a quarter of the projections that far is a wrong fit, not hidden markers.
+    many = _hidden(model, rig, LOCUST, {0: [2, 3], 1: [2]})
+    assert not hidden_projections(LOCUST, many, model, rig, off, 5.0).any()
+
+
+def test_a_clean_image_with_a_hidden_marker_is_not_undetermined():
+    """Noise-free locust images with one marker hidden from one camera fit exactly; read as
+    scatter, the hidden marker's charge made each of them look like sliding skin, with a
+    DOF 10 deg away 'within' the tolerance."""
+    model, rig = _subject("locust_hind_leg")
+    images = [_hidden(model, rig, LOCUST, {v: [m]}) for v, m in ((0, 0), (1, 0), (1, 2))]
+    result = fit_sequence(images, model=model, rig=rig, params=FitParams(), seed=0,
+                          histograms=Histograms.uniform(model, prior_weight=100.0))
+    for fit in result.fits:
+        assert angle_gaps(fit.dofs, LOCUST).max() < 0.01
+        assert math.isnan(fit.alternative_deg(model.rotational))
