@@ -35,7 +35,8 @@ from core import _kernels
 from core.model import KinematicModel
 from core.rig import Rig
 
-__all__ = ["DEFAULT_EMPTY_VIEW_PENALTY_PX", "Detections", "fusion_distance", "view_error"]
+__all__ = ["DEFAULT_EMPTY_VIEW_PENALTY_PX", "Detections", "fusion_distance", "marker_errors",
+           "view_error"]
 
 DEFAULT_EMPTY_VIEW_PENALTY_PX = 5.0
 # fusion_px in marker diameters: reading every view apart as well makes a generous distance
@@ -163,6 +164,30 @@ def view_error(
                               penalty=empty_view_penalty_px, fuse_px=check_fusion(fusion_px)),
         )
     )
+
+
+def marker_errors(markers: np.ndarray, detections: Detections) -> np.ndarray:
+    """Each projected marker's distance to the nearest detection of its view (its Eq. 5 term).
+
+    Parameters
+    ----------
+    markers : (V, M, 2) float64, full-frame pixels.
+    detections : one group per view.
+
+    Returns
+    -------
+    (V, M) float64 pixels; NaN in a view without detections (Eq. 5 charges it a constant).
+
+    >>> det = Detections.from_views([[[0.0, 0.0], [10.0, 0.0]], []])
+    >>> marker_errors(np.array([[[3.0, 4.0]], [[1.0, 1.0]]]), det).tolist()
+    [[5.0], [nan]]
+    """
+    out = np.full(markers.shape[:2], np.nan)
+    for v in range(markers.shape[0]):
+        points = detections.view(v)
+        if len(points):
+            out[v] = np.linalg.norm(markers[v, :, None, :] - points[None], axis=2).min(axis=1)
+    return out
 
 
 def view_offsets(offsets: np.ndarray | None, rig: Rig) -> np.ndarray:

@@ -45,7 +45,12 @@ from core.treefit import (
     search_floor,
     tree_flip_alternatives,
 )
-from core.undetermined import residual_tolerance, undetermined_alternative
+from core.undetermined import (
+    hidden_projections,
+    residual_tolerance,
+    scatter_error,
+    undetermined_alternative,
+)
 
 __all__ = [
     "FitParams",
@@ -387,39 +392,65 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             others += _warm_alternatives(fit, others, warm, det, model, rig, params, tolerance,
                                          offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
-    # An undetermined DOF is looked for where the residual, not the fixed floor, sets the
-    # tolerance (markers off the model): on clean footage the flat directions are the depth
-    # flips', and the search costs a Jacobian of the whole model. A model whose markers
-    # cannot determine some DOF in any posture (``core.identifiability``) leaves it
-    # undetermined in every image, however clean: there the search always runs.
-    one_dof = alternative_tolerance(params, det, model, error, 1)
-    widened = one_dof > alternative_tolerance(params, det, model, math.nan, 1)
-    if len(ranked) == 1 and one_dof > 0 and (widened or model.identifiability.undetermined):
-        witness = undetermined_alternative(
-            fit, det, model=model, rig=rig, tolerance_px=one_dof,
-            fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
-            huber_px=params.anneal.huber_px, offsets=offsets,
-        )
+    if len(ranked) == 1:
+        witness = _undetermined_witness(fit, det, model, rig, params, offsets)
         ranked += [witness] if witness is not None else []
     return ranked[0], tuple(ranked[1:]), its, settled
+
+
+def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel, rig: Rig,
+                          params: FitParams, offsets: np.ndarray | None) -> Candidate | None:
+    """An image's fit with no other minimum may still not determine a DOF: a posture
+    ``core.undetermined.UNDETERMINED_DEG`` away within the one-DOF tolerance, or None.
+
+    Looked for where the residual, not the fixed floor, sets the tolerance (markers off the
+    model): on clean footage the flat directions are the depth flips', and the search costs
+    a Jacobian of the whole model. A model whose markers cannot determine some DOF in any
+    posture (``core.identifiability``) leaves it undetermined in every image, however clean:
+    there the search always runs. The residual is read without the projections that look
+    hidden (``core.undetermined.hidden_projections``, ``scatter_error``): a marker hidden
+    from a camera is not scatter, and a noise-free image with one would otherwise read as
+    sliding skin. Another
+    minimum's tolerance (:func:`_attempt`) keeps the plain error: read without them, it
+    dropped flip alternatives that the choice by continuity needed (docs/BENCH_SUBJECTS.md).
+    """
+    off = view_offsets(offsets, rig)
+    hidden = hidden_projections(fit.dofs, det, model, rig, off, params.empty_view_penalty_px)
+    floor, residual = tolerance_readings(
+        params, det, model, scatter_error(fit.dofs, det, model, rig, off, hidden), 1)
+    if floor == 0 or not (residual > floor or model.identifiability.undetermined):
+        return None
+    return undetermined_alternative(
+        fit, det, model=model, rig=rig, tolerance_px=max(floor, residual), residual_px=residual,
+        fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
+        huber_px=params.anneal.huber_px, offsets=offsets,
+    )
 
 
 def alternative_tolerance(params: FitParams, det: Detections, model: KinematicModel,
                           error: float, tested_dofs: int) -> float:
     """Pixels of objective within which another posture is an alternative of an image's fit
-    of plain Eq. 5 error ``error``: ``params.alternative_tolerance_px`` per 8 compared
-    marker projections (never less), or what the image's own residual cannot tell apart
-    for postures differing in ``tested_dofs`` DOFs (``core.undetermined.residual_tolerance``:
-    ``len(model.dofs)`` for another minimum, 1 for one DOF's interval), whichever is
-    larger; 0 when ``params.alternative_tolerance_px`` is 0 (the search is off). Clean
-    footage (0.05 px a projection) keeps the fixed tolerance; sliding skin markers (1 px)
-    widen it.
+    whose residual reads as Eq. 5 error ``error`` (``core.undetermined.scatter_error``): the
+    larger of :func:`tolerance_readings`. Clean footage
+    (0.05 px a projection) keeps the fixed tolerance; sliding skin markers (1 px) widen it.
+    """
+    return max(tolerance_readings(params, det, model, error, tested_dofs))
+
+
+def tolerance_readings(params: FitParams, det: Detections, model: KinematicModel,
+                       error: float, tested_dofs: int) -> tuple[float, float]:
+    """The two readings of :func:`alternative_tolerance`, pixels: the fixed floor,
+    ``params.alternative_tolerance_px`` per 8 compared marker projections (never less), and
+    what the image's own residual cannot tell apart for postures differing in
+    ``tested_dofs`` DOFs (``core.undetermined.residual_tolerance``: ``len(model.dofs)`` for
+    another minimum, 1 for one DOF's interval). Both 0 when
+    ``params.alternative_tolerance_px`` is 0 (the search is off).
     """
     if params.alternative_tolerance_px == 0:
-        return 0.0
+        return 0.0, 0.0
     compared = _compared(tuple(det.counts.tolist()), len(model.markers))
-    return max(params.alternative_tolerance_px * max(1.0, compared / 8.0),
-               residual_tolerance(error, compared, len(model.dofs), tested_dofs))
+    return (params.alternative_tolerance_px * max(1.0, compared / 8.0),
+            residual_tolerance(error, compared, len(model.dofs), tested_dofs))
 
 
 def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray, det: Detections,

@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from core.detect import DetectorParams
-from core.error import Detections
+from core.error import Detections, marker_errors
 from core.fit import Status
 from core.model import KinematicModel
 from core.pipeline import FitJob, VideoSource, plan
@@ -43,7 +43,7 @@ from core.track import RootTracking
 
 __all__ = [
     "DETECTION_BGR", "MANIFEST", "MARK_BGR", "OVERLAY_DIR", "ImageMarks", "draw", "header", "image_marks",
-    "job_from_report", "marker_errors", "overlay_job", "render_overlay", "select_images",
+    "job_from_report", "overlay_job", "render_overlay", "select_images",
 ]
 
 # Colours, BGR (OpenCV's order). Chosen apart for the common colour-vision deficiencies:
@@ -77,7 +77,7 @@ class ImageMarks:
 
     markers : (V, M, 2) float64, full-frame pixels, projected model markers (NaN: no posture).
     joints : (V, J, 2) float64, full-frame pixels, projected joint origins, model-file order.
-    errors : (V, M) float64, pixels, :func:`marker_errors` (NaN where nothing to compare).
+    errors : (V, M) float64, pixels, ``core.error.marker_errors`` (NaN where nothing to compare).
     mark : key of :data:`MARK_BGR`.
     """
 
@@ -90,30 +90,6 @@ class ImageMarks:
     errors: np.ndarray
     error_px: float
     mark: str
-
-
-def marker_errors(markers: np.ndarray, detections: Detections) -> np.ndarray:
-    """Each projected marker's distance to the nearest detection of its view (its Eq. 5 term).
-
-    Parameters
-    ----------
-    markers : (V, M, 2) float64, full-frame pixels.
-    detections : one group per view.
-
-    Returns
-    -------
-    (V, M) float64 pixels; NaN in a view without detections (Eq. 5 charges it a constant).
-
-    >>> det = Detections.from_views([[[0.0, 0.0], [10.0, 0.0]], []])
-    >>> marker_errors(np.array([[[3.0, 4.0]], [[1.0, 1.0]]]), det).tolist()
-    [[5.0], [nan]]
-    """
-    out = np.full(markers.shape[:2], np.nan)
-    for v in range(markers.shape[0]):
-        points = detections.view(v)
-        if len(points):
-            out[v] = np.linalg.norm(markers[v, :, None, :] - points[None], axis=2).min(axis=1)
-    return out
 
 
 def image_marks(

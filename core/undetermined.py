@@ -7,6 +7,9 @@ image may have a single minimum and still not place a DOF within
 own residual cannot tell apart; :func:`undetermined_alternative` finds a posture at least
 :data:`UNDETERMINED_DEG` away in some DOF within it, which ``core.fit`` gives the image as
 its alternative (``alternative_deg``, ``core.ambiguity`` for the other alternatives).
+Skin markers slide in 3D, and every view sees a marker's slide alike, so the residual of a
+multi-camera image hides more than independent scatter would: each DOF's interval is the
+wider of the two readings (:func:`shared_scatter_inflation`).
 """
 
 from __future__ import annotations
@@ -17,13 +20,14 @@ import numpy as np
 
 from core import _kernels
 from core.ambiguity import Candidate, angle_gaps, plain_error
-from core.error import Detections, view_offsets
+from core.error import Detections, marker_errors, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
-from core.treefit import world_frames
+from core.treefit import MAX_LOST_SHARE, world_frames
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "confidence_chi2",
-           "residual_tolerance", "undetermined_alternative"]
+           "hidden_projections", "residual_tolerance", "scatter_error", "shared_scatter_inflation",
+           "undetermined_alternative"]
 
 # An image does not determine a DOF when a posture this far from its fit in that DOF (degrees,
 # the issue's "more than 10 degrees off the truth") explains it within its tolerance.
@@ -43,6 +47,38 @@ def confidence_chi2(k: int) -> float:
     """
     c = 2.0 / (9.0 * k)
     return k * (1.0 - c + _Z_CONFIDENCE * math.sqrt(c)) ** 3
+
+
+def hidden_projections(q: np.ndarray, detections: Detections, model: KinematicModel, rig: Rig,
+                       offsets: np.ndarray, penalty: float) -> np.ndarray:
+    """(V, M) bool: the projections of posture ``q`` (D,) farther than ``penalty`` px from
+    every blob of their view (``core.error.marker_errors``, views shifted by ``offsets``
+    (V, 2)): markers hidden from that camera, charged their distance to some other blob.
+    None (all False) where more than ``core.treefit.MAX_LOST_SHARE`` of the compared
+    projections are that far: that fit is not one with a few hidden markers."""
+    distances = marker_errors(rig.project(model.marker_positions(q)) + offsets[:, None, :], detections)
+    far = np.isfinite(distances) & (distances > penalty)
+    if np.count_nonzero(far) > MAX_LOST_SHARE * np.count_nonzero(np.isfinite(distances)):
+        return np.zeros_like(far)
+    return far
+
+
+def scatter_error(q: np.ndarray, detections: Detections, model: KinematicModel, rig: Rig,
+                  offsets: np.ndarray, hidden: np.ndarray) -> float:
+    """Eq. 5 (px) of posture ``q`` (D,) read as the markers' scatter about the model: the
+    mean distance of the compared projections to their nearest blob
+    (``core.error.marker_errors``, views shifted by ``offsets`` (V, 2)) times their number,
+    the mean taken without the ``hidden`` ones ((V, M), :func:`hidden_projections`). A
+    hidden marker is not scatter:
+    read as scatter, one made a noise-free image read as one with sliding skin. NaN with no
+    compared projection.
+    """
+    distances = marker_errors(rig.project(model.marker_positions(q)) + offsets[:, None, :], detections)
+    compared = np.isfinite(distances)
+    if not compared.any():
+        return math.nan
+    kept = compared & ~hidden
+    return float(np.mean(distances[kept])) * np.count_nonzero(compared)
 
 
 def residual_tolerance(error_px: float, compared: int, n_dofs: int, tested_dofs: int) -> float:
@@ -77,6 +113,7 @@ def undetermined_alternative(
     model: KinematicModel,
     rig: Rig,
     tolerance_px: float,
+    residual_px: float = 0.0,
     fusion_px: float,
     empty_view_penalty_px: float,
     huber_px: float,
@@ -98,6 +135,13 @@ def undetermined_alternative(
     DOFs whose linearised rise at the first step is above :data:`_SCREEN` tolerances are
     not tried (most DOFs of a clean image: the search costs a Jacobian and a few errors).
     Of the postures within the tolerance, the one farthest from the fit.
+
+    ``tolerance_px`` is the image's one-DOF tolerance (``core.fit.alternative_tolerance``);
+    ``residual_px`` the part of it read from the image's residual as scatter independent in
+    every projection (:func:`residual_tolerance`), which DOF d widens to
+    ``residual_px`` × :func:`shared_scatter_inflation` [d] where the residual is the
+    markers' own 3D scatter (sliding skin, a model's segments off) that every view sees
+    alike. 0 keeps ``tolerance_px`` for every DOF.
     """
     q = fit.dofs
     rot = model.rotational
@@ -127,23 +171,25 @@ def undetermined_alternative(
                                     image, float(huber_px), PROFILE_STEPS, _kernels.NO_TARGETS)
         return out
 
-    profiles, moves = _profiles(q, model, rig, detections)
+    profiles, moves, inflation = _profiles(q, model, rig, detections)
+    tolerance = np.maximum(tolerance_px, residual_px * inflation)  # (D,) pixels
     mean = max(fit.error / compared, 1e-12)
     # Linearised rise of Eq. 5 at the first step: a projection moved by m from a residual
     # of about ē rises by ~m²/(2ē) while m << ē, by ~m when m >> ē.
     step_moves = UNDETERMINED_DEG * moves
     rise = np.minimum(step_moves, step_moves**2 / (2 * mean)).sum(axis=1)
-    screened = rise <= _SCREEN * tolerance_px
-    limit = objective(q) + tolerance_px
+    screened = rise <= _SCREEN * tolerance
+    fitted = objective(q)
     structural = np.isin(model.dof_names, model.identifiability.undetermined)
     best, best_gap = None, UNDETERMINED_DEG
     for d in np.flatnonzero(rot & screened):
+        limit = fitted + tolerance[d]
         for sign in (1.0, -1.0):
             for k in range(WITNESS_DOUBLINGS + 1):
                 step = sign * UNDETERMINED_DEG * 2**k
                 p = np.clip(q + step * profiles[d], model.lower, model.upper)
                 value = objective(p)
-                if limit < value <= limit + _NEAR * tolerance_px or (structural[d] and value > limit):
+                if limit < value <= limit + _NEAR * tolerance[d] or (structural[d] and value > limit):
                     p = pinned(p, int(d))
                     value = objective(p)
                 gap = float(angle_gaps(p, q)[rot].max())
@@ -157,11 +203,12 @@ def undetermined_alternative(
 
 
 def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig,
-              detections: Detections) -> tuple[np.ndarray, np.ndarray]:
-    """Profile directions (D, D), row d the change of every DOF per unit change of DOF d,
-    and (D, P) how far each of the P compared marker projections moves along each, pixels
-    per unit, from the Jacobian J of the projections in the views with detections (forward
-    differences; linearised least squares: column d of (JᵀJ)⁻¹)."""
+              detections: Detections) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Profile directions (D, D), row d the change of every DOF per unit change of DOF d;
+    (D, P) how far each of the P compared marker projections moves along each, pixels per
+    unit; and (D,) each DOF's :func:`shared_scatter_inflation`. From the Jacobian J of the
+    projections in the views with detections (forward differences; linearised least
+    squares: column d of (JᵀJ)⁻¹)."""
     D = len(q)
     h = 1e-3
     postures = np.repeat(q[None], D + 1, axis=0)
@@ -174,4 +221,45 @@ def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig,
     C = np.linalg.inv(A)
     profiles = (C / np.diag(C)[None, :]).T
     moves = np.linalg.norm((J @ profiles.T).T.reshape(D, -1, 2), axis=2)
-    return profiles, moves
+    shared = _point_jacobian(model.marker_positions(q), rig, seen)
+    return profiles, moves, shared_scatter_inflation(J, C, shared)
+
+
+def _point_jacobian(points: np.ndarray, rig: Rig, seen: np.ndarray) -> np.ndarray:
+    """(2P, 3M) derivative of the P = views × M projections in the ``seen`` views, rows
+    ordered as the profiles' Jacobian (view, marker, u/v), by each marker's world position
+    ``points`` (M, 3), model units (forward differences)."""
+    M = len(points)
+    h = 1e-3 * max(float(np.ptp(points, axis=0).max()), 1.0)
+    moved = np.repeat(points[None], 4, axis=0)  # unmoved, then each axis
+    moved[1:] += np.eye(3)[:, None, :] * h
+    proj = rig.project(moved)[:, seen]  # (4, V', M, 2)
+    G = (proj[1:] - proj[:1]) / h  # (3 axes, V', M, 2)
+    B = np.einsum("avmc,mn->vmcna", G, np.eye(M))  # marker m's rows move with m alone
+    return B.reshape(-1, 3 * M)
+
+
+def shared_scatter_inflation(J: np.ndarray, C: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """(D,) how much wider each DOF's confidence interval is when the residual is each
+    marker's own 3D scatter (a skin marker sliding, a model's segment off) seen alike by
+    every view, than when it is scatter independent in each projection, as
+    :func:`residual_tolerance` reads it; at least 1 (the wider of the two readings).
+
+    ``J`` (2P, D) is the projections' Jacobian by the DOFs, ``C`` (D, D) its (JᵀJ)⁻¹ and
+    ``B`` (2P, 3M) the projections' Jacobian by the markers' world positions. With marker
+    scatter Σ = σ₃² BBᵀ the residual's expected square is σ₃² tr((I − J C Jᵀ) BBᵀ) and the
+    fit's covariance σ₃² C JᵀBBᵀJ C; read as independent scatter, the same residual gives
+    the covariance σ² C with σ² = residual² / (2P − D). The ratio of the two, per DOF, is
+    the factor by which the tolerance of a one-DOF interval grows: about
+    (2P − D) / (3M − D) for views around the animal (3 for three cameras around a rat),
+    since a marker slid in 3D moves alike in every view and more views do not average it
+    out; 1 for a single orthographic view, which cannot see the slide in depth.
+    """
+    P2, D = J.shape
+    JB = J.T @ B  # (D, 3M)
+    unexplained = float(np.sum(B * B) - np.sum(JB * (C @ JB)))
+    if unexplained <= 0 or P2 <= D:
+        return np.ones(D)
+    CJB = C @ JB
+    shared = np.sum(CJB * CJB, axis=1) / np.diag(C)
+    return np.maximum(1.0, (P2 - D) / unexplained * shared)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.error import Detections, view_error
+from core.error import Detections, marker_errors, view_error
 from core.fit import Status
 from core.model import KinematicModel
 from core.overlay import (
@@ -14,7 +14,6 @@ from core.overlay import (
     MARK_BGR,
     draw,
     image_marks,
-    marker_errors,
     select_images,
 )
 from core.results import AnglesTable

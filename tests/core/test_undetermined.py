@@ -12,19 +12,24 @@ import math
 import numpy as np
 import pytest
 
+from bench.subjects import load
 from core.ambiguity import Candidate, angle_gaps
-from core.error import Detections, view_error
+from core.error import Detections, view_error, view_offsets
 from core.examples import EXAMPLES
-from core.fit import FitParams, alternative_tolerance
+from core.fit import FitParams, alternative_tolerance, tolerance_readings
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.refine import refine
 from core.rig import Rig
 from core.sequence import fit_sequence
+from core.treefit import refine_whole
 from core.undetermined import (
     UNDETERMINED_DEG,
     confidence_chi2,
+    hidden_projections,
     residual_tolerance,
+    scatter_error,
+    shared_scatter_inflation,
     undetermined_alternative,
 )
 
@@ -118,3 +123,105 @@ def test_the_fit_reports_alternative_deg_only_where_a_dof_is_undetermined():
             assert all(d >= UNDETERMINED_DEG for d in degs), (name, degs)
         else:
             assert all(math.isnan(d) for d in degs), (name, degs)
+
+
+def _orthographic_rows(rotations: list[np.ndarray], markers: int) -> np.ndarray:
+    """(2 V M, 3 M) Jacobian of M markers' projections in orthographic views (the first two
+    rows of each rotation) by the markers' world positions, rows (view, marker, u/v)."""
+    blocks = [np.kron(np.eye(markers), r[:2]) for r in rotations]
+    return np.vstack(blocks)
+
+
+def test_the_shared_inflation_is_the_variance_ratio_of_markers_scattered_in_3d():
+    """Monte Carlo of the linearised fit: markers scattered in 3D and seen by three
+    orthographic views; each DOF's variance against what the residual, read as independent
+    scatter, predicts."""
+    rng = np.random.default_rng(3)
+    markers, D = 8, 6
+    rotations = [np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(3)]
+    B = _orthographic_rows(rotations, markers)
+    J = B @ rng.normal(size=(3 * markers, D))  # projections move because the markers do
+    C = np.linalg.inv(J.T @ J)
+    y = rng.normal(size=(20000, 3 * markers)) @ B.T  # (draws, 2P)
+    theta = y @ J @ C
+    residual = y - theta @ J.T
+    read = np.mean(np.sum(residual**2, axis=1)) / (J.shape[0] - D) * np.diag(C)
+    measured = theta.var(axis=0) / read
+    inflation = shared_scatter_inflation(J, C, B)
+    assert inflation.min() > 1.5  # the independent reading is far too narrow here
+    assert inflation == pytest.approx(measured, rel=0.05)
+
+
+def test_one_orthographic_view_reads_shared_scatter_as_independent():
+    """A single orthographic view sees each marker's 3D scatter as independent scatter of
+    its two image coordinates (depth unseen): no widening."""
+    rng = np.random.default_rng(4)
+    B = _orthographic_rows([np.eye(3)], 8)
+    J = B @ rng.normal(size=(24, 6))
+    assert shared_scatter_inflation(J, np.linalg.inv(J.T @ J), B) == pytest.approx(np.ones(6))
+
+
+def test_markers_slid_in_3d_leave_no_fit_10_degrees_off_without_a_witness():
+    """The biped's markers slid 4 px in 3D (as skin slides; every camera sees a slide alike)
+    and its posture refined from the truth into the minimum the slid markers make: every fit
+    more than 10 deg off the truth gets a witness. Read as independent scatter, the residual
+    leaves some of them without one."""
+    subject = load("biped", None)
+    model, rig, params = subject.model, subject.rig, FitParams()
+    truth = subject.trajectory(30, np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    off, missed_independent = 0, 0
+    for q in truth:
+        positions = model.marker_positions(q)
+        slide = rng.normal(size=positions.shape)
+        base = rig.project(positions)
+        slide *= 4.0 / np.sqrt(np.mean(np.sum((rig.project(positions + slide) - base) ** 2, -1)))
+        det = Detections.from_views(list(rig.project(positions + slide)))
+        fit, error, objective = refine_whole(q.copy(), det, model, rig, params,
+                                             view_offsets(None, rig), steps=30)
+        if angle_gaps(fit, q)[model.rotational].max() <= UNDETERMINED_DEG:
+            continue
+        off += 1
+        scatter = scatter_error(fit, det, model, rig, view_offsets(None, rig),
+                                np.zeros((len(rig.views), len(model.markers)), bool))
+        floor, residual = tolerance_readings(params, det, model, scatter, 1)
+        found = [undetermined_alternative(
+            Candidate(fit, error, objective), det, model=model, rig=rig,
+            tolerance_px=max(floor, residual), residual_px=widen, fusion_px=params.fusion_px,
+            empty_view_penalty_px=params.empty_view_penalty_px, huber_px=params.anneal.huber_px)
+            for widen in (residual, 0.0)]
+        assert found[0] is not None
+        missed_independent += found[1] is None
+    assert off >= 10 and missed_independent >= 1
+
+
+def _hidden(model: KinematicModel, rig: Rig, q: np.ndarray, drop: dict[int, list[int]]) -> Detections:
+    """Exact projections of ``q`` without the markers ``drop[view]`` (hidden from that view)."""
+    proj = rig.project(model.marker_positions(q))
+    return Detections.from_views([np.delete(p, drop.get(v, []), axis=0) for v, p in enumerate(proj)])
+
+
+def test_a_hidden_marker_is_not_read_as_scatter():
+    model, rig = _subject("locust_hind_leg")
+    off = view_offsets(None, rig)
+    det = _hidden(model, rig, LOCUST, {1: [2]})
+    hidden = hidden_projections(LOCUST, det, model, rig, off, 5.0)
+    assert np.argwhere(hidden).tolist() == [[1, 2]]
+    assert view_error(LOCUST, det, model=model, rig=rig) > 10.0  # charged its nearest other blob
+    assert scatter_error(LOCUST, det, model, rig, off, hidden) == pytest.approx(0.0, abs=1e-9)
+    # More than a quarter of the projections that far is a wrong fit, not hidden markers.
+    many = _hidden(model, rig, LOCUST, {0: [2, 3], 1: [2]})
+    assert not hidden_projections(LOCUST, many, model, rig, off, 5.0).any()
+
+
+def test_a_clean_image_with_a_hidden_marker_is_not_undetermined():
+    """Noise-free locust images with one marker hidden from one camera fit exactly; read as
+    scatter, the hidden marker's charge made each of them look like sliding skin, with a
+    DOF 10 deg away 'within' the tolerance."""
+    model, rig = _subject("locust_hind_leg")
+    images = [_hidden(model, rig, LOCUST, {v: [m]}) for v, m in ((0, 0), (1, 0), (1, 2))]
+    result = fit_sequence(images, model=model, rig=rig, params=FitParams(), seed=0,
+                          histograms=Histograms.uniform(model, prior_weight=100.0))
+    for fit in result.fits:
+        assert angle_gaps(fit.dofs, LOCUST).max() < 0.01
+        assert math.isnan(fit.alternative_deg(model.rotational))
