@@ -57,11 +57,15 @@ _MIN_ERROR_SCALE_PX = 0.05
 
 @dataclass(frozen=True)
 class Candidate:
-    """One posture an image supports: (D,) DOFs, plain Eq. 5 error, minimised objective (pixels)."""
+    """One posture an image supports: (D,) DOFs, plain Eq. 5 error, minimised objective
+    (pixels); ``minimum`` False for a witness that the image does not determine a DOF
+    (``core.undetermined``): a point on a flat valley at a set step from the fit, not a
+    minimum, which the choice by continuity does not take."""
 
     dofs: np.ndarray
     error: float
     objective: float
+    minimum: bool = True
 
 
 class FlipGeometry(NamedTuple):

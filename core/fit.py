@@ -223,7 +223,7 @@ class ImageFit:
             "iterations": self.iterations, "detections": list(self.detections),
             "alternatives": [
                 {"dofs": [_json_float(v) for v in c.dofs], "error": _json_float(c.error),
-                 "objective": _json_float(c.objective)}
+                 "objective": _json_float(c.objective), "minimum": c.minimum}
                 for c in self.alternatives
             ],
             "settled": self.settled,
@@ -241,7 +241,8 @@ class ImageFit:
             iterations=int(record["iterations"]),
             detections=tuple(int(c) for c in record["detections"]),
             alternatives=tuple(
-                Candidate(_float_array(c["dofs"]), _float(c["error"]), _float(c["objective"]))
+                Candidate(_float_array(c["dofs"]), _float(c["error"]), _float(c["objective"]),
+                          bool(c.get("minimum", True)))
                 for c in record.get("alternatives", ())
             ),
             settled=bool(record.get("settled", False)),

@@ -255,8 +255,12 @@ def _chosen_by_continuity(fits: list[ImageFit], n_markers: int, params: FitParam
         else [Candidate(f.dofs, f.error, f.objective), *f.alternatives]
         for f in fits
     ]
+    minima = [[i for i, c in enumerate(cands) if c.minimum] for cands in candidates]
+    chosen_minima = choose_candidates(
+        [[cands[i] for i in m] for cands, m in zip(candidates, minima, strict=True)])
     out = []
-    for fit, cands, k in zip(fits, candidates, choose_candidates(candidates), strict=True):
+    for fit, cands, m, j in zip(fits, candidates, minima, chosen_minima, strict=True):
+        k = m[j] if m else 0
         if k:
             chosen = cands[k]
             fit = replace(fit, dofs=chosen.dofs, error=chosen.error, objective=chosen.objective,

@@ -199,7 +199,8 @@ def undetermined_alternative(
                     best, best_gap = p, gap
     if best is None:
         return None
-    return Candidate(best, plain_error(best, detections, model, rig, off, image.penalty), objective(best))
+    return Candidate(best, plain_error(best, detections, model, rig, off, image.penalty), objective(best),
+                     minimum=False)
 
 
 def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig,

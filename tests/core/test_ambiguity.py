@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from core.fit import FitParams, ImageFit, Status
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
-from core.sequence import fit_sequence
+from core.sequence import finish_sequence, fit_sequence
 
 
 @pytest.fixture(scope="module")
@@ -104,6 +105,28 @@ def test_records_keep_the_alternatives():
     back = ImageFit.from_record(fit.to_record())
     assert back.to_record() == fit.to_record()
     assert back.alternatives[0].objective == 0.15 and np.isnan(back.alternatives[0].dofs[1])
+    witness = replace(fit, alternatives=(Candidate(np.array([3.0, 2.0]), 0.2, 0.15, minimum=False),))
+    assert ImageFit.from_record(witness.to_record()).alternatives[0].minimum is False
+
+
+def test_the_choice_by_continuity_takes_minima_not_witnesses(locust):
+    """The middle image's alternative lies on its neighbours' posture, but as a witness that
+    the image does not determine a DOF (a point on a flat valley at a set step, not a
+    minimum): the middle image keeps its fit, and the witness stays its alternative. A
+    minimum there would be taken."""
+    model = locust[0]
+    q = np.array([160.0, 15.0, 3.0, 20.0, 80.0])
+
+    def image(k: int, dofs: np.ndarray, *alternatives: Candidate) -> ImageFit:
+        return ImageFit(k, dofs, 0.5, 0.5, 1, Status.OK, 0, (4, 4), alternatives)
+
+    moved = q + np.array([0.0, 0.0, 0.0, 0.0, 20.0])
+    for minimum, chosen in ((False, moved), (True, q)):
+        middle = image(1, moved, Candidate(q.copy(), 0.5, 0.55, minimum=minimum))
+        fits = finish_sequence(Histograms.uniform(model), [image(0, q), middle, image(2, q)],
+                               model=model, params=FitParams()).fits
+        np.testing.assert_array_equal(fits[1].dofs, chosen)
+        assert fits[1].alternative_deg(model.rotational) == pytest.approx(20.0)
 
 
 def test_a_side_view_sequence_entering_the_ambiguous_range_stays_on_its_branch(locust):
