@@ -38,7 +38,6 @@ from core.fit import FitParams, tolerance_readings
 from core.treefit import refine_whole
 from core.undetermined import (
     UNDETERMINED_DEG,
-    hidden_projections,
     scatter_error,
     undetermined_alternative,
 )
@@ -64,8 +63,7 @@ def witnesses(subject: Subject, det: Detections, q: np.ndarray,
     model, rig = subject.model, subject.rig
     off = view_offsets(None, rig)
     fit, error, objective = refine_whole(q.copy(), det, model, rig, params, off, steps=REFINE_STEPS)
-    hidden = hidden_projections(fit, det, model, rig, off, params.empty_view_penalty_px)
-    scatter = scatter_error(fit, det, model, rig, off, hidden)
+    scatter = scatter_error(fit, det, model, rig, off, params.empty_view_penalty_px)
     floor, residual = tolerance_readings(params, det, model, scatter, 1)
     found = tuple(undetermined_alternative(
         Candidate(fit, error, objective), det, model=model, rig=rig,

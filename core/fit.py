@@ -46,7 +46,6 @@ from core.treefit import (
     tree_flip_alternatives,
 )
 from core.undetermined import (
-    hidden_projections,
     residual_tolerance,
     scatter_error,
     undetermined_alternative,
@@ -409,16 +408,14 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     a Jacobian of the whole model. A model whose markers cannot determine some DOF in any
     posture (``core.identifiability``) leaves it undetermined in every image, however clean:
     there the search always runs. The residual is read without the projections that look
-    hidden (``core.undetermined.hidden_projections``, ``scatter_error``): a marker hidden
-    from a camera is not scatter, and a noise-free image with one would otherwise read as
-    sliding skin. Another
+    hidden (``core.undetermined.scatter_error``): a marker hidden from a camera is not
+    scatter, and a noise-free image with one would otherwise read as sliding skin. Another
     minimum's tolerance (:func:`_attempt`) keeps the plain error: read without them, it
     dropped flip alternatives that the choice by continuity needed (docs/BENCH_SUBJECTS.md).
     """
-    off = view_offsets(offsets, rig)
-    hidden = hidden_projections(fit.dofs, det, model, rig, off, params.empty_view_penalty_px)
-    floor, residual = tolerance_readings(
-        params, det, model, scatter_error(fit.dofs, det, model, rig, off, hidden), 1)
+    scatter = scatter_error(fit.dofs, det, model, rig, view_offsets(offsets, rig),
+                            params.empty_view_penalty_px)
+    floor, residual = tolerance_readings(params, det, model, scatter, 1)
     if floor == 0 or not (residual > floor or model.identifiability.undetermined):
         return None
     return undetermined_alternative(
@@ -431,9 +428,10 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
 def alternative_tolerance(params: FitParams, det: Detections, model: KinematicModel,
                           error: float, tested_dofs: int) -> float:
     """Pixels of objective within which another posture is an alternative of an image's fit
-    whose residual reads as Eq. 5 error ``error`` (``core.undetermined.scatter_error``): the
-    larger of :func:`tolerance_readings`. Clean footage
-    (0.05 px a projection) keeps the fixed tolerance; sliding skin markers (1 px) widen it.
+    of Eq. 5 error ``error`` (the plain error for another minimum; for one DOF's interval
+    ``core.undetermined.scatter_error``): the larger of :func:`tolerance_readings`. Clean
+    footage (0.05 px a projection) keeps the fixed tolerance; sliding skin markers (1 px)
+    widen it.
     """
     return max(tolerance_readings(params, det, model, error, tested_dofs))
 

@@ -49,14 +49,12 @@ def confidence_chi2(k: int) -> float:
     return k * (1.0 - c + _Z_CONFIDENCE * math.sqrt(c)) ** 3
 
 
-def hidden_projections(q: np.ndarray, detections: Detections, model: KinematicModel, rig: Rig,
-                       offsets: np.ndarray, penalty: float) -> np.ndarray:
-    """(V, M) bool: the projections of posture ``q`` (D,) farther than ``penalty`` px from
-    every blob of their view (``core.error.marker_errors``, views shifted by ``offsets``
-    (V, 2)): markers hidden from that camera, charged their distance to some other blob.
-    None (all False) where more than ``core.treefit.MAX_LOST_SHARE`` of the compared
+def hidden_projections(distances: np.ndarray, penalty: float) -> np.ndarray:
+    """(V, M) bool: the projections whose ``distances`` (V, M) px to the nearest blob of
+    their view (``core.error.marker_errors``; NaN in a view without blobs) exceed
+    ``penalty``: markers hidden from that camera, charged their distance to some other blob.
+    None of them (all False) where more than ``core.treefit.MAX_LOST_SHARE`` of the compared
     projections are that far: that fit is not one with a few hidden markers."""
-    distances = marker_errors(rig.project(model.marker_positions(q)) + offsets[:, None, :], detections)
     far = np.isfinite(distances) & (distances > penalty)
     if np.count_nonzero(far) > MAX_LOST_SHARE * np.count_nonzero(np.isfinite(distances)):
         return np.zeros_like(far)
@@ -64,20 +62,19 @@ def hidden_projections(q: np.ndarray, detections: Detections, model: KinematicMo
 
 
 def scatter_error(q: np.ndarray, detections: Detections, model: KinematicModel, rig: Rig,
-                  offsets: np.ndarray, hidden: np.ndarray) -> float:
+                  offsets: np.ndarray, penalty: float) -> float:
     """Eq. 5 (px) of posture ``q`` (D,) read as the markers' scatter about the model: the
     mean distance of the compared projections to their nearest blob
     (``core.error.marker_errors``, views shifted by ``offsets`` (V, 2)) times their number,
-    the mean taken without the ``hidden`` ones ((V, M), :func:`hidden_projections`). A
-    hidden marker is not scatter:
-    read as scatter, one made a noise-free image read as one with sliding skin. NaN with no
-    compared projection.
+    the mean taken without the :func:`hidden_projections` (farther than ``penalty``). A
+    hidden marker is not scatter: read as scatter, one made a noise-free image read as one
+    with sliding skin. NaN with no compared projection.
     """
     distances = marker_errors(rig.project(model.marker_positions(q)) + offsets[:, None, :], detections)
     compared = np.isfinite(distances)
     if not compared.any():
         return math.nan
-    kept = compared & ~hidden
+    kept = compared & ~hidden_projections(distances, penalty)
     return float(np.mean(distances[kept])) * np.count_nonzero(compared)
 
 

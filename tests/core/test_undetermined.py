@@ -14,7 +14,7 @@ import pytest
 
 from bench.subjects import load
 from core.ambiguity import Candidate, angle_gaps
-from core.error import Detections, view_error, view_offsets
+from core.error import Detections, marker_errors, view_error, view_offsets
 from core.examples import EXAMPLES
 from core.fit import FitParams, alternative_tolerance, tolerance_readings
 from core.histogram import Histograms
@@ -183,7 +183,7 @@ def test_markers_slid_in_3d_leave_no_fit_10_degrees_off_without_a_witness():
             continue
         off += 1
         scatter = scatter_error(fit, det, model, rig, view_offsets(None, rig),
-                                np.zeros((len(rig.views), len(model.markers)), bool))
+                                params.empty_view_penalty_px)
         floor, residual = tolerance_readings(params, det, model, scatter, 1)
         found = [undetermined_alternative(
             Candidate(fit, error, objective), det, model=model, rig=rig,
@@ -205,13 +205,15 @@ def test_a_hidden_marker_is_not_read_as_scatter():
     model, rig = _subject("locust_hind_leg")
     off = view_offsets(None, rig)
     det = _hidden(model, rig, LOCUST, {1: [2]})
-    hidden = hidden_projections(LOCUST, det, model, rig, off, 5.0)
-    assert np.argwhere(hidden).tolist() == [[1, 2]]
+    projections = rig.project(model.marker_positions(LOCUST))
+    assert np.argwhere(hidden_projections(marker_errors(projections, det), 5.0)).tolist() == [[1, 2]]
     assert view_error(LOCUST, det, model=model, rig=rig) > 10.0  # charged its nearest other blob
-    assert scatter_error(LOCUST, det, model, rig, off, hidden) == pytest.approx(0.0, abs=1e-9)
+    assert scatter_error(LOCUST, det, model, rig, off, 5.0) == pytest.approx(0.0, abs=1e-9)
     # More than a quarter of the projections that far is a wrong fit, not hidden markers.
     many = _hidden(model, rig, LOCUST, {0: [2, 3], 1: [2]})
-    assert not hidden_projections(LOCUST, many, model, rig, off, 5.0).any()
+    assert not hidden_projections(marker_errors(projections, many), 5.0).any()
+    assert scatter_error(LOCUST, many, model, rig, off, 5.0) == pytest.approx(
+        view_error(LOCUST, many, model=model, rig=rig))
 
 
 def test_a_clean_image_with_a_hidden_marker_is_not_undetermined():
