@@ -211,7 +211,8 @@ def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig,
     h = 1e-3
     postures = np.repeat(q[None], D + 1, axis=0)
     postures[1:] += np.eye(D) * h
-    proj = rig.project(model.marker_positions(postures))  # (D + 1, V, M, 2)
+    positions = model.marker_positions(postures)  # (D + 1, M, 3)
+    proj = rig.project(positions)  # (D + 1, V, M, 2)
     seen = np.asarray(detections.counts) > 0
     J = ((proj[1:] - proj[:1])[:, seen] / h).reshape(D, -1).T  # (2P, D)
     A = J.T @ J
@@ -219,7 +220,7 @@ def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig,
     C = np.linalg.inv(A)
     profiles = (C / np.diag(C)[None, :]).T
     moves = np.linalg.norm((J @ profiles.T).T.reshape(D, -1, 2), axis=2)
-    shared = _point_jacobian(model.marker_positions(q), rig, seen)
+    shared = _point_jacobian(positions[0], rig, seen)
     return profiles, moves, shared_scatter_inflation(J, C, shared)
 
 

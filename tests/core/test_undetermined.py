@@ -13,16 +13,16 @@ import numpy as np
 import pytest
 
 from bench.subjects import load
+from bench.witness import slid_detections, witnesses
 from core.ambiguity import Candidate, angle_gaps
 from core.error import Detections, marker_errors, view_error, view_offsets
 from core.examples import EXAMPLES
-from core.fit import FitParams, alternative_tolerance, tolerance_readings
+from core.fit import FitParams, alternative_tolerance
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.refine import refine
 from core.rig import Rig
 from core.sequence import fit_sequence
-from core.treefit import refine_whole
 from core.undetermined import (
     UNDETERMINED_DEG,
     confidence_chi2,
@@ -167,31 +167,17 @@ def test_markers_slid_in_3d_leave_no_fit_10_degrees_off_without_a_witness():
     more than 10 deg off the truth gets a witness. Read as independent scatter, the residual
     leaves some of them without one."""
     subject = load("biped", None)
-    model, rig, params = subject.model, subject.rig, FitParams()
     truth = subject.trajectory(30, np.random.default_rng(0))
     rng = np.random.default_rng(1)
     off, missed_independent = 0, 0
     for q in truth:
-        positions = model.marker_positions(q)
-        slide = rng.normal(size=positions.shape)
-        base = rig.project(positions)
-        slide *= 4.0 / np.sqrt(np.mean(np.sum((rig.project(positions + slide) - base) ** 2, -1)))
-        det = Detections.from_views(list(rig.project(positions + slide)))
-        fit, error, objective = refine_whole(q.copy(), det, model, rig, params,
-                                             view_offsets(None, rig), steps=30)
-        if angle_gaps(fit, q)[model.rotational].max() <= UNDETERMINED_DEG:
+        fit, (shared, independent) = witnesses(subject, slid_detections(subject, q, 4.0, rng), q,
+                                               FitParams())
+        if angle_gaps(fit, q)[subject.model.rotational].max() <= UNDETERMINED_DEG:
             continue
         off += 1
-        scatter = scatter_error(fit, det, model, rig, view_offsets(None, rig),
-                                params.empty_view_penalty_px)
-        floor, residual = tolerance_readings(params, det, model, scatter, 1)
-        found = [undetermined_alternative(
-            Candidate(fit, error, objective), det, model=model, rig=rig,
-            tolerance_px=max(floor, residual), residual_px=widen, fusion_px=params.fusion_px,
-            empty_view_penalty_px=params.empty_view_penalty_px, huber_px=params.anneal.huber_px)
-            for widen in (residual, 0.0)]
-        assert found[0] is not None
-        missed_independent += found[1] is None
+        assert shared
+        missed_independent += not independent
     assert off >= 10 and missed_independent >= 1
 
 
