@@ -1,6 +1,6 @@
 """Whole-animal accuracy and speed benchmark (issue 13): subjects from published anatomy.
 
-    python bench/animals.py [--subject hexapod|biped|fullbody|stick|locust|rat|all] [--images N]
+    python bench/animals.py [--subject hexapod|biped|fullbody|stick|locust|rat|mouse|all] [--images N]
         [--cameras 6|3|2] [--soft-tissue] [--ghosts N] [--occlusion F] [--seed S] [--jobs 1]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,

@@ -1,7 +1,7 @@
 """Why images are off with real markers: a wrong basin, or the minimum itself moved?
 
-    python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|rat [--images N] [--soft-tissue]
-        [--cameras 6|3|2] [--occlusion F] [--off DEG] [--seed S] [--huber PX]
+    python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|rat|mouse [--images N]
+        [--soft-tissue] [--cameras 6|3|2] [--occlusion F] [--off DEG] [--seed S] [--huber PX]
 
 Renders and fits a subject as ``bench/animals.py`` does (same seed, same images), then
 refines the *true* posture on every image (``core.treefit.refine_whole``, as a fit's last

@@ -7,6 +7,8 @@ or ``core/examples/<name>/``, a frame size, a frame rate, and a movement generat
 - ``biped``: a human lower body walking along a 2.4 m walkway, pelvis moving forward;
 - ``fullbody``: a whole human (spine, head, arms) walking there, swinging its arms;
 - ``rat``: a rat's hindquarters trotting on a treadmill, filmed from both sides and below;
+- ``mouse``: a whole mouse trotting along a walkway, one camera filming it from the side and
+  through a mirror from below;
 - ``stick`` and ``locust``: the examples, moved by ``core.synth.natural_movements``.
 
 Sources of the anatomy: ``docs/BENCH_SUBJECTS.md``.
@@ -26,7 +28,7 @@ from core.rig import Rig
 from core.synth import natural_movements
 
 ROOT = Path(__file__).resolve().parents[2]
-NAMES = ("hexapod", "biped", "fullbody", "stick", "locust", "rat")
+NAMES = ("hexapod", "biped", "fullbody", "stick", "locust", "rat", "mouse")
 # Camera subsets of the hexapod's six (a ring at 30, 90, …, 330° azimuth): every other one,
 # and the two side cameras.
 HEXAPOD_CAMERAS = {6: (0, 1, 2, 3, 4, 5), 3: (0, 2, 4), 2: (1, 4)}
@@ -88,6 +90,9 @@ def load(name: str, cameras: int | None = None) -> Subject:
     if name == "rat":  # unmodelled: a lumbar spine marker and one on the right mid-thigh
         return Subject(name, model, rig, (720, 576), 200.0, treadmill_trot,
                        (("pelvis", (40.0, 14.0, 0.0)), ("R_hip", (17.5, 0.0, 5.0))))
+    if name == "mouse":  # unmodelled: a mid-back marker and one on the left mid-forearm
+        return Subject(name, model, rig, (960, 512), 250.0, walkway_trot,
+                       (("pelvis", (20.0, 7.0, 0.0)), ("L_elbow", (7.0, 0.0, -2.0))))
     unmodelled = ("femur_tibia", (12.0, 1.0, 0.0)) if name == "stick" else ("femur_tibia", (14.0, 1.5, 0.0))
     return Subject(name, model, rig, (720, 576), 50.0, _natural, (unmodelled,))
 
@@ -262,30 +267,90 @@ def treadmill_trot(subject: Subject, n: int, rng: np.random.Generator) -> np.nda
 
     Returns (n, 16) postures in model order, inside the DOF ranges.
     """
-    t = np.arange(n) / subject.fps
-    rate = _smooth_noise(rng, t, 1.0, *_RAT_STRIDE_HZ)
-    p = (np.cumsum(rate) / subject.fps + rng.uniform()) % 1.0  # right leg's phase
+    p, drift = _stride_clock(subject.fps, n, _RAT_STRIDE_HZ, rng)
+    cols = _trotting_pelvis(p, drift, along=40.0, across=10.0, height=-5.0, bob=2.5)
+    _hindlimbs(cols, p, drift)
+    return _inside(subject.model, _in_model_order(subject.model, cols))
+
+
+# ---- mouse: trotting along a walkway ---------------------------------------------------------------
+
+# Forelimb angles over a stride (% of the cycle from touchdown: degrees) in the model's terms:
+# shoulder flexion (the humerus forward of vertical; a mouse's points back and down), elbow
+# flexion (positive turns the forearm forward) and wrist dorsiflexion (0: paw perpendicular
+# to the forearm). Ours, shaped as rodent forelimb kinematics are described (the humerus
+# retracts through stance, the elbow extends at push-off and flexes in swing, the paw stays
+# flat in stance and curls in swing); stance ends at about 60 %.
+_MOUSE_SHOULDER = ((0, -50), (30, -63), (60, -77), (75, -70), (90, -53), (100, -50))
+_MOUSE_ELBOW = ((0, 75), (30, 80), (60, 60), (75, 105), (90, 100), (100, 75))
+_MOUSE_WRIST = ((0, -20), (30, 0), (55, 25), (65, -40), (80, -50), (92, -25), (100, -20))
+_MOUSE_STRIDE_HZ = (3.5, 5.0)
+
+
+def walkway_trot(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
+    """A mouse trotting along the walkway: the rat's hindlimbs (:func:`treadmill_trot`),
+    crouched (hips 30° more flexed, knees 40° more), and forelimbs in diagonal pairs (left
+    fore with right hind), the stride rate drifting within 3.5-5 Hz; the trunk wandering
+    ±20 mm along and ±4 mm across, bobbing ±1 mm, rolling, yawing and pitching as the rat's
+    pelvis.
+
+    Returns (n, 26) postures in model order, inside the DOF ranges.
+    """
+    p, drift = _stride_clock(subject.fps, n, _MOUSE_STRIDE_HZ, rng)
+    cols = _trotting_pelvis(p, drift, along=20.0, across=4.0, height=-1.0, bob=1.0)
+    _hindlimbs(cols, p, drift, crouch=(30.0, -40.0))
+    for side, ps, mirror in (("L", p, -1.0), ("R", (p + 0.5) % 1.0, 1.0)):
+        gain = drift(0.85, 1.1, 1.0)
+        cols[f"{side}_shoulder_flexion"] = gain * _cycle(_MOUSE_SHOULDER, ps)
+        cols[f"{side}_elbow_flexion"] = gain * _cycle(_MOUSE_ELBOW, ps)
+        cols[f"{side}_wrist_dorsiflexion"] = gain * _cycle(_MOUSE_WRIST, ps)
+        cols[f"{side}_shoulder_adduction"] = mirror * (drift(-3, 3) + 3 * np.cos(2 * np.pi * (ps - 0.2)))
+        cols[f"{side}_shoulder_rotation"] = mirror * (drift(-5, 5) + 4 * np.cos(2 * np.pi * (ps - 0.3)))
+    return _inside(subject.model, _in_model_order(subject.model, cols))
+
+
+def _stride_clock(fps: float, n: int, stride_hz: tuple[float, float], rng: np.random.Generator
+                  ) -> tuple[np.ndarray, Callable[..., np.ndarray]]:
+    """The right hindlimb's stride phase ((n,), 0..1 from touchdown, the rate drifting within
+    ``stride_hz`` over ~1 s) and ``drift(lo, hi, period_s=2.0)``, a smooth random (n,) signal."""
+    t = np.arange(n) / fps
+    rate = _smooth_noise(rng, t, 1.0, *stride_hz)
+    p = (np.cumsum(rate) / fps + rng.uniform()) % 1.0
 
     def drift(lo: float, hi: float, period_s: float = 2.0) -> np.ndarray:
         return _smooth_noise(rng, t, period_s, lo, hi)
 
+    return p, drift
+
+
+def _trotting_pelvis(p: np.ndarray, drift: Callable[..., np.ndarray], *, along: float,
+                     across: float, height: float, bob: float) -> dict[str, np.ndarray]:
+    """The pelvis's columns of a trot at phase ``p``: wandering ±``along`` and ±``across`` mm
+    over ~2 s, ``height`` ± ``bob`` mm twice per stride, rolling ±4°, yawing ±3° per stride
+    about a drifting ±6°, pitching ±3° twice per stride about a drifting ±4°."""
     swing = 2 * np.pi * p
-    cols = {
-        "pelvis_tx": drift(-40, 40),
-        "pelvis_tz": drift(-10, 10),
-        "pelvis_ty": -5 + 2.5 * np.cos(2 * swing),
+    return {
+        "pelvis_tx": drift(-along, along),
+        "pelvis_tz": drift(-across, across),
+        "pelvis_ty": height + bob * np.cos(2 * swing),
         "pelvis_rotation": drift(-6, 6) + 3 * np.cos(swing),
         "pelvis_obliquity": 4 * np.cos(swing - 0.3 * np.pi),
         "pelvis_tilt": drift(-4, 4) + 3 * np.cos(2 * swing),
     }
+
+
+def _hindlimbs(cols: dict[str, np.ndarray], p: np.ndarray, drift: Callable[..., np.ndarray],
+               crouch: tuple[float, float] = (0.0, 0.0)) -> None:
+    """Add the rat's trotting hindlimbs at phase ``p`` (the left half a cycle behind) to
+    ``cols``, each limb's amplitude drifting ×0.85-1.1, ``crouch`` (degrees) added to every
+    hip's and knee's flexion."""
     for side, ps, mirror in (("R", p, 1.0), ("L", (p + 0.5) % 1.0, -1.0)):
         gain = drift(0.85, 1.1, 1.0)
-        cols[f"{side}_hip_flexion"] = gain * _cycle(_RAT_HIP, ps)
-        cols[f"{side}_knee_flexion"] = -gain * _cycle(_RAT_KNEE, ps)
+        cols[f"{side}_hip_flexion"] = crouch[0] + gain * _cycle(_RAT_HIP, ps)
+        cols[f"{side}_knee_flexion"] = crouch[1] - gain * _cycle(_RAT_KNEE, ps)
         cols[f"{side}_ankle_dorsiflexion"] = gain * _cycle(_RAT_ANKLE, ps)
         cols[f"{side}_hip_adduction"] = mirror * (drift(-3, 3) + 3 * np.cos(2 * np.pi * (ps - 0.15)))
         cols[f"{side}_hip_rotation"] = mirror * (drift(-5, 5) + 5 * np.cos(2 * np.pi * (ps - 0.3)))
-    return _inside(subject.model, _in_model_order(subject.model, cols))
 
 
 def _in_model_order(model: KinematicModel, cols: dict[str, np.ndarray]) -> np.ndarray:

@@ -182,25 +182,35 @@ def _pelvis_joint(height: float, ranges: dict[str, tuple[float, float]]) -> str:
 def _leg_joints(side: str, half_width: float, thigh: float, shank: float,
                 ranges: dict[str, tuple[float, float]]) -> list[str]:
     """A leg's hip (flexion, adduction, rotation), knee and ankle joints on the pelvis, the hip
-    ``half_width`` to the side; ``ranges`` by DOF name without the side, adduction the right
-    leg's (the left mirrors it).
-
-    Local x down the thigh, y forward, z to the right (rest Rz(-90)); a positive rotation
-    about y moves the leg to the left: adduction on the right, abduction on the left. The
-    foot frame: x forward along the foot, y up (rest Rz(90) from the shank).
-    """
+    ``half_width`` to the side: :func:`_limb_joints` named hip, knee, ankle."""
     s = 1.0 if side == "R" else -1.0
-    lo, hi = ranges["hip_adduction"]
+    return _limb_joints(side, ("hip", "knee", "ankle"), (0, 0, s * half_width), thigh, shank, ranges)
+
+
+def _limb_joints(side: str, names: tuple[str, str, str], offset, upper: float, lower: float,
+                 ranges: dict[str, tuple[float, float]]) -> list[str]:
+    """A limb's proximal (flexion, adduction, rotation), middle and distal joints on the
+    pelvis at ``offset``, ``names`` = (proximal, middle, distal) joint names without the side;
+    ``ranges`` by DOF name without the side (``<proximal>_flexion``, ``_adduction``,
+    ``_rotation``, ``<middle>_flexion``, ``<distal>_dorsiflexion``), adduction the right
+    limb's (the left mirrors it).
+
+    Local x down the upper segment, y forward, z to the right (rest Rz(-90)); a positive
+    rotation about y moves the limb to the left: adduction on the right, abduction on the
+    left. Positive flexion about z turns a segment forward. The distal frame: x forward
+    along the foot or paw, y up (rest Rz(90) from the lower segment).
+    """
+    prox, mid, dist = (f"{side}_{n}" for n in names)
+    lo, hi = ranges[f"{names[0]}_adduction"]
     add = (lo, hi) if side == "R" else (-hi, -lo)
     return [
-        _joint(f"{side}_hip", "pelvis", (0, 0, s * half_width),
-               [_dof("z", f"{side}_hip_flexion", *ranges["hip_flexion"]),
-                _dof("y", f"{side}_hip_adduction", *add),
-                _dof("x", f"{side}_hip_rotation", *ranges["hip_rotation"])], rest=(0, 0, -90)),
-        _joint(f"{side}_knee", f"{side}_hip", (thigh, 0, 0),
-               [_dof("z", f"{side}_knee_flexion", *ranges["knee_flexion"])]),
-        _joint(f"{side}_ankle", f"{side}_knee", (shank, 0, 0),
-               [_dof("z", f"{side}_ankle_dorsiflexion", *ranges["ankle_dorsiflexion"])],
+        _joint(prox, "pelvis", offset,
+               [_dof("z", f"{prox}_flexion", *ranges[f"{names[0]}_flexion"]),
+                _dof("y", f"{prox}_adduction", *add),
+                _dof("x", f"{prox}_rotation", *ranges[f"{names[0]}_rotation"])], rest=(0, 0, -90)),
+        _joint(mid, prox, (upper, 0, 0), [_dof("z", f"{mid}_flexion", *ranges[f"{names[1]}_flexion"])]),
+        _joint(dist, mid, (lower, 0, 0),
+               [_dof("z", f"{dist}_dorsiflexion", *ranges[f"{names[2]}_dorsiflexion"])],
                rest=(0, 0, 90)),
     ]
 
@@ -431,11 +441,118 @@ def rat_rig() -> dict:
     return rig
 
 
+# ---- mouse: a whole mouse in a camera-and-mirror walkway -----------------------------------------
+
+# Limb bones (mm) of an adult C57BL/6 mouse (~25 g), rounded to the order of magnitude that
+# micro-CT studies of the strain report (femur ~15.5, tibia ~18, humerus ~12, ulna ~14), not
+# read from one paper's table; hind foot split into ankle-to-5th-metatarsal-head and on to the
+# toe tip, fore paw into wrist-to-5th-metacarpal-head and on to the digit tip.
+MOUSE_FEMUR, MOUSE_TIBIA, MOUSE_METATARSUS, MOUSE_TOE = 15.5, 18.0, 8.0, 4.0
+MOUSE_HUMERUS, MOUSE_ULNA, MOUSE_METACARPUS, MOUSE_DIGIT = 12.0, 14.0, 3.5, 3.0
+# Ours: a rigid trunk (no spine or head DOFs) from the hips to the shoulders; hip joints 10 mm
+# apart, shoulder joints 40 mm ahead of the hips, 6.5 mm lower (low on the chest, below a long
+# upright scapula), 12 mm apart; iliac crests 5 mm ahead of and 4 mm above the hips, 5 mm to
+# each side; the tail base 8 mm behind; the withers 38 mm ahead and 6 mm above. Markers sit
+# 1.5-2.5 mm lateral of the bone.
+MOUSE_HIP_HALF_WIDTH, MOUSE_SHOULDER = 5.0, (40.0, -6.5, 6.0)
+MOUSE_CREST, MOUSE_TAIL_BASE, MOUSE_WITHERS = (5.0, 4.0, 5.0), (-8.0, 3.0, 0.0), (38.0, 6.0, 0.0)
+MOUSE_HIP_HEIGHT = 34.0  # the pelvis origin at zero translation: the stance toes near y = 0
+MOUSE_SIZE = (960, 512)
+MOUSE_PX_PER_MM = 4.0
+
+
+def _mouse_trunk() -> tuple[list[str], list[str]]:
+    """The trunk root (3 translations, 3 rotations) with both iliac crests, the tail base and
+    the withers: (joints, markers)."""
+    root = _pelvis_joint(MOUSE_HIP_HEIGHT, {
+        "tx": (-40, 40), "ty": (-6, 6), "tz": (-12, 12), "rotation": (-25, 25),
+        "obliquity": (-15, 15), "tilt": (-20, 20)})
+    x, y, z = MOUSE_CREST
+    markers = [_marker("R_crest", "pelvis", (x, y, z)), _marker("L_crest", "pelvis", (x, y, -z)),
+               _marker("tail_base", "pelvis", MOUSE_TAIL_BASE),
+               _marker("withers", "pelvis", MOUSE_WITHERS)]
+    return [root], markers
+
+
+def _mouse_hindlimb(side: str) -> tuple[list[str], list[str]]:
+    """One hindlimb (hip 3 DOFs, knee, ankle) with greater trochanter, knee, ankle, 5th
+    metatarsal head and toe tip: (joints, markers)."""
+    s = 1.0 if side == "R" else -1.0
+    joints = _leg_joints(side, MOUSE_HIP_HALF_WIDTH, MOUSE_FEMUR, MOUSE_TIBIA, {
+        "hip_flexion": (-40, 110), "hip_adduction": (-40, 30), "hip_rotation": (-40, 40),
+        "knee_flexion": (-170, 0), "ankle_dorsiflexion": (-80, 60)})
+    markers = [
+        _marker(f"{side}_trochanter", f"{side}_hip", (-1.5, 0, s * 2.5)),
+        _marker(f"{side}_knee", f"{side}_hip", (MOUSE_FEMUR, 0, s * 2)),
+        _marker(f"{side}_ankle", f"{side}_ankle", (0, 0, s * 1.5)),
+        _marker(f"{side}_mt5", f"{side}_ankle", (MOUSE_METATARSUS, -1, s * 2)),
+        _marker(f"{side}_toe", f"{side}_ankle", (MOUSE_METATARSUS + MOUSE_TOE, -1.5, 0)),
+    ]
+    return joints, markers
+
+
+def _mouse_forelimb(side: str) -> tuple[list[str], list[str]]:
+    """One forelimb (shoulder 3 DOFs, elbow, wrist) with greater tubercle, olecranon, wrist
+    (ulnar styloid), 5th metacarpal head and digit tip: (joints, markers). The elbow flexes
+    the other way from the knee: positive turns the forearm forward."""
+    s = 1.0 if side == "R" else -1.0
+    x, y, z = MOUSE_SHOULDER
+    joints = _limb_joints(side, ("shoulder", "elbow", "wrist"), (x, y, s * z), MOUSE_HUMERUS,
+                          MOUSE_ULNA, {
+                              "shoulder_flexion": (-100, 40), "shoulder_adduction": (-30, 30),
+                              "shoulder_rotation": (-40, 40), "elbow_flexion": (0, 150),
+                              "wrist_dorsiflexion": (-90, 60)})
+    markers = [
+        _marker(f"{side}_shoulder", f"{side}_shoulder", (-1.5, 0, s * 2.5)),
+        _marker(f"{side}_elbow", f"{side}_elbow", (0, -1.5, s * 2)),
+        _marker(f"{side}_wrist", f"{side}_wrist", (0, 0, s * 1.5)),
+        _marker(f"{side}_mc5", f"{side}_wrist", (MOUSE_METACARPUS, -0.5, s * 1.5)),
+        _marker(f"{side}_digit", f"{side}_wrist", (MOUSE_METACARPUS + MOUSE_DIGIT, -1, 0)),
+    ]
+    return joints, markers
+
+
+def mouse_xml() -> str:
+    """A trunk with 3 translations and 3 rotations; per limb 3 + 1 + 1 DOFs; 24 markers."""
+    joints, markers = _mouse_trunk()
+    for limb in (_mouse_hindlimb, _mouse_forelimb):
+        for side in "RL":
+            limb_joints, limb_markers = limb(side)
+            joints += limb_joints
+            markers += limb_markers
+    comment = """  <!-- A whole mouse (adult C57BL/6, ~25 g): a rigid trunk root with 3 translations and 3
+       rotations carrying four limbs, hip or shoulder 3 DOFs, knee or elbow 1, ankle or wrist 1
+       (26 DOFs); skin markers on both iliac crests, the tail base and the withers, and per
+       limb at the greater trochanter or tubercle, knee or olecranon, ankle or wrist, 5th
+       metatarsal or metacarpal head, and toe or digit tip. Femur 15.5, tibia 18, hind foot 12,
+       humerus 12, ulna 14, fore paw 6.5 mm. x forward, y up, z right; mm.
+       Made by bench/subjects/build.py; docs/BENCH_SUBJECTS.md. -->"""
+    return "\n".join(['<model name="mouse" units="mm">', comment, *joints, *markers, "</model>", ""])
+
+
+def mouse_rig() -> dict:
+    """One camera filming a glass-floored walkway from the side and, through a 45° mirror
+    below it, from underneath (LocoMouse's setup, Machado et al. 2015, eLife 4:e07892): two
+    scaled orthographic views, 4 px per mm, in one 960×512 frame, the side view on top.
+    The side view shows x right and y up; the bottom view x right and z down (the animal's
+    right side lower in the frame)."""
+    w, h = MOUSE_SIZE
+    s = MOUSE_PX_PER_MM
+    side = [[s, 0, 0, w / 2 - 15 * s], [0, -s, 0, h / 2 - 10 * s]]
+    bottom = [[s, 0, 0, w / 2 - 15 * s], [0, 0, s, 3 * h / 4]]
+    return {"views": [
+        {"name": "side", "video": 0, "roi": [0, 0, w, h // 2],
+         "projection": {"type": "affine", "matrix": side}},
+        {"name": "bottom", "video": 0, "roi": [0, h // 2, w, h // 2],
+         "projection": {"type": "affine", "matrix": bottom}}]}
+
+
 def main() -> None:
     for name, xml, rig in (("hexapod", hexapod_xml(), hexapod_rig()),
                            ("biped", biped_xml(), biped_rig()),
                            ("fullbody", fullbody_xml(), fullbody_rig()),
-                           ("rat", rat_xml(), rat_rig())):
+                           ("rat", rat_xml(), rat_rig()),
+                           ("mouse", mouse_xml(), mouse_rig())):
         folder = HERE / name
         folder.mkdir(exist_ok=True)
         (folder / "model.xml").write_text(xml)

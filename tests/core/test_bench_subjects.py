@@ -115,6 +115,26 @@ def test_rat_is_small_in_its_images():
     assert [v.name for v in two.views] == ["right", "left"] and two.n_videos == 2
 
 
+def test_mouse_is_one_camera_and_a_mirror():
+    """The mouse: a trunk root with 6 DOFs and four 5-DOF limbs, seen by one camera from the
+    side and through a mirror from below (two affine views in one frame, split by their
+    rois); its left and right limbs overlap in the side view and lie apart in the bottom one."""
+    subject = load("mouse")
+    model, rig = subject.model, subject.rig
+    assert len(model.dofs) == 26 and len(model.markers) == 24 and len(subject.unmodelled) == 2
+    assert [d.axis for d in model.dofs if d.joint == "pelvis"] == ["tx", "ty", "tz", "y", "x", "z"]
+    assert sorted(j.name for j in model.joints if j.parent == "pelvis") == [
+        "L_hip", "L_shoulder", "R_hip", "R_shoulder"]
+    assert [v.projection["type"] for v in rig.views] == ["affine", "affine"]
+    assert rig.n_videos == 1 and [v.roi[1] for v in rig.views] == [0, 256]
+    truth = subject.trajectory(200, np.random.default_rng(2))
+    proj = rig.project(model.marker_positions(truth))  # (T, V, M, 2)
+    names = [m.name for m in model.markers]
+    gap = np.linalg.norm(proj[:, :, names.index("R_knee")] - proj[:, :, names.index("L_knee")], axis=-1)
+    side, bottom = np.percentile(gap, 10, axis=0)
+    assert side < 10.0 < 20.0 < bottom  # px: the knees cross in the side view, never below
+
+
 def test_camera_choice_defaults():
     assert camera_choice("hexapod", None) == 6 and camera_choice("hexapod", 2) == 2
     assert camera_choice("rat", None) is None and camera_choice("rat", 2) == 2
