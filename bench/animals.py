@@ -9,7 +9,8 @@ is rendered by ``core.synth`` (5 px markers, ``--ghosts`` ghost blobs per view a
 detected by ``core.detect`` and fitted by ``core.sequence.fit_sequence`` with the settings
 ``mocap fit`` uses by default (marker diameter estimated from the blobs). With
 ``--soft-tissue`` every marker slides by a slowly varying 3D offset whose image displacement
-is 2 px RMS, and the markers the model lacks (one; the rat two) are drawn in every view.
+is 2 px RMS, and the markers the model lacks (one; the rat and the mouse two) are drawn in
+every view.
 With ``--occlusion F`` every (view, marker) pair, the unmodelled markers included, is hidden
 (not drawn: no blob) in runs of images, as a leg hides a marker from one camera: a two-state
 Markov chain per pair, hidden a fraction F of the images on average, in runs of
