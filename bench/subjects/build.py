@@ -397,19 +397,30 @@ def _rat_pelvis() -> tuple[list[str], list[str]]:
 
 
 def _rat_leg(side: str) -> tuple[list[str], list[str]]:
+    """One rat hindlimb: :func:`_rodent_hindlimb` with the rat's bones, markers 3-5 mm off the bone."""
+    return _rodent_hindlimb(side, RAT_HIP_HALF_WIDTH, (RAT_FEMUR, RAT_TIBIA, RAT_METATARSUS, RAT_TOE),
+                            skin=1.0, knee_flexion=150.0)
+
+
+def _rodent_hindlimb(side: str, half_width: float, bones: tuple[float, float, float, float],
+                     skin: float, knee_flexion: float) -> tuple[list[str], list[str]]:
     """One hindlimb on the pelvis (hip 3 DOFs, knee, ankle) with greater trochanter, knee
     (lateral condyle), ankle (lateral malleolus), 5th metatarsal head and toe tip:
-    (joints, markers). Frames and signs as the biped's legs (:func:`_leg_joints`)."""
+    (joints, markers). ``bones``: femur, tibia, ankle to 5th metatarsal head, on to the toe
+    tip; ``skin`` scales the markers' offsets from the bone (a rat's: 3-5 mm lateral, 2-3 mm
+    below the foot); the knee flexes 0..``knee_flexion`` degrees. Frames and signs as the
+    biped's legs (:func:`_leg_joints`)."""
     s = 1.0 if side == "R" else -1.0
-    joints = _leg_joints(side, RAT_HIP_HALF_WIDTH, RAT_FEMUR, RAT_TIBIA, {
+    femur, tibia, metatarsus, toe = bones
+    joints = _leg_joints(side, half_width, femur, tibia, {
         "hip_flexion": (-40, 110), "hip_adduction": (-40, 30), "hip_rotation": (-40, 40),
-        "knee_flexion": (-150, 0), "ankle_dorsiflexion": (-80, 60)})
+        "knee_flexion": (-knee_flexion, 0), "ankle_dorsiflexion": (-80, 60)})
     markers = [
-        _marker(f"{side}_trochanter", f"{side}_hip", (-3, 0, s * 5)),
-        _marker(f"{side}_knee", f"{side}_hip", (RAT_FEMUR, 0, s * 4)),
-        _marker(f"{side}_ankle", f"{side}_ankle", (0, 0, s * 3)),
-        _marker(f"{side}_mt5", f"{side}_ankle", (RAT_METATARSUS, -2, s * 4)),
-        _marker(f"{side}_toe", f"{side}_ankle", (RAT_METATARSUS + RAT_TOE, -3, 0)),
+        _marker(f"{side}_trochanter", f"{side}_hip", (-3 * skin, 0, s * 5 * skin)),
+        _marker(f"{side}_knee", f"{side}_hip", (femur, 0, s * 4 * skin)),
+        _marker(f"{side}_ankle", f"{side}_ankle", (0, 0, s * 3 * skin)),
+        _marker(f"{side}_mt5", f"{side}_ankle", (metatarsus, -2 * skin, s * 4 * skin)),
+        _marker(f"{side}_toe", f"{side}_ankle", (metatarsus + toe, -3 * skin, 0)),
     ]
     return joints, markers
 
@@ -475,20 +486,11 @@ def _mouse_trunk() -> tuple[list[str], list[str]]:
 
 
 def _mouse_hindlimb(side: str) -> tuple[list[str], list[str]]:
-    """One hindlimb (hip 3 DOFs, knee, ankle) with greater trochanter, knee, ankle, 5th
-    metatarsal head and toe tip: (joints, markers)."""
-    s = 1.0 if side == "R" else -1.0
-    joints = _leg_joints(side, MOUSE_HIP_HALF_WIDTH, MOUSE_FEMUR, MOUSE_TIBIA, {
-        "hip_flexion": (-40, 110), "hip_adduction": (-40, 30), "hip_rotation": (-40, 40),
-        "knee_flexion": (-170, 0), "ankle_dorsiflexion": (-80, 60)})
-    markers = [
-        _marker(f"{side}_trochanter", f"{side}_hip", (-1.5, 0, s * 2.5)),
-        _marker(f"{side}_knee", f"{side}_hip", (MOUSE_FEMUR, 0, s * 2)),
-        _marker(f"{side}_ankle", f"{side}_ankle", (0, 0, s * 1.5)),
-        _marker(f"{side}_mt5", f"{side}_ankle", (MOUSE_METATARSUS, -1, s * 2)),
-        _marker(f"{side}_toe", f"{side}_ankle", (MOUSE_METATARSUS + MOUSE_TOE, -1.5, 0)),
-    ]
-    return joints, markers
+    """One mouse hindlimb: :func:`_rodent_hindlimb` with the mouse's bones, markers 1.5-2.5 mm
+    off the bone, the knee flexing to 170°."""
+    return _rodent_hindlimb(side, MOUSE_HIP_HALF_WIDTH,
+                            (MOUSE_FEMUR, MOUSE_TIBIA, MOUSE_METATARSUS, MOUSE_TOE), skin=0.5,
+                            knee_flexion=170.0)
 
 
 def _mouse_forelimb(side: str) -> tuple[list[str], list[str]]:
