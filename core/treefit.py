@@ -78,20 +78,23 @@ WARM_STEPS = 10  # LM steps refining the previous image's posture of a part (a w
 WARM_JOINT_STEPS = 2  # joint refinement of parts that all came from warm starts
 WARM_EPS_FACTOR = 2.0  # a warm start stands in for SA within this many times the part's ε
 MAX_LOST_SHARE = 0.25  # of a part's projections, at most this share may look hidden in a warm start
+TRUNK_SEARCH_FIRST = True  # SA searches an unexplained trunk on the whole in the first pass (else LM only)
 
 
 def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
                    model: KinematicModel, rig: Rig, space: SearchSpace, params: FitParams,
-                   eps: float, stream: np.ndarray, draw_start: bool, off: np.ndarray):
+                   eps: float, stream: np.ndarray, draw_start: bool, off: np.ndarray,
+                   start_q: np.ndarray | None = None):
     """``_kernels.fit_attempt`` over the DOFs ``dofs`` (indices into ``model.dofs``) of the
     model posed by ``kin`` (the whole model, or one part) against detections ``points``
-    (N, 3) grouped by view at ``start`` (V + 1,); returns (dofs (d,), error, objective,
-    iterations)."""
+    (N, 3) grouped by view at ``start`` (V + 1,), its first run from ``start_q`` (d,) (the
+    histograms' means by default); returns (dofs (d,), error, objective, iterations)."""
     sa = kernel_params(params.anneal, space.sigma[dofs], space.table[dofs], eps=eps,
                        refine_result=params.refine, restarts=params.restarts)
     image = _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
                               fuse_px=params.fusion_px)
-    return _kernels.fit_attempt(space.mean[dofs], bool(draw_start),
+    first = space.mean[dofs] if start_q is None else np.ascontiguousarray(start_q, dtype=np.float64)
+    return _kernels.fit_attempt(first, bool(draw_start),
                                 _kernels.Bounds(model.lower[dofs], model.upper[dofs]), kin, rig.arrays,
                                 image, sa, stream)
 
@@ -408,17 +411,37 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             if proposed is not None and proposed[1] < value:
                 q[part.dofs] = proposed[0]
 
+    branches = tree.branches  # parents first: a branch's base is fitted when it comes
+
+    def fit_branches() -> np.ndarray:
+        """Fit every branch in ``q`` given the trunk there: (B, N) the detections each reaches."""
+        reach = np.zeros((len(branches), len(det.points)), dtype=bool)
+        known = np.zeros(len(branches), dtype=bool)
+        for b, part in enumerate(branches):
+            if not known[b]:  # every branch on this base at once: the base is fitted
+                group = [k for k, p in enumerate(branches) if p.base == part.base]
+                reach[group] = _reaches(q, det, model, rig, [branches[k] for k in group], off)
+                known[group] = True
+            fit_part(part, *_subset(det, reach[b]), warm)
+        return reach
+
     if tree.trunk is not None:
         fit_part(tree.trunk, det.kernel_points, det.start, warm)
-    branches = tree.branches  # parents first: a branch's base is fitted when it comes
-    reach = np.zeros((len(branches), len(det.points)), dtype=bool)
-    known = np.zeros(len(branches), dtype=bool)
-    for b, part in enumerate(branches):
-        if not known[b]:  # every branch on this base at once: the base is fitted
-            group = [k for k, p in enumerate(branches) if p.base == part.base]
-            reach[group] = _reaches(q, det, model, rig, [branches[k] for k in group], off)
-            known[group] = True
-        fit_part(part, *_subset(det, reach[b]), warm)
+    reach = fit_branches()
+    if tree.trunk is not None and _trunk_unexplained(q, det, model, rig, tree, params, off):
+        # Its own markers leave the trunk unexplained (hidden, or on a branch's blobs): the
+        # trunk judged by the whole model, then the branches refitted given it, kept where
+        # the whole objective is lower.
+        before, reach_before = q.copy(), reach
+        iterations += _trunk_by_whole(q, det, model, rig, tree, space, params, stream, off, views_seen,
+                                      warm, TRUNK_SEARCH_FIRST or keep is not None)
+        if distinct(q[tree.trunk.dofs], before[tree.trunk.dofs], model.rotational[tree.trunk.dofs]):
+            reach = fit_branches()
+            if _whole_objective(q, det, model, rig, params, off) >= _whole_objective(
+                    before, det, model, rig, params, off):
+                q[:], reach = before, reach_before
+        else:
+            q[:] = before
     in_reach = reach.any(axis=0)
     score = np.inf  # the two-sided error, computed once there is a conflict to judge
     previous: list[int] = []
@@ -450,6 +473,95 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
     rot = model.rotational
     settled = keep is not None and not any(distinct(q[p.dofs], keep[p.dofs], rot[p.dofs]) for p in gained)
     return q, error, objective, iterations, settled
+
+
+def _trunk_unexplained(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
+                       params: FitParams, off: np.ndarray) -> bool:
+    """Whether, at posture ``q`` (D,), some projection of the root trunk's markers (in a view
+    with detections) is not explained by a blob of its own: farther than the empty-view
+    penalty from every blob (hidden), or nearest a blob that a branch's marker claims too
+    (within :data:`CLAIM_PX` of both: a hidden trunk marker on a limb's blob)."""
+    trunk = tree.trunk
+    assert trunk is not None
+    proj = rig.project(model.marker_positions(q)) + off[:, None, :]
+    branch = np.setdiff1d(np.arange(len(model.markers)), trunk.markers)
+    for v in range(det.n_views):
+        pts = det.view(v)
+        if len(pts) == 0:
+            continue
+        d = np.linalg.norm(proj[v][trunk.markers][:, None, :] - pts[None], axis=2)  # (m, n)
+        nearest = d.min(axis=1)
+        if (nearest > params.empty_view_penalty_px).any():
+            return True
+        near = d.argmin(axis=1)[nearest <= CLAIM_PX]
+        if len(near) and len(branch):
+            to_branch = np.linalg.norm(proj[v][branch][:, None, :] - pts[near][None], axis=2).min(axis=0)
+            if (to_branch <= CLAIM_PX).any():
+                return True
+    return False
+
+
+def _trunk_by_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
+                    space: SearchSpace, params: FitParams, stream: np.ndarray, off: np.ndarray,
+                    views_seen: int, warm: np.ndarray | None, search: bool) -> int:
+    """The root trunk's DOFs of ``q`` (D,) (changed in place) fitted on every marker of the
+    model, every other DOF held (:func:`_rigid_trunk`): refined from ``q`` and from each warm
+    start ``warm`` (k, D) (its branches held as it has them), and with ``search``, SA from
+    ``q``'s trunk too; the lowest whole objective (:func:`_charged_objective`) stays. Returns
+    SA iterations. Held, the branches ride rigidly on the trunk joints they hang from, so
+    their markers place the trunk as its own do.
+
+    Why: a trunk whose own markers are hidden, in a view or two, is charged their distance
+    to the nearest blob, some limb's; its own objective is then lower at a wrong posture
+    that puts them on limb blobs than at the right one, which leaves them unexplained. The
+    limbs' proximal markers (a trochanter, a shoulder) lie a few millimetres from the trunk
+    whatever the limb's posture, and charge the wrong trunk. The previous image's whole
+    posture (a warm start) moved little as a whole since."""
+    trunk = tree.trunk
+    assert trunk is not None
+    dofs = trunk.dofs
+    image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
+                              fuse_px=params.fusion_px)
+    bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
+    rows = [q.copy()] + ([] if warm is None else [np.asarray(r, dtype=np.float64) for r in warm])
+    best, best_value, iterations = q[dofs].copy(), np.inf, 0
+    for k, row in enumerate(rows):
+        kin = _rigid_trunk(row, model, trunk)
+        t = np.ascontiguousarray(row[dofs])
+        if params.refine:
+            t = _kernels.refine(t, bounds, kin, rig.arrays, image, float(params.anneal.huber_px), WARM_STEPS,
+                                _kernels.NO_TARGETS)
+        candidates = [t]
+        if k == 0 and search:
+            eps = params.anneal.eps * len(model.markers) * views_seen / EPS_PROJECTIONS
+            found, _, _, its = attempt_kernel(dofs, kin, det.kernel_points, det.start, model, rig, space,
+                                              params, eps, stream, False, off, start_q=row[dofs])
+            iterations += int(its)
+            candidates.append(found)
+        for c in candidates:
+            value = _charged_objective(c, kin, det.kernel_points, det.start, rig, params, off)
+            if value < best_value:
+                best, best_value = c, value
+    q[dofs] = best
+    return iterations
+
+
+def _rigid_trunk(q: np.ndarray, model: KinematicModel, trunk: Part):
+    """The root trunk's arrays (``trunk.kin``) carrying every other marker of the model too,
+    each fixed in the frame of the deepest trunk joint above it where ``q`` (D,) puts it: the
+    whole model with every DOF outside the trunk held."""
+    others = np.setdiff1d(np.arange(len(model.markers)), trunk.markers)
+    below = _subtrees(model.arrays.parent)
+    on = np.array([int(trunk.joints[below[trunk.joints, j]].max()) for j in model.arrays.marker_joint[others]],
+                  dtype=np.int64)
+    rot, pos = world_frames(q, model)
+    world = model.marker_positions(q)[others]
+    local = np.einsum("kji,kj->ki", rot[on], world - pos[on])  # R^T (x - p)
+    row = {int(j): i for i, j in enumerate(trunk.joints)}
+    kin = trunk.kin
+    return kin._replace(
+        marker_joint=np.concatenate([kin.marker_joint, [row[int(j)] for j in on]]).astype(np.int64),
+        marker_pos=np.ascontiguousarray(np.vstack([kin.marker_pos, local])))
 
 
 def _part_eps(part: Part, params: FitParams, views_seen: int) -> float:
