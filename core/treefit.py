@@ -78,7 +78,7 @@ WARM_STEPS = 10  # LM steps refining the previous image's posture of a part (a w
 WARM_JOINT_STEPS = 2  # joint refinement of parts that all came from warm starts
 WARM_EPS_FACTOR = 2.0  # a warm start stands in for SA within this many times the part's ε
 MAX_LOST_SHARE = 0.25  # of a part's projections, at most this share may look hidden in a warm start
-TRUNK_SEARCH_FIRST = True  # SA searches an unexplained trunk on the whole in the first pass (else LM only)
+TRUNK_SEARCH_FIRST = False  # SA searches an unexplained trunk on the whole in the first pass (else LM only)
 
 
 def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
