@@ -21,6 +21,12 @@ branches' reach, its distance to the nearest marker, capped), which does charge
 the stolen leg's blobs. A real fusion (two markers imaged as one blob) survives:
 refitting without the shared blob raises the error, and the first posture stays.
 
+A root trunk whose own markers are left unexplained after the first pass (hidden, or on
+a blob a branch claims) is refined again on every marker of the model, the branches held
+rigid (:func:`_trunk_by_whole`): its hidden markers would otherwise take limb blobs, and its
+own objective prefers that wrong pose to the right one. Where it moves to another minimum
+the branches are refitted given it, kept where the whole objective is lower.
+
 Within a chunk, each part first tries the previous image's posture (:func:`warm_start`):
 refined on the part's detections, it replaces the part's SA where it reaches twice the
 part's ε or, under sliding skin markers, the part's level in the previous image plus what
@@ -408,17 +414,36 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             if proposed is not None and proposed[1] < value:
                 q[part.dofs] = proposed[0]
 
+    branches = tree.branches  # parents first: a branch's base is fitted when it comes
+
+    def fit_branches() -> np.ndarray:
+        """Fit every branch in ``q`` given the trunk there: (B, N) the detections each reaches."""
+        reach = np.zeros((len(branches), len(det.points)), dtype=bool)
+        known = np.zeros(len(branches), dtype=bool)
+        for b, part in enumerate(branches):
+            if not known[b]:  # every branch on this base at once: the base is fitted
+                group = [k for k, p in enumerate(branches) if p.base == part.base]
+                reach[group] = _reaches(q, det, model, rig, [branches[k] for k in group], off)
+                known[group] = True
+            fit_part(part, *_subset(det, reach[b]), warm)
+        return reach
+
     if tree.trunk is not None:
         fit_part(tree.trunk, det.kernel_points, det.start, warm)
-    branches = tree.branches  # parents first: a branch's base is fitted when it comes
-    reach = np.zeros((len(branches), len(det.points)), dtype=bool)
-    known = np.zeros(len(branches), dtype=bool)
-    for b, part in enumerate(branches):
-        if not known[b]:  # every branch on this base at once: the base is fitted
-            group = [k for k, p in enumerate(branches) if p.base == part.base]
-            reach[group] = _reaches(q, det, model, rig, [branches[k] for k in group], off)
-            known[group] = True
-        fit_part(part, *_subset(det, reach[b]), warm)
+    reach = fit_branches()
+    if tree.trunk is not None and _trunk_unexplained(q, det, model, rig, tree, params, off):
+        # Its own markers leave the trunk unexplained (hidden, or on a branch's blobs): the
+        # trunk judged by the whole model, then the branches refitted given it, kept where
+        # the whole objective is lower.
+        before, reach_before = q.copy(), reach
+        _trunk_by_whole(q, det, model, rig, tree, params, off, warm)
+        if distinct(q[tree.trunk.dofs], before[tree.trunk.dofs], model.rotational[tree.trunk.dofs]):
+            reach = fit_branches()
+            if _whole_objective(q, det, model, rig, params, off) >= _whole_objective(
+                    before, det, model, rig, params, off):
+                q[:], reach = before, reach_before
+        else:
+            q[:] = before
     in_reach = reach.any(axis=0)
     score = np.inf  # the two-sided error, computed once there is a conflict to judge
     previous: list[int] = []
@@ -450,6 +475,86 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
     rot = model.rotational
     settled = keep is not None and not any(distinct(q[p.dofs], keep[p.dofs], rot[p.dofs]) for p in gained)
     return q, error, objective, iterations, settled
+
+
+def _trunk_unexplained(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
+                       params: FitParams, off: np.ndarray) -> bool:
+    """Whether, at posture ``q`` (D,), some projection of the root trunk's markers (in a view
+    with detections) is not explained by a blob of its own: farther than the empty-view
+    penalty from every blob (hidden), or nearest a blob that a branch's marker claims too
+    (within :data:`CLAIM_PX` of both: a hidden trunk marker on a limb's blob)."""
+    trunk = tree.trunk
+    assert trunk is not None
+    proj = rig.project(model.marker_positions(q)) + off[:, None, :]
+    branch = np.setdiff1d(np.arange(len(model.markers)), trunk.markers)
+    for v in range(det.n_views):
+        pts = det.view(v)
+        if len(pts) == 0:
+            continue
+        d = np.linalg.norm(proj[v][trunk.markers][:, None, :] - pts[None], axis=2)  # (m, n)
+        nearest = d.min(axis=1)
+        if (nearest > params.empty_view_penalty_px).any():
+            return True
+        near = d.argmin(axis=1)[nearest <= CLAIM_PX]
+        if len(near) and len(branch):
+            to_branch = np.linalg.norm(proj[v][branch][:, None, :] - pts[near][None], axis=2).min(axis=0)
+            if (to_branch <= CLAIM_PX).any():
+                return True
+    return False
+
+
+def _trunk_by_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
+                    params: FitParams, off: np.ndarray, warm: np.ndarray | None) -> None:
+    """The root trunk's DOFs of ``q`` (D,) (changed in place) refined by LM on every marker
+    of the model, every other DOF held (:func:`_rigid_trunk`), from ``q`` and from each warm
+    start ``warm`` (k, D) (its branches held as it has them); the lowest whole objective
+    (:func:`_charged_objective`) stays. Held, the branches ride rigidly on the trunk joints
+    they hang from, so their markers place the trunk as its own do.
+
+    Why: a trunk whose own markers are hidden, in a view or two, is charged their distance
+    to the nearest blob, some limb's; its own objective is then lower at a wrong posture
+    that puts them on limb blobs than at the right one, which leaves them unexplained. The
+    limbs' proximal markers (a trochanter, a shoulder) lie a few millimetres from the trunk
+    whatever the limb's posture, and charge the wrong trunk. The previous image's whole
+    posture (a warm start) moved little as a whole since. LM only: SA over the trunk on
+    every marker, tried in re-analysis as well, fixed nothing more on the benchmarks and
+    halved the occluded biped's and rat's rates (docs/BENCH_SUBJECTS.md)."""
+    trunk = tree.trunk
+    assert trunk is not None
+    dofs = trunk.dofs
+    image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
+                              fuse_px=params.fusion_px)
+    bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
+    rows = [q.copy()] + ([] if warm is None else [np.asarray(r, dtype=np.float64) for r in warm])
+    best, best_value = q[dofs].copy(), np.inf
+    for row in rows:
+        kin = _rigid_trunk(row, model, trunk)
+        t = np.ascontiguousarray(row[dofs])
+        if params.refine:
+            t = _kernels.refine(t, bounds, kin, rig.arrays, image, float(params.anneal.huber_px), WARM_STEPS,
+                                _kernels.NO_TARGETS)
+        value = _charged_objective(t, kin, det.kernel_points, det.start, rig, params, off)
+        if value < best_value:
+            best, best_value = t, value
+    q[dofs] = best
+
+
+def _rigid_trunk(q: np.ndarray, model: KinematicModel, trunk: Part):
+    """The root trunk's arrays (``trunk.kin``) carrying every other marker of the model too,
+    each fixed in the frame of the deepest trunk joint above it where ``q`` (D,) puts it: the
+    whole model with every DOF outside the trunk held."""
+    others = np.setdiff1d(np.arange(len(model.markers)), trunk.markers)
+    below = _subtrees(model.arrays.parent)
+    on = np.array([int(trunk.joints[below[trunk.joints, j]].max())
+                   for j in model.arrays.marker_joint[others]], dtype=np.int64)
+    rot, pos = world_frames(q, model)
+    world = model.marker_positions(q)[others]
+    local = np.einsum("kji,kj->ki", rot[on], world - pos[on])  # R^T (x - p)
+    row = {int(j): i for i, j in enumerate(trunk.joints)}
+    kin = trunk.kin
+    return kin._replace(
+        marker_joint=np.concatenate([kin.marker_joint, [row[int(j)] for j in on]]).astype(np.int64),
+        marker_pos=np.ascontiguousarray(np.vstack([kin.marker_pos, local])))
 
 
 def _part_eps(part: Part, params: FitParams, views_seen: int) -> float:
