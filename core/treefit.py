@@ -525,7 +525,7 @@ def _trunk_by_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: 
     image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
                               fuse_px=params.fusion_px)
     bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
-    rows = [q.copy()] + ([] if warm is None else [np.asarray(r, dtype=np.float64) for r in warm])
+    rows = [q] if warm is None else [q, *warm]  # read only: the trunk is written last
     best, best_value = q[dofs].copy(), np.inf
     for row in rows:
         kin = _rigid_trunk(row, model, trunk)
