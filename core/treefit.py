@@ -16,10 +16,11 @@ the blobs of the stolen leg stay unexplained. After the first pass, any blob cla
 markers of two branches is a conflict; each branch in a conflict is fitted again without the
 blobs the other branches claim (a conflict needs a blob too small to be two markers the
 detector merged), and the new posture is kept where it lowers the
-*two-sided* error (:func:`two_sided_error`: Eq. 5 plus, for every blob within the
-branches' reach, its distance to the nearest marker, capped), which does charge
-the stolen leg's blobs. A real fusion (two markers imaged as one blob) survives:
-refitting without the shared blob raises the error, and the first posture stays.
+*two-sided* error (:func:`two_sided_error`: every marker's distance to its nearest blob
+plus, for every blob within the branches' reach, its distance to the nearest marker, both
+capped at the empty-view penalty), which does charge the stolen leg's blobs. A real
+fusion (two markers imaged as one blob) survives: refitting without the shared blob raises
+the error, and the first posture stays.
 
 A root trunk whose own markers are left unexplained after the first pass (hidden, or on
 a blob a branch claims) is refined again on every marker of the model, the branches held
@@ -633,11 +634,16 @@ def epipolar_start(part: Part, rotation: np.ndarray, origin: np.ndarray, candida
 
 def two_sided_error(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
                     off: np.ndarray, blobs: np.ndarray, cap_px: float) -> float:
-    """Eq. 5 of posture ``q`` plus, for every detection where ``blobs`` (N,) bool is set, its
-    distance to the nearest projected marker of its view, capped at ``cap_px`` (pixels).
+    """Both sides of the match between posture ``q``'s projected markers and the blobs
+    (pixels): every marker projection's distance to the nearest blob of its view, plus, for
+    every detection where ``blobs`` (N,) bool is set, its distance to the nearest projected
+    marker of its view, each capped at ``cap_px``.
 
     Eq. 5 alone lets two branches explain one blob while another goes unexplained; the
-    second sum charges the unexplained one. Ghost blobs cost at most ``cap_px`` each.
+    second sum charges the unexplained one. Ghost blobs cost at most ``cap_px`` each, and so
+    does a marker hidden from a camera: charged its distance to the nearest blob, tens of
+    pixels, it made the right leg dearer than one posed on its neighbour's blobs or on
+    ghosts, which the two-view starts then took (docs/BENCH_SUBJECTS.md).
     """
     proj = rig.project(model.marker_positions(q)) + off[:, None, :]
     total = 0.0
@@ -647,7 +653,7 @@ def two_sided_error(q: np.ndarray, det: Detections, model: KinematicModel, rig: 
             total += cap_px * proj.shape[1]
             continue
         d = np.linalg.norm(proj[v][:, None, :] - pts[None, :, :], axis=2)
-        total += float(d.min(axis=1).sum())
+        total += float(np.minimum(d.min(axis=1), cap_px).sum())
         mask = blobs[det.start[v]:det.start[v + 1]]
         total += float(np.minimum(d.min(axis=0)[mask], cap_px).sum())
     return total
