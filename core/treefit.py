@@ -641,9 +641,9 @@ def two_sided_error(q: np.ndarray, det: Detections, model: KinematicModel, rig: 
 
     Eq. 5 alone lets two branches explain one blob while another goes unexplained; the
     second sum charges the unexplained one. Ghost blobs cost at most ``cap_px`` each, and so
-    does a marker hidden from a camera: charged its distance to the nearest blob, tens of
-    pixels, it made the right leg dearer than one posed on its neighbour's blobs or on
-    ghosts, which the two-view starts then took (docs/BENCH_SUBJECTS.md).
+    does a marker hidden from a camera: charged its full distance to the nearest blob (tens
+    of pixels), the right leg would cost more than one posed on its neighbour's blobs or on
+    ghosts.
     """
     proj = rig.project(model.marker_positions(q)) + off[:, None, :]
     total = 0.0
