@@ -144,6 +144,13 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     explains: left in, it keeps a leg that fits everywhere else above ε (the joint
     refinement reads it as fused).
 
+    A warm start stands in only where the projections it is judged on lie in two views,
+    wherever the part has detections in two or more (:func:`_judged_in_two_views`): the claim
+    that another basin costs far more rests on its being pixels off in several views. In one
+    view a limb's depth flips cost nothing, and the refinement can turn it into a posture
+    that explains that view alone (a forelimb whose side-view markers all lie next to the
+    other forelimb's, its wrist hidden from below, ended 62° off).
+
     At 50-200 Hz a part has moved a few degrees since the previous image, inside the
     basin LM descends; where it moved farther, or the previous posture lies in a minimum
     this image no longer supports, the refined posture stays above ``eps``.
@@ -157,20 +164,21 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     image = _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
                               fuse_px=params.fusion_px, unseen=unseen)
     bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
+    views = _judged_in_two_views(unseen, start)
     for row in warm:
         q = np.ascontiguousarray(row[dofs])
         if params.refine:
             q = _kernels.refine(q, bounds, kin, rig.arrays, image, float(params.anneal.huber_px), WARM_STEPS,
                                 _kernels.NO_TARGETS)
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
-        if value < WARM_EPS_FACTOR * eps:
+        if value < WARM_EPS_FACTOR * eps and views:
             return q, value, True
         if params.refine and (seen := _without_lost(q, row[dofs], kin, image, bounds, rig, params,
                                                     eps)) is not None:
             return seen, part_objective(seen, kin, points, start, unseen, rig, params, off), True
         if best is None or value < best[1]:
             best = (q, value, False)
-    if best is not None and ceiling is not None:
+    if best is not None and ceiling is not None and views:
         limit = ceiling() * _compared(unseen, start, len(kin.marker_joint))
         best = (best[0], best[1], bool(best[1] < limit))
     return best
@@ -184,7 +192,8 @@ def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bo
     times ``eps`` (already shrunk for ``image.unseen``) shrunk in proportion again, else
     None. Hidden: farther than the empty-view penalty from every blob at ``q`` (d,), the
     warm start refined with them (``_kernels._lost_markers``); at most
-    :data:`MAX_LOST_SHARE` of the part's compared projections, else None.
+    :data:`MAX_LOST_SHARE` of the part's compared projections, and those left in two views
+    (:func:`warm_start`), else None.
 
     Why: a marker hidden from one camera (a leg in front of it) is charged its distance to
     some other blob and keeps the part above 2 ε however right the warm start is, so with
@@ -203,6 +212,8 @@ def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bo
     if hidden == 0 or hidden > MAX_LOST_SHARE * compared:
         return None
     without = lost | unseen if unseen.size else lost
+    if not _judged_in_two_views(without, start):
+        return None
     refined = _kernels.refine(np.ascontiguousarray(row), bounds, kin, rig.arrays,
                               image._replace(unseen=without), float(params.anneal.huber_px), WARM_STEPS,
                               _kernels.NO_TARGETS)
@@ -240,6 +251,14 @@ def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
         d = len(part.dofs)
         out[part.name] = (level + residual_tolerance(level, counted, d, d)) / max(counted, 1)
     return out
+
+
+def _judged_in_two_views(unseen: np.ndarray, start: np.ndarray) -> bool:
+    """Whether a part's projections not marked ``unseen`` (V, m) lie in two views with
+    detections (grouped at ``start``), or in the one view that has any."""
+    views = np.diff(start) > 0
+    seen = views & ~unseen.all(axis=1) if unseen.size else views
+    return int(np.count_nonzero(seen)) >= min(2, int(np.count_nonzero(views)))
 
 
 def _compared(unseen: np.ndarray, start: np.ndarray, markers: int) -> int:
