@@ -173,8 +173,8 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
         if value < WARM_EPS_FACTOR * eps and views:
             return q, value, True
-        if params.refine and (seen := _without_lost(q, row[dofs], kin, image, bounds, rig, params,
-                                                    eps)) is not None:
+        if params.refine and views and (seen := _without_lost(q, row[dofs], kin, image, bounds, rig,
+                                                              params, eps)) is not None:
             return seen, part_objective(seen, kin, points, start, unseen, rig, params, off), True
         if best is None or value < best[1]:
             best = (q, value, False)
