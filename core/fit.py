@@ -40,7 +40,9 @@ from core.rig import Rig
 from core.treefit import (
     attempt_kernel,
     fit_tree,
+    part_objective,
     refine_whole,
+    refine_without_lost,
     refit_tree,
     search_floor,
     tree_flip_alternatives,
@@ -465,6 +467,16 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     tree (``core.tree``), each part that moved is taken from ``warm[-1]`` on its own, the
     rest of the fit kept: one leg that jumped must not need every other leg to be as it
     was. At most the best two are kept.
+
+    Each start is refined twice: on every projection, and without those that look hidden
+    at the start itself (``core.treefit.refine_without_lost``). With a marker hidden from a
+    camera, the first refinement pulls that marker onto a ghost or a neighbour's blob, and
+    the start slides into the fit's minimum. The second is kept where it explains the other
+    projections as well as the fit does (within ``tolerance``): the image cannot tell a
+    hidden marker from one on a ghost. The choice by continuity may take it only where its
+    whole objective is within ``tolerance`` of the fit's too; otherwise it is reported, not
+    chosen (``Candidate.minimum`` False), as each extra candidate offered to that choice
+    also lets it leave a right fit for a wrong neighbour.
     """
     rot = model.rotational
 
@@ -484,12 +496,26 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
                 starts.append(start)
     off = view_offsets(offsets, rig)
     found: list[Candidate] = []
+
+    def keep(q: np.ndarray, error: float, objective: float, scores_as_well: bool) -> None:
+        if scores_as_well and all(distinct(q, c.dofs, rot) for c in (fit, *others, *found)):
+            found.append(Candidate(q, error, objective, objective <= fit.objective + tolerance))
+
     for start in starts:
         q, error, objective = refine_whole(start.copy(), det, model, rig, params, off)
-        if objective <= fit.objective + tolerance and all(
-                distinct(q, c.dofs, rot) for c in (fit, *others, *found)):
-            found.append(Candidate(q, error, objective))
+        keep(q, error, objective, objective <= fit.objective + tolerance)
+        if (without := refine_without_lost(start, det, model, rig, params, off)) is not None:
+            q, error, objective, lost = without
+            keep(q, error, objective, _seen_objective(q, lost, det, model, rig, params, off)
+                 <= _seen_objective(fit.dofs, lost, det, model, rig, params, off) + tolerance)
     return sorted(found, key=lambda c: c.objective)[:2]
+
+
+def _seen_objective(q: np.ndarray, lost: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
+                    params: FitParams, off: np.ndarray) -> float:
+    """The objective (pixels) of a whole posture ``q`` (D,) without the projections ``lost``
+    (V, M) bool marks (``core.treefit.part_objective`` of the whole model)."""
+    return part_objective(q, model.arrays, det.kernel_points, det.start, lost, rig, params, off)
 
 
 def reanalyse_image(

@@ -74,8 +74,8 @@ if TYPE_CHECKING:
     from core.fit import FitParams
 
 __all__ = ["attempt_kernel", "epipolar_start", "fit_tree", "part_objective", "refine_whole",
-           "refit_tree", "search_floor", "shared_projections", "tree_flip_alternatives", "two_sided_error",
-           "warm_ceilings", "warm_start", "world_frames"]
+           "refine_without_lost", "refit_tree", "search_floor", "shared_projections",
+           "tree_flip_alternatives", "two_sided_error", "warm_ceilings", "warm_start", "world_frames"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
@@ -811,6 +811,36 @@ def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig
         value = _kernels._refit_unseen(q, value, bounds, kin, views, image, float(a.huber_px))
     error = _kernels.posture_error(q, kin, views, image._replace(fuse_px=0.0))
     return q, float(error), float(value)
+
+
+def refine_without_lost(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
+                        params: FitParams, off: np.ndarray
+                        ) -> tuple[np.ndarray, float, float, np.ndarray] | None:
+    """A whole posture ``q`` (D,) refined by :data:`JOINT_STEPS` LM steps on ``det`` without
+    the projections that look hidden at ``q`` itself: (posture, plain Eq. 5 error, objective
+    as :func:`refine_whole` reports it, those projections (V, M) bool); None
+    where none look hidden, more than :data:`MAX_LOST_SHARE` of the compared projections do,
+    or those left do not lie in two views (:func:`_judged_in_two_views`).
+
+    Hidden: farther than the empty-view penalty from every blob of its view
+    (``_kernels._lost_markers``, as :func:`_without_lost` reads a part's warm start, but
+    before any refinement: refined with them, the posture slides until each lands on some
+    other blob, a ghost or a neighbour's marker, and the reading is lost with it).
+    """
+    image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
+                              fuse_px=params.fusion_px)
+    lost = _in_seen_views(_kernels._lost_markers(q, model.arrays, rig.arrays, image, image.penalty,
+                                                 True)[0], det.start)
+    hidden = int(np.count_nonzero(lost))
+    if hidden == 0 or hidden > MAX_LOST_SHARE * _compared(_kernels.NO_UNSEEN, det.start, lost.shape[1]):
+        return None
+    if not _judged_in_two_views(lost, det.start):
+        return None
+    refined = _kernels.refine(np.ascontiguousarray(q), _kernels.Bounds(model.lower, model.upper),
+                              model.arrays, rig.arrays, image._replace(unseen=lost),
+                              float(params.anneal.huber_px), JOINT_STEPS, _kernels.NO_TARGETS)
+    error = _kernels.posture_error(refined, model.arrays, rig.arrays, image._replace(fuse_px=0.0))
+    return refined, float(error), _whole_objective(refined, det, model, rig, params, off), lost
 
 
 def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: KinematicModel,
