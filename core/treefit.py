@@ -204,21 +204,32 @@ def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bo
     an alternative (``core.fit``). Where a marker merely slid (skin), it is within the
     penalty and nothing is left out."""
     unseen, start = image.unseen, image.start
-    lost = _in_seen_views(_kernels._lost_markers(q, kin, rig.arrays, image, image.penalty, True)[0], start)
-    if unseen.size:
-        lost &= ~unseen
+    if (without := _left_out_with_lost(q, kin, rig, image)) is None:
+        return None
     compared = _compared(unseen, start, len(kin.marker_joint))
-    hidden = int(np.count_nonzero(lost))
-    if hidden == 0 or hidden > MAX_LOST_SHARE * compared:
-        return None
-    without = lost | unseen if unseen.size else lost
-    if not _judged_in_two_views(without, start):
-        return None
+    hidden = int(np.count_nonzero(without)) - int(np.count_nonzero(unseen))
     refined = _kernels.refine(np.ascontiguousarray(row), bounds, kin, rig.arrays,
                               image._replace(unseen=without), float(params.anneal.huber_px), WARM_STEPS,
                               _kernels.NO_TARGETS)
     value = part_objective(refined, kin, image.det, start, without, rig, params, image.offset)
     return refined if value < WARM_EPS_FACTOR * eps * (1.0 - hidden / compared) else None
+
+
+def _left_out_with_lost(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) -> np.ndarray | None:
+    """The projections (V, m) bool to leave out of posture ``q`` (posed by ``kin``) on
+    ``image``: those ``image.unseen`` marks, and those that look hidden, farther than the
+    empty-view penalty from every blob of their view (``_kernels._lost_markers``). None
+    where none look hidden, more than :data:`MAX_LOST_SHARE` of the compared projections
+    do, or those left do not lie in two views (:func:`_judged_in_two_views`)."""
+    unseen, start = image.unseen, image.start
+    lost = _in_seen_views(_kernels._lost_markers(q, kin, rig.arrays, image, image.penalty, True)[0], start)
+    if unseen.size:
+        lost &= ~unseen
+    hidden = int(np.count_nonzero(lost))
+    if hidden == 0 or hidden > MAX_LOST_SHARE * _compared(unseen, start, len(kin.marker_joint)):
+        return None
+    without = lost | unseen if unseen.size else lost
+    return without if _judged_in_two_views(without, start) else None
 
 
 def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
@@ -822,19 +833,14 @@ def refine_without_lost(q: np.ndarray, det: Detections, model: KinematicModel, r
     where none look hidden, more than :data:`MAX_LOST_SHARE` of the compared projections do,
     or those left do not lie in two views (:func:`_judged_in_two_views`).
 
-    Hidden: farther than the empty-view penalty from every blob of its view
-    (``_kernels._lost_markers``, as :func:`_without_lost` reads a part's warm start, but
-    before any refinement: refined with them, the posture slides until each lands on some
-    other blob, a ghost or a neighbour's marker, and the reading is lost with it).
+    Hidden as :func:`_left_out_with_lost` reads them, as :func:`_without_lost` does for a
+    part's warm start, but before any refinement: refined with them, the posture slides
+    until each lands on some other blob, a ghost or a neighbour's marker, and the reading is
+    lost with it.
     """
     image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
                               fuse_px=params.fusion_px)
-    lost = _in_seen_views(_kernels._lost_markers(q, model.arrays, rig.arrays, image, image.penalty,
-                                                 True)[0], det.start)
-    hidden = int(np.count_nonzero(lost))
-    if hidden == 0 or hidden > MAX_LOST_SHARE * _compared(_kernels.NO_UNSEEN, det.start, lost.shape[1]):
-        return None
-    if not _judged_in_two_views(lost, det.start):
+    if (lost := _left_out_with_lost(q, model.arrays, rig, image)) is None:
         return None
     refined = _kernels.refine(np.ascontiguousarray(q), _kernels.Bounds(model.lower, model.upper),
                               model.arrays, rig.arrays, image._replace(unseen=lost),
