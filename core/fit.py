@@ -511,6 +511,27 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     return sorted(found, key=lambda c: c.objective)[:2]
 
 
+def _still_alternatives(best: Candidate, alternatives: tuple[Candidate, ...], previous: ImageFit,
+                        det: Detections, model: KinematicModel, params: FitParams) -> tuple[Candidate, ...]:
+    """The kept posture of a re-analysed image, and its alternatives that are minima, where a
+    re-analysis found a lower minimum ``best`` and they are still within
+    :func:`alternative_tolerance` of it and distinct from it and from its ``alternatives``.
+
+    A re-analysis that finds a lower minimum would otherwise drop the first attempt's
+    candidates: where the image supports both postures about as well (a marker hidden from
+    one camera, a Fig. 9 flip), the right one, often the first attempt's warm-started fit or
+    its alternative, is then lost to the choice by continuity.
+    """
+    tolerance = alternative_tolerance(params, det, model, best.error, len(model.dofs))
+    rot = model.rotational
+    kept: list[Candidate] = []
+    for c in (Candidate(previous.dofs, previous.error, previous.objective), *previous.alternatives):
+        if (c.minimum and c.objective <= best.objective + tolerance
+                and all(distinct(c.dofs, o.dofs, rot) for o in (best, *alternatives, *kept))):
+            kept.append(c)
+    return tuple(kept)
+
+
 def _seen_objective(q: np.ndarray, lost: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
                     params: FitParams, off: np.ndarray) -> float:
     """The objective (pixels) of a whole posture ``q`` (D,) without the projections ``lost``
@@ -536,7 +557,9 @@ def reanalyse_image(
     The attempt starts from a posture drawn from ``histograms`` (the merged
     constraints), so that it does not retrace the first attempt's path, and
     uses the stream :func:`image_stream` ``(seed, sample, attempts + 1)``.
-    The kept attempt brings its alternatives along.
+    The kept attempt brings its alternatives along; where the attempt finds a lower minimum,
+    the first posture and its alternatives stay alternatives while within the tolerance
+    (:func:`_still_alternatives`).
 
     Where the attempt ends in the kept posture's minimum (within :data:`~core.ambiguity.DISTINCT_DEG` in
     every angle, its objective not lower by ε, SA's stop, or more), the fit is ``settled``
@@ -574,6 +597,10 @@ def reanalyse_image(
     if not best.objective < previous.objective:
         best = Candidate(previous.dofs, previous.error, previous.objective)
         alternatives = previous.alternatives
+    else:
+        alternatives = tuple(sorted(
+            alternatives + _still_alternatives(best, alternatives, previous, detections, model, params),
+            key=lambda c: c.objective))
     status = image_status(best.error, previous.detections, len(model.markers), params)
     return ImageFit(previous.sample, best.dofs, best.error, best.objective, attempt, status,
                     previous.iterations + its, previous.detections, alternatives, settled)
