@@ -327,6 +327,7 @@ def first_attempt(
     offsets: np.ndarray | None = None,
     warm: np.ndarray | None = None,
     ceilings: Callable[[], Mapping[str, float]] | None = None,
+    carried: np.ndarray | None = None,
 ) -> ImageFit:
     """Image ``sample``'s first fit (attempt 1, stream :func:`image_stream` ``(seed, sample,
     1)``) under ``histograms``, with its alternatives; ``no_detections`` without any point.
@@ -335,6 +336,9 @@ def first_attempt(
     offsets : this image's (V, 2) view offsets (root tracking), optional.
     warm : (k, D) warm starts from the chunk's previous images (:func:`fit_image`), optional.
     ceilings : per part of a tree, where its warm start stands in for SA (:func:`fit_image`).
+    carried : (k, D) the previous image's alternatives, optional: refined on this image,
+        the best that scores within the tolerance is reported as an alternative
+        (:func:`_warm_alternatives`).
     """
     counts = tuple(det.counts.tolist())
     if not any(counts):
@@ -342,7 +346,7 @@ def first_attempt(
         return ImageFit(sample, nan, math.nan, math.nan, 0, Status.NO_DETECTIONS, 0, counts)
     best, alternatives, its, _ = _attempt(
         det, model, rig, search_space(model, histograms), params, image_stream(seed, sample, 1),
-        False, offsets, geometry, warm, ceilings,
+        False, offsets, geometry, warm, ceilings, carried=carried,
     )
     status = image_status(best.error, counts, len(model.markers), params)
     return ImageFit(sample, best.dofs, best.error, best.objective, 1, status, its, counts,
@@ -350,7 +354,7 @@ def first_attempt(
 
 
 def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None,
-             ceilings=None, keep=None):
+             ceilings=None, keep=None, carried=None):
     """fit_image, then its alternatives: (best candidate, the others, SA iterations, settled).
 
     ``keep`` (D,), a tree's kept posture, makes the attempt a re-analysis part by part
@@ -390,9 +394,9 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
             huber_px=params.anneal.huber_px, offsets=offsets,
         )
-        if warm is not None and its > 0:  # with no SA iteration, every part came from warm
-            others += _warm_alternatives(fit, others, warm, det, model, rig, params, tolerance,
-                                         offsets)
+        if warm is not None:
+            others += _warm_alternatives(fit, others, warm, carried, its > 0, det, model, rig,
+                                         params, tolerance, offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
     if len(ranked) == 1:
         witness = _undetermined_witness(fit, det, model, rig, params, offsets)
@@ -454,19 +458,29 @@ def tolerance_readings(params: FitParams, det: Detections, model: KinematicModel
             residual_tolerance(error, compared, len(model.dofs), tested_dofs))
 
 
-def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray, det: Detections,
+def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray,
+                       carried: np.ndarray | None, searched: bool, det: Detections,
                        model: KinematicModel, rig: Rig, params: FitParams, tolerance: float,
                        offsets: np.ndarray | None) -> list[Candidate]:
     """The previous image's posture (``warm[-1]``, of the warm starts (k, D)) refined on this
     image, where it lands in another minimum: within ``tolerance`` of the fit's objective
-    (or better) and more than :data:`~core.ambiguity.DISTINCT_DEG` from the fit and every other alternative
-    in some rotational DOF.
+    (or better) and more than :data:`~core.ambiguity.DISTINCT_DEG` from the fit and every
+    other alternative in some rotational DOF; and the previous image's alternatives
+    (``carried``, (k, D) or None), reported only.
 
-    Only where the fit left the warm starts' basin (moved more than :data:`~core.ambiguity.DISTINCT_DEG`
-    from each of them; at 50-200 Hz most images do not, and nothing is refined). For a
-    tree (``core.tree``), each part that moved is taken from ``warm[-1]`` on its own, the
-    rest of the fit kept: one leg that jumped must not need every other leg to be as it
-    was. At most the best two are kept.
+    The previous posture is tried only where SA ran (``searched``: with no SA iteration
+    every part came from the warm starts) and the fit left the warm starts' basin (moved
+    more than :data:`~core.ambiguity.DISTINCT_DEG` from each of them; at 50-200 Hz most
+    images do not, and nothing is refined). For a tree (``core.tree``), each part that
+    moved is taken from ``warm[-1]`` on its own, the rest of the fit kept: one leg that
+    jumped must not need every other leg to be as it was. At most the best two are kept.
+
+    A carried alternative is tried wherever it differs from the fit: where the warm start
+    carries a wrong minimum on and this image supports it as well as the right one, SA
+    finds nothing lower, and the right posture was the previous image's alternative. The
+    best one that lands within the tolerance is kept, never for the choice by continuity
+    (``Candidate.minimum`` False): offered to it, the candidates followed from image to
+    image made smooth wrong paths that it took.
 
     Each start is refined twice: on every projection, and without those that look hidden
     at the start itself (``core.treefit.refine_without_lost``). With a marker hidden from a
@@ -483,32 +497,41 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     def moved(dofs: np.ndarray) -> bool:
         return all(distinct(w[dofs], fit.dofs[dofs], rot[dofs]) for w in warm)
 
-    every = np.arange(len(model.dofs))
-    if not moved(every):
-        return []
-    starts = [warm[-1]]
-    if model.tree is not None:
-        starts = []
-        for part in model.tree.parts:
-            if moved(part.dofs):
-                start = fit.dofs.copy()
-                start[part.dofs] = warm[-1][part.dofs]
-                starts.append(start)
+    parts = [np.arange(len(model.dofs))] if model.tree is None else [p.dofs for p in model.tree.parts]
+
+    def spliced(source: np.ndarray, dofs: np.ndarray) -> np.ndarray:
+        start = fit.dofs.copy()
+        start[dofs] = source[dofs]
+        return start
+
+    starts = [spliced(warm[-1], dofs) for dofs in parts if searched and moved(dofs)]
+    followed = [a for a in (() if carried is None else carried) if distinct(a, fit.dofs, rot)]
     off = view_offsets(offsets, rig)
     found: list[Candidate] = []
 
-    def keep(q: np.ndarray, error: float, objective: float, scores_as_well: bool) -> None:
+    def keep(q: np.ndarray, error: float, objective: float, scores_as_well: bool,
+             choosable: bool) -> None:
         if scores_as_well and all(distinct(q, c.dofs, rot) for c in (fit, *others, *found)):
-            found.append(Candidate(q, error, objective, objective <= fit.objective + tolerance))
+            found.append(Candidate(q, error, objective,
+                                   choosable and objective <= fit.objective + tolerance))
 
-    for start in starts:
+    def refine(start: np.ndarray, choosable: bool) -> None:
         q, error, objective = refine_whole(start.copy(), det, model, rig, params, off)
-        keep(q, error, objective, objective <= fit.objective + tolerance)
+        keep(q, error, objective, objective <= fit.objective + tolerance, choosable)
         if (without := refine_without_lost(start, det, model, rig, params, off)) is not None:
             q, error, objective, lost = without
             keep(q, error, objective, _seen_objective(q, lost, det, model, rig, params, off)
-                 <= _seen_objective(fit.dofs, lost, det, model, rig, params, off) + tolerance)
-    return sorted(found, key=lambda c: c.objective)[:2]
+                 <= _seen_objective(fit.dofs, lost, det, model, rig, params, off) + tolerance,
+                 choosable)
+
+    for start in starts:
+        refine(start, True)
+    found.sort(key=lambda c: c.objective)
+    del found[2:]
+    kept = len(found)
+    for start in followed:
+        refine(start, False)
+    return found[:kept] + sorted(found[kept:], key=lambda c: c.objective)[:1]
 
 
 def _still_alternatives(best: Candidate, alternatives: tuple[Candidate, ...], previous: ImageFit,

@@ -64,6 +64,8 @@ __all__ = [
     "typical_objective",
 ]
 
+MAX_CARRIED = 2  # alternatives of an image followed on to the next, at most
+
 
 @dataclass(frozen=True)
 class ChunkResult:
@@ -154,6 +156,7 @@ def fit_chunk(
             det, first_sample + k, model=model, rig=rig, histograms=working, params=params,
             seed=seed, geometry=geometry, offsets=off, warm=warm,
             ceilings=ceilings if warm is not None else None,
+            carried=_carried(fits, model) if warm is not None else None,
         )
         if model.tree is not None:  # used only after a posture (``warm`` is None without one)
             ceilings = partial(_ceilings, fit, det, model, rig, params, off)
@@ -187,6 +190,22 @@ def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | No
     if len(fits) < 2 or not np.all(np.isfinite(before := fits[-2].dofs)):
         return last[None]
     return np.vstack([np.clip(2.0 * last - before, model.lower, model.upper), last])
+
+
+def _carried(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:
+    """The alternatives of the last of ``fits`` that are minima, best first, at most
+    :data:`MAX_CARRIED`, (k, D); None without any, and for a tree (``model.tree``).
+
+    Refined on the next image (``core.fit.first_attempt``), they give it an alternative
+    where a warm start carried a wrong minimum on that both images support as well as the
+    right one. A single chain's refinement costs a fraction of its SA; a tree's, every part
+    that differs refined as a whole posture, cost the 2-camera hexapod with 10 % hidden a
+    third of its rate (docs/BENCH_SUBJECTS.md).
+    """
+    if model.tree is not None or not fits:
+        return None
+    minima = [a.dofs for a in fits[-1].alternatives if a.minimum][:MAX_CARRIED]
+    return np.array(minima) if minima else None
 
 
 def _ceilings(fit: ImageFit, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
