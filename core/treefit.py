@@ -553,8 +553,7 @@ def _trunk_by_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: 
     trunk = tree.trunk
     assert trunk is not None
     dofs = trunk.dofs
-    image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
-                              fuse_px=params.fusion_px)
+    image = _whole_image(det, params, off)
     bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
     rows = [q] if warm is None else [q, *warm]  # read only: the trunk is written last
     best, best_value = q[dofs].copy(), np.inf
@@ -790,6 +789,13 @@ def _gains(q: np.ndarray, part: Part, value: float, kept: tuple[np.ndarray, floa
         other, det, model, rig, params, off)
 
 
+def _whole_image(det: Detections, params: FitParams, off: np.ndarray) -> _kernels.Image:
+    """The kernels' view of a whole image ``det`` under ``params`` (empty-view penalty, marker
+    fusion) with view offsets ``off`` (V, 2), no projection left out."""
+    return _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
+                             fuse_px=params.fusion_px)
+
+
 def _whole_objective(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
                      params: FitParams, off: np.ndarray) -> float:
     """:func:`_charged_objective` of a whole posture ``q`` (D,) on ``det``: what
@@ -806,8 +812,7 @@ def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig
     reports it (fusion, a lost marker per view)."""
     a, kin, views = params.anneal, model.arrays, rig.arrays
     bounds = _kernels.Bounds(model.lower, model.upper)
-    image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
-                              fuse_px=params.fusion_px)
+    image = _whole_image(det, params, off)
 
     def objective(p: np.ndarray) -> float:
         return _whole_objective(p, det, model, rig, params, off)
@@ -838,8 +843,7 @@ def refine_without_lost(q: np.ndarray, det: Detections, model: KinematicModel, r
     until each lands on some other blob, a ghost or a neighbour's marker, and the reading is
     lost with it.
     """
-    image = _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
-                              fuse_px=params.fusion_px)
+    image = _whole_image(det, params, off)
     if (lost := _left_out_with_lost(q, model.arrays, rig, image)) is None:
         return None
     refined = _kernels.refine(np.ascontiguousarray(q), _kernels.Bounds(model.lower, model.upper),
