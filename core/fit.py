@@ -176,6 +176,11 @@ class ImageFit:
     alternatives: tuple[Candidate, ...] = ()
     settled: bool = False
 
+    def as_candidate(self) -> Candidate:
+        """The posture as one of the image's candidates (``core.ambiguity``), beside its
+        ``alternatives``."""
+        return Candidate(self.dofs, self.error, self.objective)
+
     def compared(self, n_markers: int) -> int:
         """Marker projections compared with detections: markers × views with any detection."""
         return _compared(self.detections, n_markers)
@@ -548,7 +553,7 @@ def _still_alternatives(best: Candidate, alternatives: tuple[Candidate, ...], pr
     tolerance = alternative_tolerance(params, det, model, best.error, len(model.dofs))
     rot = model.rotational
     kept: list[Candidate] = []
-    for c in (Candidate(previous.dofs, previous.error, previous.objective), *previous.alternatives):
+    for c in (previous.as_candidate(), *previous.alternatives):
         if (c.minimum and c.objective <= best.objective + tolerance
                 and all(distinct(c.dofs, o.dofs, rot) for o in (best, *alternatives, *kept))):
             kept.append(c)
@@ -618,7 +623,7 @@ def reanalyse_image(
     else:
         settled = settled or not best.objective < previous.objective
     if not best.objective < previous.objective:
-        best = Candidate(previous.dofs, previous.error, previous.objective)
+        best = previous.as_candidate()
         alternatives = previous.alternatives
     else:
         alternatives = tuple(sorted(

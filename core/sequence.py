@@ -35,7 +35,7 @@ from functools import partial
 
 import numpy as np
 
-from core.ambiguity import Candidate, FlipGeometry, choose_candidates
+from core.ambiguity import FlipGeometry, choose_candidates
 from core.error import Detections, view_offsets
 from core.fit import (
     FitParams,
@@ -271,7 +271,7 @@ def finish_sequence(
 def _chosen_by_continuity(fits: list[ImageFit], n_markers: int, params: FitParams) -> list[ImageFit]:
     candidates = [
         [] if f.status is Status.NO_DETECTIONS
-        else [Candidate(f.dofs, f.error, f.objective), *f.alternatives]
+        else [f.as_candidate(), *f.alternatives]
         for f in fits
     ]
     minima = [[i for i, c in enumerate(cands) if c.minimum] for cands in candidates]
