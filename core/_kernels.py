@@ -61,6 +61,10 @@ FRAME = 12  # numbers per joint frame: rotation (row-major 3×3), then origin (3
 NO_TARGETS = np.zeros((0, 3))  # refine in image mode
 NO_UNSEEN = np.zeros((0, 0), dtype=np.bool_)  # every marker may be seen
 FD_STEP = 1e-5  # forward-difference step of refine's Jacobian, degrees (model units)
+# refine tightens its Huber radius to MIN_RADIUS_PX (px; nearly Eq. 5's own loss, the sum of
+# lengths) where the residuals' median length is under TIGHTEN_BELOW of the radius.
+TIGHTEN_BELOW = 0.5
+MIN_RADIUS_PX = 0.1
 
 
 # ---- records passed to the kernels -----------------------------------------------------------
@@ -841,6 +845,25 @@ def _huber_cost(res, valid, c):
 
 
 @njit(cache=True, nogil=True)
+def _tightens(res, valid, c) -> bool:
+    """Whether :func:`refine`, converged at Huber radius ``c`` (px), goes on at
+    :data:`MIN_RADIUS_PX`: some residual group of ``res`` (``valid`` ones) is longer than
+    ``c`` (an outlier pulling at full strength) while their median length is under
+    :data:`TIGHTEN_BELOW` of ``c`` (most residuals nearly free against it). With every
+    residual within ``c`` the loss is least squares and a smaller radius changes nothing;
+    with residuals of the radius' order (sliding skin markers) the radius stays.
+    """
+    n, longest = 0, 0.0
+    lengths = np.empty(res.shape[0])
+    for g in range(res.shape[0]):
+        if valid[g]:
+            lengths[n] = _norm(res, g)
+            longest = max(longest, lengths[n])
+            n += 1
+    return MIN_RADIUS_PX < c < longest and np.median(lengths[:n]) < TIGHTEN_BELOW * c
+
+
+@njit(cache=True, nogil=True)
 def solve_spd(A, b):
     """x with A·x = b for a small symmetric positive-definite A, by Cholesky.
 
@@ -885,14 +908,20 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
 
     Image mode (``targets`` of shape (0, 3)): nearest detections are re-chosen at
     every evaluation, so this polishes the basin SA found (sub-pixel) without
-    committing to marker labels. Residuals below ``huber_c`` pixels are fitted
+    committing to marker labels. Residuals below the Huber radius are fitted
     by least squares (efficient for detection noise), larger ones by their
     length (robust to fused or missing markers, as Eq. 5 is); ``image.lost_px`` is not
-    read, markers ``image.unseen`` marks count nothing. Target mode (``targets`` (M, 3)):
-    inverse kinematics onto world marker positions (``image`` not read).
+    read, markers ``image.unseen`` marks count nothing. The radius starts at ``huber_c``
+    pixels; once LM converges, it goes on at :data:`MIN_RADIUS_PX` where an outlier lies
+    beyond the radius and most residuals well within it (:func:`_tightens`): with
+    residuals far below the radius every one of them is nearly free at first order, and one
+    marker hidden from a camera, lying a few pixels from another blob, pulls the posture
+    off Eq. 5's minimum (docs/ENGINE_NOTES.md). Target mode (``targets`` (M, 3)):
+    inverse kinematics onto world marker positions (``image`` not read; radius ``huber_c``).
     Jacobian by forward differences of :data:`FD_STEP`. Stops after
     ``max_iter`` steps, or when a step moves less than 1e-6 (degrees, model
-    units) or gains less than 1e-10 of the cost. Returns the refined posture.
+    units) or gains less than 1e-10 of the cost at the final radius. Returns the refined
+    posture.
     """
     M, D = kin.marker_joint.shape[0], q0.shape[0]
     G, C = (M, 3) if targets.shape[0] > 0 else (views.kind.shape[0] * M, 2)
@@ -905,7 +934,8 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     A, H, L = np.empty((D, D)), np.empty((D, D)), np.empty((D, D))
     g, delta = np.empty(D), np.empty(D)
     _residuals(q, kin, views, image, targets, work, res, valid)
-    cost = _huber_cost(res, valid, huber_c)
+    c = huber_c
+    cost = _huber_cost(res, valid, c)
     lam = 1e-3
     step, gain = np.inf, np.inf
     for _ in range(max_iter):
@@ -922,7 +952,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
             if not valid[k]:
                 continue
             e = _norm(res, k)
-            w = 1.0 if e <= huber_c else huber_c / e
+            w = 1.0 if e <= c else c / e
             for a in range(C):
                 for i in range(D):
                     g[i] -= w * jac[k, a, i] * res[k, a]
@@ -940,7 +970,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
             if moved < 1e-6:
                 break  # converged: more damping only shortens the step (saves ~15 trials)
             _residuals(trial, kin, views, image, targets, work, res2, valid)
-            new_cost = _huber_cost(res2, valid, huber_c)
+            new_cost = _huber_cost(res2, valid, c)
             if new_cost < cost:
                 step = moved
                 gain = cost - new_cost
@@ -953,7 +983,13 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
             lam *= 4.0
         # Converged: LM takes 4-5 steps from a degree or two away; more change nothing.
         if not improved or step < 1e-6 or gain <= 1e-10 * cost:
-            break
+            if targets.shape[0] > 0:
+                break
+            if not _tightens(res, valid, c):
+                break
+            c = MIN_RADIUS_PX
+            cost = _huber_cost(res, valid, c)
+            lam, step, gain = 1e-3, np.inf, np.inf
     return q
 
 
