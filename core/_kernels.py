@@ -115,8 +115,8 @@ class SAParams(NamedTuple):
     for translations.  h_min : T_h.  n_end, n_l, n_tau : int, N_end, N_l, N_τ.  tau0, l0, c_l,
     c_tau : float, start temperature and step factor, their cooling factors.  eps : float, ε
     (px).  polish_every, patience, draws : int (:func:`anneal`).  huber_c : float, the
-    refinement's least-squares radius (px).  refine_result : bool, restarts : int
-    (:func:`fit_attempt`).
+    refinement's least-squares radius (px) where it starts (:func:`refine`).
+    refine_result : bool, restarts : int (:func:`fit_attempt`).
     """
 
     sigma: np.ndarray
@@ -983,9 +983,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
             lam *= 4.0
         # Converged: LM takes 4-5 steps from a degree or two away; more change nothing.
         if not improved or step < 1e-6 or gain <= 1e-10 * cost:
-            if targets.shape[0] > 0:
-                break
-            if not _tightens(res, valid, c):
+            if targets.shape[0] > 0 or not _tightens(res, valid, c):
                 break
             c = MIN_RADIUS_PX
             cost = _huber_cost(res, valid, c)

@@ -74,7 +74,8 @@ class AnnealParams:
         a restart of the refinement where SA has not found the basin yet; 0 turns
         them off.
     huber_px : float
-        The refinement's least-squares radius, pixels.
+        The refinement's least-squares radius, pixels, where it starts: it tightens to
+        ``core._kernels.MIN_RADIUS_PX`` where a marker lies beyond it and most within.
 
     The defaults of ``polish_every``, ``patience`` and ``draws`` were chosen on the locust
     benchmarks; docs/ENGINE_NOTES.md has the measurements.

@@ -47,7 +47,9 @@ def refine(
     huber_px : float
         Residuals shorter than this are squared (least squares, efficient for
         detection noise); longer ones count by their length, as in Eq. 5, so a
-        fused or missing marker cannot drag the fit.
+        fused or missing marker cannot drag the fit. Where one lies beyond it while
+        most lie well within, the radius then tightens to 0.1 px
+        (``core._kernels.MIN_RADIUS_PX``), for the markers not to give way to it.
     max_iter : int
         Levenberg–Marquardt iterations at most.
     fusion_px : float

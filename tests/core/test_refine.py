@@ -28,7 +28,6 @@ def test_refine_respects_bounds(locust):
     assert np.all(refined <= model.upper) and np.all(refined >= model.lower)
 
 
-
 def test_a_marker_hidden_beside_another_blob_does_not_pull_a_whole_animal_off_its_posture():
     """Every marker of the rat in turn hidden from the right camera, a blob 3 px from where it
     would be: refined from the true posture, the rest of the clean markers hold it (within
