@@ -221,8 +221,7 @@ def _ceilings(fit: ImageFit, det: Detections, model: KinematicModel, rig: Rig, p
     off = view_offsets(offsets, rig)
     levels = [warm_ceilings(c.dofs, det, model, rig, params, off)
               for c in (fit, *fit.alternatives)]
-    names = {name for level in levels for name in level}
-    return {name: min(level[name] for level in levels if name in level) for name in names}
+    return {name: min(level[name] for level in levels) for name in levels[0]}
 
 
 def typical_objective(fits: Iterable[ImageFit]) -> float:
