@@ -1263,11 +1263,14 @@ def _refit_unseen(q, objective, bounds, kin, views, image, huber_c):
 
 
 @njit(cache=True, nogil=True)
-def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state):
+def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state, runs):
     """One attempt on one image: SA, restarted while above ``eps``, each result refined.
 
     ``image``: :class:`Image` (``lost_px`` not read: each run sets it); ``sa``:
-    :class:`SAParams`; ``state``: the xoshiro256** state (4,) uint64, advanced.
+    :class:`SAParams`; ``state``: the xoshiro256** state (4,) uint64, advanced; ``runs``
+    (R, d): each run's final posture is written to its next row, the first R runs (R may
+    be 0), so that a caller can judge the runs' minima by another measure (a tree's
+    branches, ``core.treefit``).
     The first run starts from ``start_q`` (the histogram means), or from a posture
     drawn from the histograms when ``draw_start`` (re-analysis); restarts, up to
     ``restarts`` while the best objective is still >= ``eps``, from drawn postures.
@@ -1285,13 +1288,13 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state):
     first run's wherever every marker is within ``penalty``). With ``refine_result``,
     each run's posture is refined
     and kept if that does not raise the objective. Returns (posture, plain Eq. 5
-    error, objective, SA iterations); the objective is Eq. 5 with fusion below
-    ``fuse_px``.
+    error, objective, SA iterations, rows of ``runs`` written); the objective is Eq. 5
+    with fusion below ``fuse_px``.
     """
     penalty, fuse_px, unseen = image.penalty, image.fuse_px, image.unseen
     charged = _with(image, fuse_px, penalty, unseen)  # every view may lose a marker
     q0, best = start_q.copy(), start_q.copy()
-    objective, iterations = np.inf, 0
+    objective, iterations, written = np.inf, 0, 0
     for run in range(sa.restarts + 1):
         if run > 0 and objective < sa.eps:
             break
@@ -1308,13 +1311,16 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state):
         value = posture_error(q, kin, views, charged)
         if sa.refine_result:
             value = _refit_unseen(q, value, bounds, kin, views, image, sa.huber_c)
+        if written < runs.shape[0]:
+            _copy(runs[written], q)
+            written += 1
         if run > 0 and value >= 0.99 * objective and objective < penalty:
             break
         if value < objective:
             _copy(best, q)
             objective = value
     error = posture_error(best, kin, views, _with(image, 0.0, 0.0, unseen))
-    return best, error, objective, iterations
+    return best, error, objective, iterations, written
 
 
 # ---- depth-flip alternatives (kinematic jumps) ------------------------------------------------

@@ -224,7 +224,8 @@ def anneal(
     sa = kernel_params(params, space.sigma, space.table, eps=params.eps, refine_result=False, restarts=0)
     image = _kernels.Image.of(detections.kernel_points, detections.start, view_offsets(offsets, rig),
                               penalty=empty_view_penalty_px, fuse_px=check_fusion(fusion_px))
-    best, err, objective, it = _kernels.fit_attempt(
-        q0, False, _kernels.Bounds(model.lower, model.upper), model.arrays, rig.arrays, image, sa, state)
+    best, err, objective, it, _ = _kernels.fit_attempt(
+        q0, False, _kernels.Bounds(model.lower, model.upper), model.arrays, rig.arrays, image, sa, state,
+        np.empty((0, len(q0))))
     stop = StopReason.BELOW_EPSILON if objective < params.eps else StopReason.ITERATIONS
     return AnnealResult(best, float(err), int(it), stop)

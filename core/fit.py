@@ -312,7 +312,7 @@ def fit_image(
     if model.tree is not None:
         return fit_tree(detections, model, rig, model.tree, space, params, stream, draw_start, off,
                         warm, ceilings)
-    dofs, error, objective, iterations = attempt_kernel(
+    dofs, error, objective, iterations, _ = attempt_kernel(
         np.arange(len(model.dofs)), model.arrays, detections.kernel_points, detections.start,
         model, rig, space, params, params.anneal.eps, stream, draw_start, off,
     )

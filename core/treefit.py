@@ -93,14 +93,16 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
     """``_kernels.fit_attempt`` over the DOFs ``dofs`` (indices into ``model.dofs``) of the
     model posed by ``kin`` (the whole model, or one part) against detections ``points``
     (N, 3) grouped by view at ``start`` (V + 1,); returns (dofs (d,), error, objective,
-    iterations)."""
+    iterations, each SA run's final posture (r, d), the first's first)."""
     sa = kernel_params(params.anneal, space.sigma[dofs], space.table[dofs], eps=eps,
                        refine_result=params.refine, restarts=params.restarts)
     image = _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
                               fuse_px=params.fusion_px)
-    return _kernels.fit_attempt(space.mean[dofs], bool(draw_start),
-                                _kernels.Bounds(model.lower[dofs], model.upper[dofs]), kin, rig.arrays,
-                                image, sa, stream)
+    runs = np.empty((params.restarts + 1, len(dofs)))
+    q, error, objective, iterations, written = _kernels.fit_attempt(
+        space.mean[dofs], bool(draw_start), _kernels.Bounds(model.lower[dofs], model.upper[dofs]), kin,
+        rig.arrays, image, sa, stream, runs)
+    return q, error, objective, iterations, runs[:written]
 
 
 def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None,
@@ -448,6 +450,7 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
     views_seen = int(np.count_nonzero(det.counts))
     shared = {} if warm is None else shared_projections(warm[0], model, rig, tree, params, off)
     candidates: list[Candidates] = []  # triangulated once, when a branch first needs them
+    minima: dict[str, list[np.ndarray]] = {}  # per part, its SA runs' and warm start's postures
     asked: dict[str, float] = {}  # ``ceilings()``, once a part first needs it
 
     def levels(name: str) -> float:
@@ -470,9 +473,10 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             return
         stop = eps if keep is None or tried is None else _reanalysis_stop(tried[0], eps, kin, points, start,
                                                                           rig, params, off)
-        q[part.dofs], _, _, its = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
-                                                 params, stop, stream, draw_start, off)
+        q[part.dofs], _, _, its, runs = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
+                                                       params, stop, stream, draw_start, off)
         iterations += its
+        minima.setdefault(part.name, []).extend([*runs, *([] if tried is None else [tried[0]])])
         value = part_objective(q[part.dofs], kin, points, start, unseen, rig, params, off)
         if keep is not None and tried is not None and _gains(q, part, value, tried, eps, det, model, rig,
                                                              params, off):
@@ -540,7 +544,7 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
     if views_seen == 2:  # two views: a wrong leg can explain every blob it projects onto
         if not candidates:
             candidates.append(triangulate(det, rig=rig, offsets=off))
-        _two_view_starts(q, det, model, rig, tree, space, params, off, reach, candidates[0], shared)
+        _two_view_starts(q, det, model, rig, tree, space, params, off, reach, candidates[0], shared, minima)
     # Parts that all came from warm starts arrive at ε on their own projections, refined:
     # the joint steps (each costing D evaluations) only read the blobs parts share as fused.
     steps = JOINT_STEPS if iterations else WARM_JOINT_STEPS
@@ -656,15 +660,21 @@ def search_floor(model: KinematicModel, params: FitParams, views_seen: int) -> f
 
 def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
                      space: SearchSpace, params: FitParams, off: np.ndarray, reach: np.ndarray,
-                     candidates: Candidates, shared: dict[str, np.ndarray]) -> None:
-    """Each branch's triangulated start (:func:`epipolar_start`) replaces its posture in ``q``
-    (D,) (changed in place) where that lowers the two-sided error over the blobs in reach
-    (``reach`` (B, N), per branch); a branch's base is where ``q`` puts it when it comes.
+                     candidates: Candidates, shared: dict[str, np.ndarray],
+                     minima: Mapping[str, list[np.ndarray]]) -> None:
+    """Each branch's triangulated start (:func:`epipolar_start`), and each posture of it in
+    ``minima`` (by part name: the minima of its SA runs and its warm start, (d,) each),
+    replaces its posture in ``q`` (D,) (changed in place) where that lowers the two-sided
+    error over the blobs in reach (``reach`` (B, N), per branch); a branch's base is where
+    ``q`` puts it when it comes.
 
     With two views every pair of blobs on corresponding epipolar lines is a 3D point, so a
     leg posed on another leg's blobs or on ghosts can explain all it projects onto, below
     ε, and only the blobs it leaves unexplained (the two-sided error) tell it from the
-    right one."""
+    right one. Its SA keeps the run of lowest objective, which charges the hidden markers
+    of the right posture their distance to some other blob beyond one a view: with a
+    marker hidden from each camera, or two from one, a leg on other blobs scores lower,
+    and another of its runs often ended at the right one."""
     in_reach = reach.any(axis=0)
     cap = params.empty_view_penalty_px
     score = two_sided_error(q, det, model, rig, off, in_reach, cap)
@@ -674,12 +684,13 @@ def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig:
         proposed = epipolar_start(part, rotation, origin, candidates, points, start,
                                   model, rig, space, params, _part_eps(part, params, 2), off,
                                   shared.get(part.name, _kernels.NO_UNSEEN))
-        if proposed is None:
-            continue
-        trial = q.copy()
-        trial[part.dofs] = proposed[0]
-        if (new := two_sided_error(trial, det, model, rig, off, in_reach, cap)) < score:
-            q[:], score = trial, new
+        # SA ranked its own minima: one overturns that only by explaining a blob more.
+        tried = [(p, cap) for p in minima.get(part.name, ())]
+        for posture, margin in [*tried, *([] if proposed is None else [(proposed[0], 0.0)])]:
+            trial = q.copy()
+            trial[part.dofs] = posture
+            if (new := two_sided_error(trial, det, model, rig, off, in_reach, cap)) < score - margin:
+                q[:], score = trial, new
 
 
 def epipolar_start(part: Part, rotation: np.ndarray, origin: np.ndarray, candidates: Candidates,

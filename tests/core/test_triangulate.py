@@ -233,6 +233,26 @@ def test_with_two_views_a_leg_on_the_wrong_blobs_is_replaced_by_its_triangulated
     reach = treefit._reaches(wrong, det, model, rig, list(tree.branches), off)
     q = wrong.copy()
     treefit._two_view_starts(q, det, model, rig, tree, space, params, off, reach,
-                             triangulate(det, rig=rig), {})
+                             triangulate(det, rig=rig), {}, {})
     assert np.abs(q[leg0.dofs] - q_true[leg0.dofs]).max() < 0.1
     assert np.abs(q[leg1.dofs] - q_true[leg1.dofs]).max() < 1e-6
+
+
+def test_with_two_views_the_sa_minimum_that_leaves_fewest_blobs_unexplained_is_kept():
+    """No triangulated start (no candidates): leg 0, posed as in another image, takes the one
+    of its SA minima that explains its own blobs; leg 1, right, keeps its posture over a
+    minimum that leaves them unexplained."""
+    model, rig = insect(legs=2), _distorted(2)
+    truth = movement(model, 20, seed=4)
+    q_true, tree = truth[0], model.tree
+    det = _detections(rig, model.marker_positions(q_true), ghosts=2, seed=3)
+    leg0, leg1 = tree.branches
+    q = q_true.copy()
+    q[leg0.dofs] = truth[10][leg0.dofs]
+    assert np.abs(q - q_true).max() > 10.0
+    minima = {leg0.name: [truth[15][leg0.dofs], q_true[leg0.dofs]], leg1.name: [truth[10][leg1.dofs]]}
+    off = view_offsets(None, rig)
+    reach = treefit._reaches(q, det, model, rig, list(tree.branches), off)
+    treefit._two_view_starts(q, det, model, rig, tree, search_space(model, Histograms.uniform(model)),
+                             FitParams(), off, reach, Candidates.empty(2), {}, minima)
+    np.testing.assert_array_equal(q, q_true)
