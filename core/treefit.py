@@ -39,8 +39,9 @@ docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
 (:func:`tree_flip_alternatives`). A branch that SA leaves above its ε (with two or more
 views) tries one more start, triangulated from the blobs (:func:`epipolar_start`,
 ``core.triangulate``), refined like a warm start and kept where it ends lower. With two
-views every branch tries it, kept where it lowers the two-sided error
-(:func:`_two_view_starts`): there a leg on the wrong blobs can explain all it projects onto.
+views every branch tries it, and every SA run's minimum of it and its warm start, kept where
+it lowers the two-sided error (:func:`_two_view_starts`): there a leg on the wrong blobs can
+explain all it projects onto, and the run SA ranks lowest can be one.
 """
 
 from __future__ import annotations
@@ -665,8 +666,9 @@ def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig:
     """Each branch's triangulated start (:func:`epipolar_start`), and each posture of it in
     ``minima`` (by part name: the minima of its SA runs and its warm start, (d,) each),
     replaces its posture in ``q`` (D,) (changed in place) where that lowers the two-sided
-    error over the blobs in reach (``reach`` (B, N), per branch); a branch's base is where
-    ``q`` puts it when it comes.
+    error over the blobs in reach (``reach`` (B, N), per branch), a minimum by more than the
+    cap (the empty-view penalty: one blob explained more); a branch's base is where ``q``
+    puts it when it comes.
 
     With two views every pair of blobs on corresponding epipolar lines is a 3D point, so a
     leg posed on another leg's blobs or on ghosts can explain all it projects onto, below
@@ -674,7 +676,9 @@ def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig:
     right one. Its SA keeps the run of lowest objective, which charges the hidden markers
     of the right posture their distance to some other blob beyond one a view: with a
     marker hidden from each camera, or two from one, a leg on other blobs scores lower,
-    and another of its runs often ended at the right one."""
+    and another of its runs often ended at the right one. The margin: SA ranked its minima
+    in its own objective, and under sliding skin markers their two-sided errors differ by
+    a few pixels whichever is right."""
     in_reach = reach.any(axis=0)
     cap = params.empty_view_penalty_px
     score = two_sided_error(q, det, model, rig, off, in_reach, cap)
@@ -684,7 +688,6 @@ def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig:
         proposed = epipolar_start(part, rotation, origin, candidates, points, start,
                                   model, rig, space, params, _part_eps(part, params, 2), off,
                                   shared.get(part.name, _kernels.NO_UNSEEN))
-        # SA ranked its own minima: one overturns that only by explaining a blob more.
         tried = [(p, cap) for p in minima.get(part.name, ())]
         for posture, margin in [*tried, *([] if proposed is None else [(proposed[0], 0.0)])]:
             trial = q.copy()
