@@ -97,8 +97,7 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
     iterations, each SA run's final posture (r, d), the first's first)."""
     sa = kernel_params(params.anneal, space.sigma[dofs], space.table[dofs], eps=eps,
                        refine_result=params.refine, restarts=params.restarts)
-    image = _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
-                              fuse_px=params.fusion_px)
+    image = _image(points, start, params, off)
     runs = np.empty((params.restarts + 1, len(dofs)))
     q, error, objective, iterations, written = _kernels.fit_attempt(
         space.mean[dofs], bool(draw_start), _kernels.Bounds(model.lower[dofs], model.upper[dofs]), kin,
@@ -168,8 +167,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     if unseen.size:
         eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(np.diff(start)), 1)
     best: tuple[np.ndarray, float, bool] | None = None
-    image = _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
-                              fuse_px=params.fusion_px, unseen=unseen)
+    image = _image(points, start, params, off, unseen)
     bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
     views = _judged_in_two_views(unseen, start)
     for row in warm:
@@ -301,8 +299,7 @@ def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
         kin = part.at(*_base_frame(q, model, part))
         unseen = _in_seen_views(shared[part.name], start)
         counted = _compared(unseen, start, len(part.markers))
-        image = _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
-                                  fuse_px=params.fusion_px, unseen=unseen)
+        image = _image(points, start, params, off, unseen)
         level = _ceiling_level(q[part.dofs], kin, rig, image, params)
         d = len(part.dofs)
         out[part.name] = (level + residual_tolerance(level, counted, d, d)) / max(counted, 1)
@@ -327,10 +324,9 @@ def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, un
                    rig: Rig, params: FitParams, off: np.ndarray) -> float:
     """The objective (pixels) of a part's posture ``q`` (d,) posed by ``kin`` on detections
     ``points`` grouped at ``start``, without the projections ``unseen`` (V, m) marks."""
-    penalty = float(params.empty_view_penalty_px)
     unseen = _in_seen_views(unseen, start)
-    image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, unseen=unseen)
-    return float(_kernels.posture_error(q, kin, rig.arrays, image)) - penalty * np.count_nonzero(unseen)
+    image = _image(points, start, params, off, unseen)
+    return float(_kernels.posture_error(q, kin, rig.arrays, image)) - image.penalty * np.count_nonzero(unseen)
 
 
 def _charged_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, rig: Rig,
@@ -341,9 +337,8 @@ def _charged_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray
     out as :func:`part_objective` leaves out the unseen ones), fusion below
     ``params.fusion_px``, and every view allowed to lose one marker at the empty-view
     penalty (the restarts' objective; the first run's, which loses none, is never lower)."""
-    penalty = float(params.empty_view_penalty_px)
-    image = _kernels.Image.of(points, start, off, penalty=penalty, fuse_px=params.fusion_px, lost_px=penalty)
-    return float(_kernels.posture_error(q, kin, rig.arrays, image))
+    image = _image(points, start, params, off)
+    return float(_kernels.posture_error(q, kin, rig.arrays, image._replace(lost_px=image.penalty)))
 
 
 def _reanalysis_stop(kept: np.ndarray, eps: float, kin, points: np.ndarray, start: np.ndarray, rig: Rig,
@@ -845,11 +840,19 @@ def _gains(q: np.ndarray, part: Part, value: float, kept: tuple[np.ndarray, floa
         other, det, model, rig, params, off)
 
 
+def _image(points: np.ndarray, start: np.ndarray, params: FitParams, off: np.ndarray,
+           unseen: np.ndarray = _kernels.NO_UNSEEN) -> _kernels.Image:
+    """The kernels' view of detections ``points`` (N, 3) grouped at ``start`` (V + 1,) under
+    ``params`` (empty-view penalty, marker fusion) with view offsets ``off`` (V, 2), the
+    projections ``unseen`` (V, m) marks left out: the one construction of a part's or a
+    whole image's objective here."""
+    return _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
+                             fuse_px=params.fusion_px, unseen=unseen)
+
+
 def _whole_image(det: Detections, params: FitParams, off: np.ndarray) -> _kernels.Image:
-    """The kernels' view of a whole image ``det`` under ``params`` (empty-view penalty, marker
-    fusion) with view offsets ``off`` (V, 2), no projection left out."""
-    return _kernels.Image.of(det.kernel_points, det.start, off, penalty=params.empty_view_penalty_px,
-                             fuse_px=params.fusion_px)
+    """:func:`_image` of a whole image ``det``, no projection left out."""
+    return _image(det.kernel_points, det.start, params, off)
 
 
 def _whole_objective(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
