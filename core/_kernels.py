@@ -155,6 +155,20 @@ class Workspace(NamedTuple):
     dist: np.ndarray
     claims: np.ndarray
 
+class Assignment(NamedTuple):
+    """What :func:`_residuals` chose for a posture in image mode, which its Jacobian keeps.
+
+    valid : (G,) bool, the residual groups that count.  match : (G,) int64, each group's
+    detection.  level : (V,) squared merge distance of each view's reading (px², -1: apart).
+    raw : (V, M, 2) the posture's raw projections, which say who merges with whom.
+    """
+
+    valid: np.ndarray
+    match: np.ndarray
+    level: np.ndarray
+    raw: np.ndarray
+
+
 # ---- rotations -----------------------------------------------------------------------------
 
 
@@ -551,7 +565,8 @@ def _lose_worst(total, dist, lost_px):
 
 @njit(cache=True, inline="always")
 def _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, lost_px, unseen, index, dist, claims):
-    """(cost, merged?) of view v: its markers imaged apart, or its closer pairs merged.
+    """(cost, level) of view v: its markers imaged apart (level -1), or with the pairs closer
+    than squared distance ``level`` (px²) merged (kept in ``fused``).
 
     Whether the detector merged two close markers depends on their distance, size
     and the threshold, and it merges closer pairs first: the view is read apart, then
@@ -578,7 +593,7 @@ def _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, lost_px, unseen, i
     for c in range(a, b):
         large = large or det[c, 2] > 0.0
     if not (differs and large):
-        return apart, False
+        return apart, -1.0
     return _nested_reading(raw, fused, v, det, a, b, reach2, lost_px, apart, unseen, index, dist,
                            claims)
 
@@ -587,7 +602,8 @@ def _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, lost_px, unseen, i
 def _nested_reading(raw, fused, v, det, a, b, reach2, lost_px, apart, unseen, index, dist, claims):
     """:func:`_view_reading` of view v past its all-apart reading (cost ``apart``, ``index`` and
     ``dist`` as its :func:`_match_view` left them), whose full merge (``fused``) differs: the
-    nested merged readings, the best kept in ``fused`` if it beats ``apart``. Compiled once
+    nested merged readings, the best kept in ``fused`` if it beats ``apart``; returns (cost,
+    its squared merge distance, or -1 where apart is best). Compiled once
     and called, not inlined: :func:`_view_reading` is inlined wherever the objective is, and
     this loop is only taken in views with merged-looking blobs."""
     M = raw.shape[1]
@@ -605,10 +621,10 @@ def _nested_reading(raw, fused, v, det, a, b, reach2, lost_px, apart, unseen, in
             best, best_level = merged, level
         last, level = level, _next_level(raw, v, det, a, b, close, level, reach2)
     if best_level < 0.0:
-        return apart, False
+        return apart, -1.0
     if best_level != last:
         _merge_closer(raw, fused, v, best_level, close, det, a, b, index, dist, unseen)
-    return best, True
+    return best, best_level
 
 
 @njit(cache=True, inline="always")
@@ -785,15 +801,21 @@ def next_uniform(s) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _residuals(q, kin, views, image, targets, work, res, valid):
-    """Residual groups ``res`` of posture ``q`` on ``image`` and which count, ``valid`` (G,).
+def _residuals(q, kin, views, image, targets, work, res, chosen, fixed):
+    """Residual groups ``res`` of posture ``q`` on ``image``; which count, ``chosen.valid``.
 
     Image mode (no ``targets``, ``res`` (V·M, 2)): group v·M + m is marker m's
     position in view v (raw, or merged where :func:`blob_error` reads the view so)
     minus its nearest detection; a view without detections does not count, nor
-    does a marker ``unseen`` marks. Target mode (``targets`` and ``res`` (M, 3)): group m is world
-    marker m minus its target (inverse kinematics).
+    does a marker ``unseen`` marks. What is chosen goes to ``chosen`` (:class:`Assignment`).
+    With ``fixed`` it is read instead: each group keeps its detection and each marker merges
+    with the markers it merged with at ``chosen.raw``. :func:`refine`'s Jacobian
+    differentiates under the assignment of the posture it linearises at, as an analytic
+    Jacobian would, without the view readings and nearest-detection searches that are
+    most of an evaluation's cost. Target mode (``targets`` and ``res`` (M, 3)): group m is
+    world marker m minus its target (inverse kinematics).
     """
+    valid, match, level, anchor = chosen
     if targets.shape[0] > 0:
         fr, sc, world = work.frames, work.sincos, work.world
         joint_frames(q, kin, fr, sc)
@@ -814,16 +836,58 @@ def _residuals(q, kin, views, image, targets, work, res, valid):
             for m in range(M):
                 res[v * M + m, 0], res[v * M + m, 1], valid[v * M + m] = 0.0, 0.0, False
             continue
-        pos = raw
-        if fuse_px > 0.0 and _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, 0.0,
-                                           unseen, index, dist, claims)[1]:
-            pos = fused
-        _match_view(pos, v, det, a, b, index, dist, unseen, penalty)
+        if fixed:
+            _merge_as(raw, fused, v, level[v], anchor)
+        else:
+            level[v] = -1.0
+            if fuse_px > 0.0:
+                level[v] = _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, 0.0, unseen,
+                                         index, dist, claims)[1]
+            _match_view(fused if level[v] >= 0.0 else raw, v, det, a, b, index, dist, unseen,
+                        penalty)
+            for m in range(M):
+                match[v * M + m], valid[v * M + m] = index[m], index[m] >= 0
+                anchor[v, m, 0], anchor[v, m, 1] = raw[v, m, 0], raw[v, m, 1]
+        pos = fused if level[v] >= 0.0 else raw
         for m in range(M):
             g = v * M + m
-            valid[g] = index[m] >= 0
-            res[g, 0] = pos[v, m, 0] - det[index[m], 0] if valid[g] else 0.0
-            res[g, 1] = pos[v, m, 1] - det[index[m], 1] if valid[g] else 0.0
+            res[g, 0] = pos[v, m, 0] - det[match[g], 0] if valid[g] else 0.0
+            res[g, 1] = pos[v, m, 1] - det[match[g], 1] if valid[g] else 0.0
+
+
+@njit(cache=True, inline="always")
+def _merge_as(raw, fused, v, level, anchor) -> None:
+    """View v of ``fused``: each marker of ``raw`` at the mean of those within squared
+    distance ``level`` of it at ``anchor`` (V, M, 2), itself included (nothing where
+    ``level`` < 0: read apart). The merges of ``anchor``'s reading, as
+    :func:`_merge_closer` made them, kept while ``raw`` moves."""
+    if level < 0.0:
+        return
+    for m in range(raw.shape[1]):
+        su, sv, n = 0.0, 0.0, 0.0
+        for k in range(raw.shape[1]):
+            du, dv = anchor[v, k, 0] - anchor[v, m, 0], anchor[v, k, 1] - anchor[v, m, 1]
+            w = 1.0 if du * du + dv * dv <= level else 0.0
+            su += w * raw[v, k, 0]
+            sv += w * raw[v, k, 1]
+            n += w
+        fused[v, m, 0], fused[v, m, 1] = su / n, sv / n
+
+
+@njit(cache=True, nogil=True)
+def _assignment(G, V, M):
+    """An :class:`Assignment` for ``G`` residual groups, ``V`` views, ``M`` markers."""
+    return Assignment(np.zeros(G, dtype=np.bool_), np.zeros(G, dtype=np.int64), np.full(V, -1.0),
+                      np.zeros((V, M, 2)))
+
+
+@njit(cache=True, inline="always")
+def _keep(dst, src) -> None:
+    """``dst`` (:class:`Assignment`) takes ``src``'s values."""
+    for g in range(src.valid.shape[0]):
+        dst.valid[g], dst.match[g] = src.valid[g], src.match[g]
+    _copy(dst.level, src.level)
+    _copy(dst.raw.ravel(), src.raw.ravel())
 
 
 @njit(cache=True, inline="always")
@@ -918,7 +982,8 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     marker hidden from a camera, lying a few pixels from another blob, pulls the posture
     off Eq. 5's minimum (docs/ENGINE_NOTES.md). Target mode (``targets`` (M, 3)):
     inverse kinematics onto world marker positions (``image`` not read; radius ``huber_c``).
-    Jacobian by forward differences of :data:`FD_STEP`. Stops after
+    Jacobian by forward differences of :data:`FD_STEP` under the assignment of detections
+    at the current posture (:func:`_residuals`). Stops after
     ``max_iter`` steps, or when a step moves less than 1e-6 (degrees, model
     units) or gains less than 1e-10 of the cost at the final radius. Returns the refined
     posture.
@@ -929,11 +994,14 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     q, trial = q0.copy(), q0.copy()
     work = workspace(kin, views, D, image.det.shape[0])
     res, res2 = np.empty((G, C)), np.empty((G, C))
-    valid = np.empty(G, dtype=np.bool_)
+    V = views.kind.shape[0]
+    chosen, tried = _assignment(G, V, M), _assignment(G, V, M)  # at q, and at the step tried
+    valid = chosen.valid
     jac = np.empty((G, C, D))
     A, H, L = np.empty((D, D)), np.empty((D, D)), np.empty((D, D))
     g, delta = np.empty(D), np.empty(D)
-    _residuals(q, kin, views, image, targets, work, res, valid)
+    moves = np.empty(D, dtype=np.int64)
+    _residuals(q, kin, views, image, targets, work, res, chosen, False)
     c = huber_c
     cost = _huber_cost(res, valid, c)
     lam = 1e-3
@@ -942,7 +1010,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
         for i in range(D):
             _copy(trial, q)
             trial[i] += h_fd
-            _residuals(trial, kin, views, image, targets, work, res2, valid)
+            _residuals(trial, kin, views, image, targets, work, res2, chosen, True)
             for k in range(G):
                 for a in range(C):
                     jac[k, a, i] = (res2[k, a] - res[k, a]) / h_fd
@@ -953,11 +1021,20 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
                 continue
             e = _norm(res, k)
             w = 1.0 if e <= c else c / e
+            n = 0  # the DOFs that move group k: a leg's marker, a few of a whole animal's
+            for i in range(D):
+                if jac[k, 0, i] != 0.0 or jac[k, 1, i] != 0.0 or jac[k, C - 1, i] != 0.0:
+                    moves[n] = i
+                    n += 1
             for a in range(C):
-                for i in range(D):
+                for s in range(n):
+                    i = moves[s]
                     g[i] -= w * jac[k, a, i] * res[k, a]
-                    for j in range(D):
-                        A[i, j] += w * jac[k, a, i] * jac[k, a, j]
+                    for t in range(s + 1):
+                        A[i, moves[t]] += w * jac[k, a, i] * jac[k, a, moves[t]]
+        for i in range(D):
+            for j in range(i):
+                A[j, i] = A[i, j]
         improved = False
         while lam < 1e8:
             _copy(H.ravel(), A.ravel())
@@ -969,13 +1046,14 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
             moved = np.max(np.abs(trial - q))
             if moved < 1e-6:
                 break  # converged: more damping only shortens the step (saves ~15 trials)
-            _residuals(trial, kin, views, image, targets, work, res2, valid)
-            new_cost = _huber_cost(res2, valid, c)
+            _residuals(trial, kin, views, image, targets, work, res2, tried, False)
+            new_cost = _huber_cost(res2, tried.valid, c)
             if new_cost < cost:
                 step = moved
                 gain = cost - new_cost
                 _copy(q, trial)
                 _copy(res.ravel(), res2.ravel())
+                _keep(chosen, tried)
                 cost = new_cost
                 lam = max(lam / 3.0, 1e-9)
                 improved = True
@@ -1226,7 +1304,7 @@ def _lost_markers(q, kin, views, image, beyond, every):
         if a == b:
             continue
         merged = fuse_px > 0.0 and _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, 0.0,
-                                                  seen, index, dist, claims)[1]
+                                                  seen, index, dist, claims)[1] >= 0.0
         _match_view(fused if merged else raw, v, det, a, b, index, dist, seen, penalty)
         worst = np.argmax(dist)
         if dist[worst] > beyond:
