@@ -827,7 +827,7 @@ def _residuals(q, kin, views, image, targets, work, res, chosen, fixed):
         return
     det, start, penalty, fuse_px, unseen = (image.det, image.start, image.penalty, image.fuse_px,
                                             image.unseen)
-    project_posture(q, kin, views, image.offset, fuse_px, work)
+    project_posture(q, kin, views, image.offset, 0.0 if fixed else fuse_px, work)
     raw, fused, index, dist, claims = work.raw, work.fused, work.index, work.dist, work.claims
     V, M = raw.shape[0], raw.shape[1]
     for v in range(V):
