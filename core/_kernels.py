@@ -802,18 +802,19 @@ def next_uniform(s) -> float:
 
 @njit(cache=True, nogil=True)
 def _residuals(q, kin, views, image, targets, work, res, chosen, fixed):
-    """Residual groups ``res`` of posture ``q`` on ``image``; which count, ``chosen.valid``.
+    """Residual groups ``res`` of posture ``q`` on ``image``, and what they were chosen by,
+    ``chosen`` (:class:`Assignment`; ``chosen.valid``: the groups that count).
 
     Image mode (no ``targets``, ``res`` (V·M, 2)): group v·M + m is marker m's
     position in view v (raw, or merged where :func:`blob_error` reads the view so)
     minus its nearest detection; a view without detections does not count, nor
-    does a marker ``unseen`` marks. What is chosen goes to ``chosen`` (:class:`Assignment`).
-    With ``fixed`` it is read instead: each group keeps its detection and each marker merges
-    with the markers it merged with at ``chosen.raw``. :func:`refine`'s Jacobian
-    differentiates under the assignment of the posture it linearises at, as an analytic
-    Jacobian would, without the view readings and nearest-detection searches that are
-    most of an evaluation's cost. Target mode (``targets`` and ``res`` (M, 3)): group m is
-    world marker m minus its target (inverse kinematics).
+    does a marker ``unseen`` marks. With ``fixed``, ``chosen`` is read instead, as made at
+    another posture: each group keeps its detection, each marker merges with the markers it
+    merged with at ``chosen.raw``, the groups that count stay those. :func:`refine`'s
+    Jacobian differentiates so, as an analytic Jacobian would, without the view readings and
+    nearest-detection searches that are most of an evaluation's cost (a difference across a
+    switch of nearest detection is no derivative). Target mode (``targets`` and ``res``
+    (M, 3)): group m is world marker m minus its target (inverse kinematics).
     """
     valid, match, level, anchor = chosen
     if targets.shape[0] > 0:
@@ -832,25 +833,22 @@ def _residuals(q, kin, views, image, targets, work, res, chosen, fixed):
     V, M = raw.shape[0], raw.shape[1]
     for v in range(V):
         a, b = start[v], start[v + 1]
-        if a == b:
-            for m in range(M):
-                res[v * M + m, 0], res[v * M + m, 1], valid[v * M + m] = 0.0, 0.0, False
-            continue
         if fixed:
             _merge_as(raw, fused, v, level[v], anchor)
         else:
             level[v] = -1.0
-            if fuse_px > 0.0:
+            if a < b and fuse_px > 0.0:
                 level[v] = _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, 0.0, unseen,
                                          index, dist, claims)[1]
-            _match_view(fused if level[v] >= 0.0 else raw, v, det, a, b, index, dist, unseen,
-                        penalty)
-            for m in range(M):
-                match[v * M + m], valid[v * M + m] = index[m], index[m] >= 0
-                anchor[v, m, 0], anchor[v, m, 1] = raw[v, m, 0], raw[v, m, 1]
+            if a < b:
+                _match_view(fused if level[v] >= 0.0 else raw, v, det, a, b, index, dist, unseen,
+                            penalty)
         pos = fused if level[v] >= 0.0 else raw
         for m in range(M):
             g = v * M + m
+            if not fixed:
+                match[g], valid[g] = index[m], a < b and index[m] >= 0
+                anchor[v, m, 0], anchor[v, m, 1] = raw[v, m, 0], raw[v, m, 1]
             res[g, 0] = pos[v, m, 0] - det[match[g], 0] if valid[g] else 0.0
             res[g, 1] = pos[v, m, 1] - det[match[g], 1] if valid[g] else 0.0
 
@@ -877,7 +875,7 @@ def _merge_as(raw, fused, v, level, anchor) -> None:
 @njit(cache=True, nogil=True)
 def _assignment(G, V, M):
     """An :class:`Assignment` for ``G`` residual groups, ``V`` views, ``M`` markers."""
-    return Assignment(np.zeros(G, dtype=np.bool_), np.zeros(G, dtype=np.int64), np.full(V, -1.0),
+    return Assignment(np.zeros(G, dtype=np.bool_), np.zeros(G, dtype=np.int64), np.zeros(V),
                       np.zeros((V, M, 2)))
 
 
@@ -996,12 +994,15 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     res, res2 = np.empty((G, C)), np.empty((G, C))
     V = views.kind.shape[0]
     chosen, tried = _assignment(G, V, M), _assignment(G, V, M)  # at q, and at the step tried
+    # _residuals' ``fixed``: False, and True for the Jacobian. A value, not a literal: numba
+    # would compile _residuals once per literal, seconds more of a first run.
+    given = max_iter < 0
     valid = chosen.valid
     jac = np.empty((G, C, D))
     A, H, L = np.empty((D, D)), np.empty((D, D)), np.empty((D, D))
     g, delta = np.empty(D), np.empty(D)
     moves = np.empty(D, dtype=np.int64)
-    _residuals(q, kin, views, image, targets, work, res, chosen, False)
+    _residuals(q, kin, views, image, targets, work, res, chosen, given)
     c = huber_c
     cost = _huber_cost(res, valid, c)
     lam = 1e-3
@@ -1010,7 +1011,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
         for i in range(D):
             _copy(trial, q)
             trial[i] += h_fd
-            _residuals(trial, kin, views, image, targets, work, res2, chosen, True)
+            _residuals(trial, kin, views, image, targets, work, res2, chosen, not given)
             for k in range(G):
                 for a in range(C):
                     jac[k, a, i] = (res2[k, a] - res[k, a]) / h_fd
@@ -1046,7 +1047,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
             moved = np.max(np.abs(trial - q))
             if moved < 1e-6:
                 break  # converged: more damping only shortens the step (saves ~15 trials)
-            _residuals(trial, kin, views, image, targets, work, res2, tried, False)
+            _residuals(trial, kin, views, image, targets, work, res2, tried, given)
             new_cost = _huber_cost(res2, tried.valid, c)
             if new_cost < cost:
                 step = moved
