@@ -102,7 +102,9 @@ def estimate_fit_cost(model: KinematicModel, rig: Rig, params: FitParams, *, ima
         steps = 2 * sum(d.rotational for d in model.dofs) * (WITNESS_DOUBLINGS + 1)
         image += ((D + 1) * evaluation + _SOLVE_S * D**3
                   + steps * (2 * evaluation + PROFILE_STEPS * lm_step))
-    workspace = 8 * (V * M * 2 * (D + 2) + 3 * D * D)
+    # 8-byte words: Jacobian and two residual arrays, two assignments (raw projections,
+    # detection, validity, view levels: _kernels.Assignment), normal equations and factors.
+    workspace = 8 * (V * M * 2 * (D + 2) + 2 * (4 * V * M + V) + 3 * D * D + D)
     return FitCost(evaluation, lm_step, image, images * params.max_attempts * image, workspace)
 
 
