@@ -657,6 +657,21 @@ def _next_level(raw, v, det, a, b, close, above, reach2) -> float:
 
 
 @njit(cache=True, inline="always")
+def _merged(raw, anchor, v, m, level):
+    """Where marker m merged with the markers within squared distance ``level`` of it at
+    ``anchor`` (V, M, 2), itself included, images in view v: the mean of their ``raw``
+    projections (V, M, 2), (u, v) px."""
+    su, sv, n = 0.0, 0.0, 0.0
+    for k in range(raw.shape[1]):
+        du, dv = anchor[v, k, 0] - anchor[v, m, 0], anchor[v, k, 1] - anchor[v, m, 1]
+        w = 1.0 if du * du + dv * dv <= level else 0.0
+        su += w * raw[v, k, 0]
+        sv += w * raw[v, k, 1]
+        n += w
+    return su / n, sv / n
+
+
+@njit(cache=True, inline="always")
 def _merge_closer(raw, fused, v, level, close, det, a, b, index, dist, unseen) -> float:
     """View v of ``fused`` read with the markers closer than squared distance ``level``
     merged (each ``close`` marker at the mean of those within it, itself included, as
@@ -665,14 +680,7 @@ def _merge_closer(raw, fused, v, level, close, det, a, b, index, dist, unseen) -
     for m in range(raw.shape[1]):
         if not close[m]:
             continue
-        su, sv, n = 0.0, 0.0, 0.0
-        for k in range(raw.shape[1]):
-            du, dv = raw[v, k, 0] - raw[v, m, 0], raw[v, k, 1] - raw[v, m, 1]
-            w = 1.0 if du * du + dv * dv <= level else 0.0
-            su += w * raw[v, k, 0]
-            sv += w * raw[v, k, 1]
-            n += w
-        u, w_ = su / n, sv / n
+        u, w_ = _merged(raw, raw, v, m, level)
         if u == fused[v, m, 0] and w_ == fused[v, m, 1]:
             continue
         fused[v, m, 0], fused[v, m, 1] = u, w_
@@ -862,14 +870,7 @@ def _merge_as(raw, fused, v, level, anchor) -> None:
     if level < 0.0:
         return
     for m in range(raw.shape[1]):
-        su, sv, n = 0.0, 0.0, 0.0
-        for k in range(raw.shape[1]):
-            du, dv = anchor[v, k, 0] - anchor[v, m, 0], anchor[v, k, 1] - anchor[v, m, 1]
-            w = 1.0 if du * du + dv * dv <= level else 0.0
-            su += w * raw[v, k, 0]
-            sv += w * raw[v, k, 1]
-            n += w
-        fused[v, m, 0], fused[v, m, 1] = su / n, sv / n
+        fused[v, m, 0], fused[v, m, 1] = _merged(raw, anchor, v, m, level)
 
 
 @njit(cache=True, nogil=True)
