@@ -656,7 +656,7 @@ def _next_level(raw, v, det, a, b, close, above, reach2) -> float:
     return level if level >= 0.0 else top
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True)
 def _merged(raw, anchor, v, m, level):
     """Where marker m merged with the markers within squared distance ``level`` of it at
     ``anchor`` (V, M, 2), itself included, images in view v: the mean of their ``raw``
