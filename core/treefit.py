@@ -683,8 +683,10 @@ def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig:
         proposed = epipolar_start(part, rotation, origin, candidates, points, start,
                                   model, rig, space, params, _part_eps(part, params, 2), off,
                                   shared.get(part.name, _kernels.NO_UNSEEN))
-        tried = [(p, cap) for p in minima.get(part.name, ())]
-        for posture, margin in [*tried, *([] if proposed is None else [(proposed[0], 0.0)])]:
+        starts = [(p, cap) for p in minima.get(part.name, ())]  # (posture, margin)
+        if proposed is not None:
+            starts.append((proposed[0], 0.0))
+        for posture, margin in starts:
             trial = q.copy()
             trial[part.dofs] = posture
             if (new := two_sided_error(trial, det, model, rig, off, in_reach, cap)) < score - margin:
