@@ -1120,7 +1120,7 @@ def _polish(q, e_q, bounds, kin, views, image, huber_c, out) -> float:
     """
     unseen = image.unseen
     if image.lost_px > 0.0:
-        mask, lost = _lost_markers(q, kin, views, image, image.lost_px, False)
+        mask, lost = _lost_markers(q, kin, views, image, image.lost_px, np.bool_(False))
         if lost:
             unseen = mask
     polished = refine(q, bounds, kin, views, _with(image, image.fuse_px, image.lost_px, unseen),
@@ -1293,7 +1293,11 @@ def draw_posture(lower, upper, hist, state, out) -> None:
 def _lost_markers(q, kin, views, image, beyond, every):
     """In every view of ``image``, the worst-matched marker if it is farther than ``beyond`` px
     from its detection (what losing it costs), or with ``every`` each marker that far:
-    (V, M) mask, and whether any was found."""
+    (V, M) mask, and whether any was found.
+
+    Kernels pass ``every`` as ``np.bool_(...)``, a value: a literal ``True`` or ``False`` would
+    make numba compile this kernel once per literal, besides the ``bool`` of Python's calls.
+    """
     det, start, penalty, fuse_px = image.det, image.start, image.penalty, image.fuse_px
     V, M = views.kind.shape[0], kin.marker_joint.shape[0]
     work = workspace(kin, views, q.shape[0], det.shape[0])
@@ -1330,7 +1334,7 @@ def _refit_unseen(q, objective, bounds, kin, views, image, huber_c):
     onto another blob (docs/BENCH_SUBJECTS.md, occlusion).
     Images whose markers are all within ``penalty`` are left as they are.
     """
-    unseen, lost = _lost_markers(q, kin, views, image, image.penalty, True)
+    unseen, lost = _lost_markers(q, kin, views, image, image.penalty, np.bool_(True))
     if not lost:
         return objective
     masked = _with(image, image.fuse_px, 0.0, unseen)
