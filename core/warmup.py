@@ -44,8 +44,8 @@ __all__ = ["compile_kernels", "compile_kernels_saying_so"]
 
 _ROOT = Path(__file__).resolve().parents[1]  # holds the package core
 
-FIRST_RUN = ("compiling the fitting kernels (on a fresh machine about half a minute, more if it is "
-             "busy; later runs load them from numba's cache in about a second)")
+FIRST_RUN = ("compiling the fitting kernels, once (half a minute to a minute and a half on a 2-core "
+             "machine, more if it is busy; later runs load them from numba's cache in about a second)")
 
 _CHAIN = """<model name="warmup_chain" units="mm">
   <joint name="base"><dof axis="y" name="p" min="120" max="220"/>
