@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.subjects import NAMES, Subject, camera_choice, load
 from core.ambiguity import Candidate, angle_gaps
 from core.error import Detections, view_offsets
-from core.fit import FitParams, tolerance_readings
+from core.fit import FitParams, witness_tolerance
 from core.treefit import refine_whole
 from core.undetermined import (
     UNDETERMINED_DEG,
@@ -64,7 +64,7 @@ def witnesses(subject: Subject, det: Detections, q: np.ndarray,
     off = view_offsets(None, rig)
     fit, error, objective = refine_whole(q.copy(), det, model, rig, params, off, steps=REFINE_STEPS)
     scatter = scatter_error(fit, det, model, rig, off, params.empty_view_penalty_px)
-    floor, residual = tolerance_readings(params, det, model, scatter, 1)
+    floor, residual = witness_tolerance(params, det, model, scatter)
     found = tuple(undetermined_alternative(
         Candidate(fit, error, objective), det, model=model, rig=rig,
         tolerance_px=max(floor, residual), residual_px=widen, fusion_px=params.fusion_px,

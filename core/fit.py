@@ -64,6 +64,7 @@ __all__ = [
     "image_stream",
     "needs_reanalysis",
     "reanalyse_image",
+    "witness_tolerance",
 ]
 
 
@@ -426,7 +427,7 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     """
     scatter = scatter_error(fit.dofs, det, model, rig, view_offsets(offsets, rig),
                             params.empty_view_penalty_px)
-    floor, residual = tolerance_readings(params, det, model, scatter, 1)
+    floor, residual = witness_tolerance(params, det, model, scatter)
     if floor == 0 or not (residual > floor or model.identifiability.undetermined):
         return None
     return undetermined_alternative(
@@ -434,6 +435,15 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
         fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
         huber_px=params.anneal.huber_px, offsets=offsets,
     )
+
+
+def witness_tolerance(params: FitParams, det: Detections, model: KinematicModel,
+                      scatter: float) -> tuple[float, float]:
+    """:func:`tolerance_readings` of the one-DOF intervals the undetermined-DOF witness reads,
+    from the image's ``scatter`` (``core.undetermined.scatter_error``): one interval per
+    rotational DOF, all holding together, since an image must be trusted in every DOF at once
+    (``core.undetermined.interval_chi2``)."""
+    return tolerance_readings(params, det, model, scatter, 1, int(np.count_nonzero(model.rotational)))
 
 
 def alternative_tolerance(params: FitParams, det: Detections, model: KinematicModel,
@@ -448,19 +458,19 @@ def alternative_tolerance(params: FitParams, det: Detections, model: KinematicMo
 
 
 def tolerance_readings(params: FitParams, det: Detections, model: KinematicModel,
-                       error: float, tested_dofs: int) -> tuple[float, float]:
+                       error: float, tested_dofs: int, intervals: int = 1) -> tuple[float, float]:
     """The two readings of :func:`alternative_tolerance`, pixels: the fixed floor,
     ``params.alternative_tolerance_px`` per 8 compared marker projections (never less), and
     what the image's own residual cannot tell apart for postures differing in
     ``tested_dofs`` DOFs (``core.undetermined.residual_tolerance``: ``len(model.dofs)`` for
-    another minimum, 1 for one DOF's interval). Both 0 when
-    ``params.alternative_tolerance_px`` is 0 (the search is off).
+    another minimum, 1 for one DOF's interval, ``intervals`` of them holding together).
+    Both 0 when ``params.alternative_tolerance_px`` is 0 (the search is off).
     """
     if params.alternative_tolerance_px == 0:
         return 0.0, 0.0
     compared = _compared(tuple(det.counts.tolist()), len(model.markers))
     return (params.alternative_tolerance_px * max(1.0, compared / 8.0),
-            residual_tolerance(error, compared, len(model.dofs), tested_dofs))
+            residual_tolerance(error, compared, len(model.dofs), tested_dofs, intervals))
 
 
 def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray,

@@ -15,6 +15,7 @@ wider of the two readings (:func:`shared_scatter_inflation`).
 from __future__ import annotations
 
 import math
+from statistics import NormalDist
 
 import numpy as np
 
@@ -26,8 +27,8 @@ from core.rig import Rig
 from core.treefit import MAX_LOST_SHARE, world_frames
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "confidence_chi2",
-           "hidden_projections", "residual_tolerance", "scatter_error", "shared_scatter_inflation",
-           "undetermined_alternative"]
+           "hidden_projections", "interval_chi2", "residual_tolerance", "scatter_error",
+           "shared_scatter_inflation", "undetermined_alternative"]
 
 # An image does not determine a DOF when a posture this far from its fit in that DOF (degrees,
 # the issue's "more than 10 degrees off the truth") explains it within its tolerance.
@@ -47,6 +48,22 @@ def confidence_chi2(k: int) -> float:
     """
     c = 2.0 / (9.0 * k)
     return k * (1.0 - c + _Z_CONFIDENCE * math.sqrt(c)) ** 3
+
+
+def interval_chi2(intervals: int) -> float:
+    """χ² of one degree of freedom at which ``intervals`` one-DOF confidence intervals hold
+    together at :data:`CONFIDENCE`: each at 1 − (1 − CONFIDENCE) / ``intervals``
+    (Bonferroni), exactly (the square of the two-sided normal quantile).
+
+    An image is trusted in every DOF at once: the witness tries each rotational DOF, and at
+    99 % apiece one DOF in a hundred would lie outside its interval by chance, the more
+    often the more DOFs a model has.
+
+    >>> round(interval_chi2(1), 2), round(interval_chi2(16), 2)
+    (6.63, 11.7)
+    """
+    z = NormalDist().inv_cdf(1.0 - (1.0 - CONFIDENCE) / (2.0 * max(intervals, 1)))
+    return z * z
 
 
 def hidden_projections(distances: np.ndarray, penalty: float) -> np.ndarray:
@@ -78,12 +95,15 @@ def scatter_error(q: np.ndarray, detections: Detections, model: KinematicModel, 
     return float(np.mean(distances[kept])) * np.count_nonzero(compared)
 
 
-def residual_tolerance(error_px: float, compared: int, n_dofs: int, tested_dofs: int) -> float:
+def residual_tolerance(error_px: float, compared: int, n_dofs: int, tested_dofs: int,
+                       intervals: int = 1) -> float:
     """Pixels of Eq. 5 within which an image cannot tell postures apart, from its own residual.
 
     ``error_px`` is the fit's plain Eq. 5 error over ``compared`` marker projections, for a
     model of ``n_dofs`` DOFs; ``tested_dofs`` is how many DOFs the postures compared may
     differ in: 1 for one DOF's confidence interval, ``n_dofs`` for another minimum anywhere.
+    With ``tested_dofs`` 1, ``intervals`` is how many one-DOF intervals must hold together
+    (:func:`interval_chi2`); otherwise χ² is :func:`confidence_chi2` of ``tested_dofs``.
     A fit's mean distance ē per projection estimates the per-coordinate scatter σ of the
     markers about the model (slid skin, noise): σ² = ē² · 2/π (a 2-D distance of
     per-coordinate σ has mean σ√(π/2)), times 2n / (2n − D) because the fit absorbs D of
@@ -94,12 +114,13 @@ def residual_tolerance(error_px: float, compared: int, n_dofs: int, tested_dofs:
     projections: 0.
 
     >>> round(residual_tolerance(8.0, 8, 6, 1), 2), round(residual_tolerance(8.0, 8, 6, 6), 2)
-    (3.35, 8.58)
+    (3.38, 8.58)
     """
     if compared <= 0 or not math.isfinite(error_px):
         return 0.0
     coords = 2 * compared
-    return (confidence_chi2(tested_dofs) * (error_px / compared) * coords
+    chi2 = interval_chi2(intervals) if tested_dofs == 1 else confidence_chi2(tested_dofs)
+    return (chi2 * (error_px / compared) * coords
             / (max(coords - n_dofs, 1) * math.pi))
 
 
