@@ -424,17 +424,30 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     scatter, and a noise-free image with one would otherwise read as sliding skin. Another
     minimum's tolerance (:func:`_attempt`) keeps the plain error: read without them, it
     dropped flip alternatives that the choice by continuity needed (docs/BENCH_SUBJECTS.md).
+    The scatter is never above the fit's plain error (it leaves out hidden projections and
+    views without detections), so an image whose plain error does not widen the tolerance,
+    most clean ones, is passed over without reading it.
     """
+    if not _witness_searched(params, det, model, fit.error):
+        return None
     scatter = scatter_error(fit.dofs, det, model, rig, view_offsets(offsets, rig),
                             params.empty_view_penalty_px)
-    floor, residual = witness_tolerance(params, det, model, scatter)
-    if floor == 0 or not (residual > floor or model.identifiability.undetermined):
+    if not _witness_searched(params, det, model, scatter):
         return None
+    floor, residual = witness_tolerance(params, det, model, scatter)
     return undetermined_alternative(
         fit, det, model=model, rig=rig, tolerance_px=max(floor, residual), residual_px=residual,
         fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
         huber_px=params.anneal.huber_px, offsets=offsets,
     )
+
+
+def _witness_searched(params: FitParams, det: Detections, model: KinematicModel, scatter: float) -> bool:
+    """Whether the undetermined-DOF witness is looked for in an image of residual ``scatter``
+    (px): the search is on, and the residual widens the tolerance beyond the fixed floor or
+    the model has DOFs that no posture determines."""
+    floor, residual = witness_tolerance(params, det, model, scatter)
+    return floor > 0 and (residual > floor or bool(model.identifiability.undetermined))
 
 
 def witness_tolerance(params: FitParams, det: Detections, model: KinematicModel,

@@ -15,7 +15,7 @@ import pytest
 from bench.animals import angle_errors, fit_params, render_and_detect
 from bench.subjects import load
 from bench.witness import slid_detections, witnesses
-from core.ambiguity import Candidate, angle_gaps
+from core.ambiguity import Candidate, angle_gaps, plain_error
 from core.error import Detections, marker_errors, view_error, view_offsets
 from core.examples import EXAMPLES
 from core.fit import FitParams, Status, alternative_tolerance
@@ -190,6 +190,27 @@ def test_markers_slid_in_3d_leave_no_fit_10_degrees_off_without_a_witness():
         assert shared
         missed_independent += not independent
     assert off >= 10 and missed_independent >= 1
+
+
+def test_the_scatter_is_never_above_the_plain_error():
+    """``core.fit`` passes over an image whose plain Eq. 5 error would not widen the witness's
+    tolerance without reading its scatter: that needs scatter <= plain error for any
+    posture, with sliding skin, an unmodelled marker, hidden markers and views left empty."""
+    subject = load("rat")
+    model, rig = subject.model, subject.rig
+    data = render_and_detect(subject, 12, soft=True, ghosts=0, rng=np.random.default_rng(3), occlusion=0.2)
+    first = data.detections[0]
+    dets = [*data.detections, Detections.from_views([first.view(0), [], first.view(2)])]  # a view empty
+    truths = [*data.truth, data.truth[0]]
+    off, rng = view_offsets(None, rig), np.random.default_rng(4)
+    compared = 0
+    for det, q in zip(dets, truths, strict=True):
+        for spread in (0.0, 2.0, 20.0):  # at the truth, near it, far from it (markers off their blobs)
+            p = np.clip(q + rng.normal(0, spread, q.shape), model.lower, model.upper)
+            scatter = scatter_error(p, det, model, rig, off, 5.0)
+            assert scatter <= plain_error(p, det, model, rig, off, 5.0) * (1 + 1e-12)
+            compared += 1
+    assert compared == 39 and data.hidden is not None and data.hidden.any()
 
 
 def test_a_short_trial_with_sliding_skin_reports_no_image_10_degrees_off_as_ok_unflagged():
