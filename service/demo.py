@@ -109,7 +109,8 @@ def _fit_over_http(api: Client, video: Path, seed: int) -> bytes:
     t0 = time.monotonic()
     job = api.submit_job(model["id"], rig["id"], [uploaded["id"]], {"seed": seed})
     print(f"job {job['id']} submitted; on a first run the workers first compile the fitting "
-          "kernels, once for all of them (about 30 s on a fresh machine), later runs start at once",
+          "kernels, once for all of them (half a minute to a minute and a half on a 2-core machine), "
+          "later runs start at once",
           flush=True)
     shown: list[tuple[str, int]] = []
 
