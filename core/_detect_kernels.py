@@ -1,7 +1,8 @@
 """Compiled kernels of detection (``core.detect``) and of the field centroids (``core.fields``).
 
 Apart from the fitting kernels (``core._kernels``): none of these calls them, save the
-disc fit's 4×4 solve, :func:`core._kernels.solve_spd`. numba caches a kernel per function
+disc fit's 4×4 solve, :func:`core._kernels.solve_spd`, and its copies,
+:func:`core._kernels._copy` (``core._kernels``' rule: no slice assignment). numba caches a kernel per function
 and source file and checks only that file's time stamp: a change to ``solve_spd`` alone
 leaves the disc fit's cached code stale until this file changes or the cache is cleared.
 """
@@ -13,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from core._kernels import solve_spd
+from core._kernels import _copy, solve_spd
 
 # ---- marker regions and centroids (core.detect) ---------------------------------------------
 
@@ -297,6 +298,14 @@ def _relative_misfit(theta, data, xcols, yrows, noise):
     return max(0.0, dd - dm * dm / mm - noise) / dd
 
 
+@njit(cache=True, inline="always")
+def _step_from(kept, step, theta) -> None:
+    """``theta[:] = kept + step`` for 1-D float64 arrays of one length, as a loop (no slice
+    assignment: see :func:`core._kernels._copy`)."""
+    for p in range(theta.shape[0]):
+        theta[p] = kept[p] + step[p]
+
+
 @njit(cache=True, nogil=True)
 def _gauss_newton_disc(theta, data, xcols, yrows):
     """Fit ``a``·disc(theta) to ``data`` by Gauss–Newton; True if it converged.
@@ -323,14 +332,14 @@ def _gauss_newton_disc(theta, data, xcols, yrows):
         cost = dd - dm * dm / mm if mm > 0.0 else np.inf
         if cost > kept_cost:  # overshot: halve the step from the kept posture
             step *= 0.5
-            theta[:] = kept + step
+            _step_from(kept, step, theta)
             if abs(step[0]) < _DISC_TOLERANCE_PX and abs(step[1]) < _DISC_TOLERANCE_PX:
-                theta[:] = kept
+                _copy(theta, kept)
                 return True
             continue
         if mm <= 0.0:
             return False
-        kept[:] = theta
+        _copy(kept, theta)
         kept_cost = cost
         a = dm / mm
         for i in range(n):
@@ -351,9 +360,10 @@ def _gauss_newton_disc(theta, data, xcols, yrows):
         delta = solve_spd(JtJ, Jtr)
         for p in range(3):
             step[p] = max(-0.5, min(0.5, delta[p]))
-        theta[:] = kept + step
+        _step_from(kept, step, theta)
         if theta[2] <= 0.25:
             return False
         if abs(step[0]) < _DISC_TOLERANCE_PX and abs(step[1]) < _DISC_TOLERANCE_PX:
             return True
     return abs(step[1]) < 10 * _DISC_TOLERANCE_PX
+
