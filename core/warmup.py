@@ -28,10 +28,11 @@ from pathlib import Path
 import numpy as np
 from numba.core.registry import CPUDispatcher as Dispatcher
 
-from core import _kernels
+from core import _detect_kernels, _kernels
 from core.ambiguity import Candidate, FlipGeometry, flip_alternatives
 from core.detect import detect
 from core.error import Detections, view_error, view_offsets
+from core.fields import detect_fields
 from core.fit import FitParams, image_stream
 from core.histogram import Histograms
 from core.model import KinematicModel
@@ -98,7 +99,10 @@ def compile_kernels() -> float:
         for m, images in fits:
             params = FitParams(anneal=FitParams().anneal.with_iterations(300), fusion_px=8.0, max_attempts=2)
             fit_sequence(images, model=m, rig=rig, histograms=Histograms.uniform(m), params=params, seed=0)
+        if aside is not None:  # its last kernels: waiting costs less than compiling them again
+            _wait_for_cache(aside, (_detect_kernels.fit_field_discs,))
         _detect(rig)
+        _detect_fields(rig)
     finally:
         if aside is not None:
             aside.wait()  # it only adds to the cache: its outcome changes nothing here
@@ -109,8 +113,9 @@ def _compile_aside() -> None:
     """Into numba's cache: the nested readings (refinement in the first process reaches them
     some 3 s in), the objective, the posture draw and the lost-marker search (the first
     process waits for them: SA calls them), detection, then what needs the first process's
-    refinement: the refit without lost markers (the attempt calls it), depth flips; and the
-    tree's joint frames."""
+    refinement: the refit without lost markers (the attempt calls it), depth flips; the
+    tree's joint frames; last the de-interlaced fields' detection, which the first process
+    needs last (it waits for it)."""
     rig, m = _rig(), KinematicModel.from_xml(_CHAIN)
     det, q = _blobs(), _posture(m)
     _nested_readings(m, rig, det)
@@ -123,6 +128,7 @@ def _compile_aside() -> None:
     flip_alternatives(Candidate(q, 1.0, 1.0), det, model=m, rig=rig, geometry=FlipGeometry.of(m, rig),
                       tolerance_px=1e9, fusion_px=8.0, empty_view_penalty_px=1.0, huber_px=1.0)
     world_frames(q, m)
+    _detect_fields(rig)
 
 
 def _nested_readings(m: KinematicModel, rig: Rig, det: Detections) -> None:
@@ -192,10 +198,21 @@ def _draw(m: KinematicModel) -> None:
     _kernels.draw_posture(m.lower, m.upper, hist, image_stream(0, 0, 0), np.empty(len(m.dofs)))
 
 
-def _detect(rig: Rig) -> None:
+def _frame() -> np.ndarray:
+    """A PAL frame (576, 720) uint8 with one blob."""
     frame = np.zeros((576, 720), dtype=np.uint8)
     frame[100:104, 100:104] = 255
-    detect([frame], rig=rig)
+    return frame
+
+
+def _detect(rig: Rig) -> None:
+    detect([_frame()], rig=rig)
+
+
+def _detect_fields(rig: Rig) -> None:
+    """Detection of the two de-interlaced fields of a frame (the paper's PAL DV): the fields'
+    disc fits are kernels of their own (``core.fields``)."""
+    detect_fields([_frame()], rig=rig)
 
 
 def compile_kernels_saying_so(say: Callable[[str], object]) -> float:
