@@ -38,6 +38,7 @@ from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 from core.treefit import (
+    TreeFlips,
     attempt_kernel,
     fit_tree,
     part_objective,
@@ -60,6 +61,7 @@ __all__ = [
     "alternative_tolerance",
     "first_attempt",
     "fit_image",
+    "flip_geometry",
     "image_status",
     "image_stream",
     "needs_reanalysis",
@@ -320,6 +322,13 @@ def fit_image(
     return dofs, float(error), float(objective), int(iterations)
 
 
+def flip_geometry(model: KinematicModel, rig: Rig) -> FlipGeometry | TreeFlips:
+    """What an image's depth-flip search (``core.ambiguity``) needs of ``model`` seen through
+    ``rig``: built once per chunk, not per image."""
+    geometry = FlipGeometry.of(model, rig)
+    return geometry if model.tree is None else TreeFlips.of(geometry, model)
+
+
 def first_attempt(
     det: Detections,
     sample: int,
@@ -329,7 +338,7 @@ def first_attempt(
     histograms: Histograms,
     params: FitParams,
     seed: int,
-    geometry: FlipGeometry,
+    geometry: FlipGeometry | TreeFlips,
     offsets: np.ndarray | None = None,
     warm: np.ndarray | None = None,
     ceilings: Callable[[], Mapping[str, float]] | None = None,
@@ -338,7 +347,7 @@ def first_attempt(
     """Image ``sample``'s first fit (attempt 1, stream :func:`image_stream` ``(seed, sample,
     1)``) under ``histograms``, with its alternatives; ``no_detections`` without any point.
 
-    geometry : ``FlipGeometry.of(model, rig)``, computed once per chunk.
+    geometry : :func:`flip_geometry`, computed once per chunk.
     offsets : this image's (V, 2) view offsets (root tracking), optional.
     warm : (k, D) warm starts from the chunk's previous images (:func:`fit_image`), optional.
     ceilings : per part of a tree, where its warm start stands in for SA (:func:`fit_image`).
@@ -637,7 +646,7 @@ def reanalyse_image(
     tree = model.tree is not None
     best, alternatives, its, settled = _attempt(
         detections, model, rig, search_space(model, histograms), params,
-        image_stream(seed, previous.sample, attempt), True, offsets, FlipGeometry.of(model, rig),
+        image_stream(seed, previous.sample, attempt), True, offsets, flip_geometry(model, rig),
         keep=previous.dofs if tree else None,
     )
     if not tree:

@@ -35,13 +35,14 @@ from functools import partial
 
 import numpy as np
 
-from core.ambiguity import FlipGeometry, choose_candidates
+from core.ambiguity import choose_candidates
 from core.error import Detections, view_offsets
 from core.fit import (
     FitParams,
     ImageFit,
     Status,
     first_attempt,
+    flip_geometry,
     image_status,
     needs_reanalysis,
     reanalyse_image,
@@ -143,7 +144,7 @@ def fit_chunk(
     working = histograms.copy()
     observed = Histograms.empty(model, bins=histograms.bins)
     rot = model.rotational
-    geometry = FlipGeometry.of(model, rig)
+    geometry = flip_geometry(model, rig)
     offset_iter = iter(offsets) if offsets is not None else None
     fits: list[ImageFit] = []
     ceilings: Callable[[], dict[str, float]] | None = None

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -74,7 +75,7 @@ if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
-__all__ = ["attempt_kernel", "epipolar_start", "fit_tree", "part_objective", "refine_whole",
+__all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "part_objective", "refine_whole",
            "refine_without_lost", "refit_tree", "search_floor", "shared_projections",
            "tree_flip_alternatives", "two_sided_error", "warm_ceilings", "warm_start", "world_frames"]
 
@@ -165,7 +166,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
         return None
     unseen = _in_seen_views(unseen, start)
     if unseen.size:
-        eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(np.diff(start)), 1)
+        eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(_seen_views(start)), 1)
     best: tuple[np.ndarray, float, bool] | None = None
     image = _image(points, start, params, off, unseen)
     bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
@@ -309,7 +310,7 @@ def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
 def _judged_in_two_views(unseen: np.ndarray, start: np.ndarray) -> bool:
     """Whether a part's projections not marked ``unseen`` (V, m) lie in two views with
     detections (grouped at ``start``), or in the one view that has any."""
-    views = np.diff(start) > 0
+    views = _seen_views(start)
     seen = views & ~unseen.all(axis=1) if unseen.size else views
     return int(np.count_nonzero(seen)) >= min(2, int(np.count_nonzero(views)))
 
@@ -317,7 +318,7 @@ def _judged_in_two_views(unseen: np.ndarray, start: np.ndarray) -> bool:
 def _compared(unseen: np.ndarray, start: np.ndarray, markers: int) -> int:
     """Marker projections of a part of ``markers`` markers compared with its detections
     grouped at ``start``: markers × views with detections, less the ``unseen`` (V, m) ones."""
-    return markers * int(np.count_nonzero(np.diff(start))) - int(np.count_nonzero(unseen))
+    return markers * int(np.count_nonzero(_seen_views(start))) - int(np.count_nonzero(unseen))
 
 
 def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, unseen: np.ndarray,
@@ -352,7 +353,13 @@ def _reanalysis_stop(kept: np.ndarray, eps: float, kin, points: np.ndarray, star
 def _in_seen_views(unseen: np.ndarray, start: np.ndarray) -> np.ndarray:
     """``unseen`` (V, m) bool limited to views with detections (an empty view is charged in
     full whatever it marks)."""
-    return np.ascontiguousarray(unseen & (np.diff(start) > 0)[:, None]) if unseen.size else unseen
+    return np.ascontiguousarray(unseen & _seen_views(start)[:, None]) if unseen.size else unseen
+
+
+def _seen_views(start: np.ndarray) -> np.ndarray:
+    """(V,) bool: the views with detections, of detections grouped by view at ``start``
+    (V + 1,)."""
+    return start[1:] > start[:-1]
 
 
 def shared_projections(q: np.ndarray, model: KinematicModel, rig: Rig, tree: Tree,
@@ -784,8 +791,7 @@ def _within_reach(det: Detections, rig: Rig, origins: np.ndarray, reach: np.ndar
 
 def _subset(det: Detections, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Kernel points (n, 3) and view starts (V + 1,) of the detections ``keep`` selects."""
-    start = np.zeros_like(det.start)
-    start[1:] = np.cumsum([keep[det.start[v]:det.start[v + 1]].sum() for v in range(det.n_views)])
+    start = np.concatenate(([0], np.cumsum(keep)))[det.start]
     return np.ascontiguousarray(det.kernel_points[keep]), start
 
 
@@ -914,8 +920,29 @@ def refine_without_lost(q: np.ndarray, det: Detections, model: KinematicModel, r
     return refined, float(error), _whole_objective(refined, det, model, rig, params, off), lost
 
 
+@dataclass(frozen=True)
+class TreeFlips:
+    """What :func:`tree_flip_alternatives` needs of a tree model and a rig, built once per
+    chunk: the whole model's depth-flip geometry (``FlipGeometry.of``) kept to the flips that
+    move no branch alone (searched on the whole model: the trunk's, and those of a branch's
+    own trunk, which carry other branches along), and each branch's own geometry over its
+    joints ``Part.flips`` (None for a branch without any), in ``tree.branches`` order."""
+
+    trunk: FlipGeometry
+    branches: tuple[FlipGeometry | None, ...]
+
+    @classmethod
+    def of(cls, geometry: FlipGeometry, model: KinematicModel) -> TreeFlips:
+        """The tree flips of ``model`` (with a tree) from its whole ``geometry``."""
+        tree = model.tree
+        assert tree is not None
+        trunk = geometry._replace(masks=geometry.masks[_trunk_masks(geometry, model, tree)])
+        return cls(trunk, tuple(_branch_geometry(part, geometry) if len(part.flips) else None
+                                for part in tree.branches))
+
+
 def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: KinematicModel,
-                           rig: Rig, geometry: FlipGeometry, tolerance_px: float, fusion_px: float,
+                           rig: Rig, geometry: TreeFlips, tolerance_px: float, fusion_px: float,
                            empty_view_penalty_px: float, huber_px: float,
                            offsets: np.ndarray | None = None) -> list[Candidate]:
     """``core.ambiguity.flip_alternatives`` for a tree, branch by branch: the same depth flips,
@@ -929,18 +956,17 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
     other branches' unchanged cost every time.
     """
     tree, off = model.tree, view_offsets(offsets, rig)
+    assert tree is not None
     views = rig.arrays
     image = _kernels.Image.of(detections.kernel_points, detections.start, off, penalty=empty_view_penalty_px,
                               fuse_px=fusion_px)
-    trunk = geometry._replace(masks=geometry.masks[_trunk_masks(geometry, model, tree)])
-    found = flip_alternatives(fit, detections, model=model, rig=rig, geometry=trunk,
+    found = flip_alternatives(fit, detections, model=model, rig=rig, geometry=geometry.trunk,
                               tolerance_px=tolerance_px, fusion_px=fusion_px,
                               empty_view_penalty_px=empty_view_penalty_px, huber_px=huber_px,
                               offsets=offsets)
     rot, pos = world_frames(fit.dofs, model)
-    for part in tree.branches:
-        geo = _branch_geometry(part, geometry)
-        if len(geo.flip_joints) == 0:  # a branch's own trunk: flipped with the whole model
+    for part, geo in zip(tree.branches, geometry.branches, strict=True):
+        if geo is None:  # a branch's own trunk: flipped with the whole model
             continue
         kin, q = part.at(rot[part.base], pos[part.base]), np.ascontiguousarray(fit.dofs[part.dofs])
         out_q, out_objective = np.empty((MAX_ALTERNATIVES, len(q))), np.empty(MAX_ALTERNATIVES)

@@ -8,6 +8,7 @@ from tree_subjects import detections, insect, movement, ring_rig, vertebrate
 
 from core.ambiguity import MAX_ALTERNATIVES, Candidate, FlipGeometry, flip_alternatives
 from core.error import view_error
+from core.fit import flip_geometry
 from core.rig import Rig
 from core.treefit import tree_flip_alternatives
 
@@ -26,10 +27,11 @@ def test_branch_by_branch_finds_every_flip_the_whole_model_search_finds(seed, mo
     q = movement(model, 1, seed=seed)[0]
     det = detections(model, rig, q, noise_px=0.0)[0]
     error = view_error(q, det, model=model, rig=rig)
-    kwargs = dict(model=model, rig=rig, geometry=FlipGeometry.of(model, rig), tolerance_px=3.0,
-                  fusion_px=0.0, empty_view_penalty_px=5.0, huber_px=1.0)
-    whole = flip_alternatives(Candidate(q, error, error), det, **kwargs)
-    by_branch = tree_flip_alternatives(Candidate(q, error, error), det, **kwargs)
+    kwargs = dict(model=model, rig=rig, tolerance_px=3.0, fusion_px=0.0, empty_view_penalty_px=5.0,
+                  huber_px=1.0)
+    whole = flip_alternatives(Candidate(q, error, error), det, geometry=FlipGeometry.of(model, rig), **kwargs)
+    by_branch = tree_flip_alternatives(Candidate(q, error, error), det, geometry=flip_geometry(model, rig),
+                                       **kwargs)
     assert whole
     for want in whole:
         if len(by_branch) == MAX_ALTERNATIVES and want.objective > by_branch[-1].objective:

@@ -13,7 +13,7 @@ import pytest
 from tree_subjects import angle_errors, detections, insect, movement, ring_rig
 
 from core import treefit
-from core.ambiguity import Candidate, FlipGeometry
+from core.ambiguity import Candidate
 from core.anneal import search_space
 from core.error import Detections, view_error
 from core.examples import LOCUST
@@ -23,6 +23,7 @@ from core.fit import (
     Status,
     first_attempt,
     fit_image,
+    flip_geometry,
     image_stream,
     needs_reanalysis,
     reanalyse_image,
@@ -277,7 +278,7 @@ def test_a_warm_start_in_a_wrong_basin_near_the_level_runs_sa_and_the_right_basi
     right, _, objective, _ = _one(model, rig, images[1])
     flips = tree_flip_alternatives(
         Candidate(right, math.nan, objective), images[1], model=model, rig=rig,
-        geometry=FlipGeometry.of(model, rig), tolerance_px=1e3, fusion_px=0.0,
+        geometry=flip_geometry(model, rig), tolerance_px=1e3, fusion_px=0.0,
         empty_view_penalty_px=FitParams().empty_view_penalty_px, huber_px=FitParams().anneal.huber_px)
     leg = model.tree.branches[1]
     wrong = next(c.dofs for c in flips
@@ -317,7 +318,7 @@ def test_a_marker_hidden_in_the_previous_image_leaves_its_parts_ceiling_at_the_c
     assert ceilings[leg.name] < per_projection + params.empty_view_penalty_px / projections
     flips = tree_flip_alternatives(
         Candidate(truth[1], math.nan, 0.0), images[1], model=model, rig=rig,
-        geometry=FlipGeometry.of(model, rig), tolerance_px=1e3, fusion_px=0.0,
+        geometry=flip_geometry(model, rig), tolerance_px=1e3, fusion_px=0.0,
         empty_view_penalty_px=FitParams().empty_view_penalty_px, huber_px=FitParams().anneal.huber_px)
     others = np.delete(np.arange(len(model.dofs)), leg.dofs)
     wrong = next(c.dofs for c in flips if angle_errors(c.dofs[leg.dofs], truth[1][leg.dofs]).max() > 10.0
@@ -372,7 +373,7 @@ def test_a_part_of_the_fit_that_an_alternative_fits_better_is_searched_again(sli
     leg = model.tree.branches[1]
     flips = tree_flip_alternatives(
         Candidate(right, math.nan, objective), images[0], model=model, rig=rig,
-        geometry=FlipGeometry.of(model, rig), tolerance_px=1e3, fusion_px=0.0,
+        geometry=flip_geometry(model, rig), tolerance_px=1e3, fusion_px=0.0,
         empty_view_penalty_px=FitParams().empty_view_penalty_px, huber_px=FitParams().anneal.huber_px)
     wrong = next(c for c in flips if angle_errors(c.dofs[leg.dofs], right[leg.dofs]).max() > 10.0)
     fit = ImageFit(0, wrong.dofs, wrong.error, wrong.objective, 1, Status.OK, 0,
@@ -496,7 +497,7 @@ def test_a_chains_previous_posture_is_refined_without_the_marker_it_finds_hidden
     assert data.hidden[248, 0, 3] and data.hidden[248].sum() == 1
     fit = first_attempt(data.detections[248], 248, model=model, rig=rig,
                         histograms=Histograms.uniform(model, prior_weight=100.0),
-                        params=fit_params(data)[0], seed=0, geometry=FlipGeometry.of(model, rig),
+                        params=fit_params(data)[0], seed=0, geometry=flip_geometry(model, rig),
                         warm=data.truth[247][None])
     rot = model.rotational
     errors = [angle_errors(c[rot], data.truth[248][rot]).max()
