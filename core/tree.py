@@ -55,6 +55,7 @@ _SPHERE = np.array(
     dtype=np.float64,
 )
 _SPHERE /= np.linalg.norm(_SPHERE, axis=1, keepdims=True)
+_AROUND = np.vstack([np.zeros(3), _SPHERE])  # the centre first
 
 
 @dataclass(frozen=True)
@@ -309,7 +310,8 @@ def _name(model: KinematicModel, topo_index: int) -> str:
     return model.joints[_topological_order(model.joints)[topo_index]].name
 
 
-def reach_points(origin: np.ndarray, reach: float) -> np.ndarray:
-    """(27, 3) world points: the base origin and 26 points of the sphere of ``reach`` about it,
-    whose projections bound where a branch's markers can appear in a view."""
-    return np.vstack([origin, origin + REACH_MARGIN * reach * _SPHERE])
+def reach_points(origins: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(B, 27, 3) world points: each of B base ``origins`` (B, 3) and 26 points of the sphere
+    of its branch's ``reach`` (B,) about it (widened by :data:`REACH_MARGIN`), whose
+    projections bound where the branch's markers can appear in a view."""
+    return origins[:, None] + (REACH_MARGIN * reach)[:, None, None] * _AROUND

@@ -368,14 +368,13 @@ def shared_projections(q: np.ndarray, model: KinematicModel, rig: Rig, tree: Tre
     the part's markers within the fusion distance (at least :data:`CLAIM_PX`) of a marker
     of another part, in pixels of that view."""
     proj = rig.project(model.marker_positions(q)) + off[:, None, :]
-    near = np.linalg.norm(proj[:, :, None, :] - proj[:, None, :, :], axis=3) < max(
-        float(params.fusion_px), CLAIM_PX)
-    out = {}
-    for part in tree.parts:
-        others = np.ones(len(model.markers), dtype=bool)
-        others[part.markers] = False
-        out[part.name] = near[:, part.markers][:, :, others].any(axis=2)
-    return out
+    gap = proj[:, :, None, :] - proj[:, None, :, :]
+    near = np.einsum("vijk,vijk->vij", gap, gap) < max(float(params.fusion_px), CLAIM_PX) ** 2
+    part_of = np.full(len(model.markers), -1)
+    for k, part in enumerate(tree.parts):
+        part_of[part.markers] = k
+    across = (near & (part_of[:, None] != part_of[None, :])).any(axis=2)  # (V, M)
+    return {part.name: across[:, part.markers] for part in tree.parts}
 
 
 def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
@@ -778,15 +777,13 @@ def _within_reach(det: Detections, rig: Rig, origins: np.ndarray, reach: np.ndar
     """(B, N) bool: the detections each of B branches hanging at ``origins`` (B, 3) with
     reaches ``reach`` (B,) can reach, those inside its projected reach sphere
     (``core.tree.reach_points``) in their view."""
-    spheres = np.concatenate([reach_points(o, r) for o, r in zip(origins, reach, strict=True)])
-    proj = (rig.project(spheres) + off[:, None, :]).reshape(len(rig.views), len(reach), -1, 2)
-    radius = np.linalg.norm(proj[:, :, 1:] - proj[:, :, :1], axis=3).max(axis=2)  # (V, B)
-    keep = np.zeros((len(reach), len(det.points)), dtype=bool)
-    for v in range(det.n_views):
-        a, b = det.start[v], det.start[v + 1]
-        gap = np.linalg.norm(det.points[None, a:b] - proj[v, :, :1], axis=2)  # (B, n)
-        keep[:, a:b] = gap <= radius[v][:, None]
-    return keep
+    proj = rig.project(reach_points(origins, reach).reshape(-1, 3)) + off[:, None, :]
+    proj = proj.reshape(len(rig.views), len(reach), -1, 2)  # (V, B, 27, 2), the origin first
+    gap = proj[:, :, 1:] - proj[:, :, :1]
+    radius = np.sqrt(np.einsum("vbsk,vbsk->vbs", gap, gap).max(axis=2))  # (V, B)
+    view = np.repeat(np.arange(det.n_views), det.counts)  # (N,)
+    offset = det.points[None] - proj[view, :, 0].swapaxes(0, 1)  # (B, N, 2)
+    return np.sqrt(np.einsum("bnk,bnk->bn", offset, offset)) <= radius[view].T
 
 
 def _subset(det: Detections, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -799,20 +796,21 @@ def _claims(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tre
             off: np.ndarray) -> np.ndarray:
     """(B, N) bool: detections claimed (nearest, within :data:`CLAIM_PX`) by each branch's
     markers in their view."""
-    proj = rig.project(model.marker_positions(q)) + off[:, None, :]
     owner = np.full(len(model.markers), -1)
     for k, part in enumerate(tree.branches):
         owner[part.markers] = k
     mine = owner >= 0
+    proj = rig.project(model.marker_positions(q)[mine]) + off[:, None, :]  # (V, m, 2)
+    owner = owner[mine]
     out = np.zeros((len(tree.branches), len(det.points)), dtype=bool)
-    for v in range(det.n_views):
+    for v in np.flatnonzero(_seen_views(det.start)):
         a, b = det.start[v], det.start[v + 1]
-        if a == b:
-            continue
-        d = np.linalg.norm(proj[v][mine][:, None, :] - det.points[a:b][None], axis=2)
-        nearest = d.argmin(axis=1)
-        close = d[np.arange(len(d)), nearest] <= CLAIM_PX
-        out[owner[mine][close], a + nearest[close]] = True
+        du = proj[v, :, :1] - det.points[a:b, 0]
+        dv = proj[v, :, 1:] - det.points[a:b, 1]
+        d2 = du * du + dv * dv  # (m, n)
+        nearest = d2.argmin(axis=1)
+        close = d2.min(axis=1) <= CLAIM_PX ** 2
+        out[owner[close], a + nearest[close]] = True
     return out
 
 
