@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import gc
 import math
 import os
 import sys
@@ -46,6 +47,7 @@ from core.histogram import Histograms
 from core.results import SampleClock, write_angles_csv
 from core.sequence import SequenceResult, fit_sequence
 from core.synth import render_frames
+from core.warmup import compile_kernels
 
 OUT = Path(__file__).resolve().parent / "out"
 MARKER_DIAMETER_PX = 5.0
@@ -163,10 +165,12 @@ def fit(subject: Subject, data: Rendered, *, seed: int, jobs: int) -> tuple[Sequ
     params, diameter = fit_params(data)
     prior = Histograms.uniform(subject.model, prior_weight=100.0)
     kwargs = dict(model=subject.model, rig=subject.rig, histograms=prior, params=params, seed=seed)
-    # Compile (or load the cached kernels) outside the timing, with a short fit of one image.
-    short = FitParams(anneal=params.anneal.with_iterations(200), fusion_px=params.fusion_px,
-                      max_attempts=1)
-    fit_sequence(data.detections[:1], **{**kwargs, "params": short})
+    # Compile, or load from numba's cache, every kernel outside the timing, as `mocap fit` does
+    # before its first image (a kernel first needed by the 40th image loads inside it, else),
+    # then collect the garbage: the first collection of every generation after numba's
+    # loading scans some 10^5 objects (about 0.1 s), once per process.
+    compile_kernels()
+    gc.collect()
     done = [0]
 
     def progress(_: ImageFit) -> None:
