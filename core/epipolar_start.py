@@ -32,7 +32,7 @@ import numpy as np
 
 from core import _kernels
 from core.model import KinematicArrays, KinematicModel
-from core.rig import Rig
+from core.rig import Rig, RigArrays
 from core.tree import REACH_MARGIN, Part
 from core.triangulate import Candidates
 
@@ -119,6 +119,8 @@ def branch_start(candidates: Candidates, *, part: Part, rotation: np.ndarray, or
     low, high = _distance_bounds(kin, lower, upper, SLACK_FRACTION * part.reach)
     from_base = np.linalg.norm(targets - origin, axis=1)
     beams = [_Beam(np.full(len(order), -1, dtype=np.int64), q, 0.0, 0.0)]
+    bounds = _kernels.Bounds(lower, upper)
+    image = _kernels.Image.of(points, start, offsets, penalty=0.0, fuse_px=0.0)  # refine's, not read
     for m in order:
         grown = []
         for beam in beams:
@@ -126,8 +128,8 @@ def branch_start(candidates: Candidates, *, part: Part, rotation: np.ndarray, or
             for k in _allowed(m, beam, targets, doubt, from_base, low, high, kin):
                 assigned = beam.targets.copy()
                 assigned[m] = k
-                grown.append(_solve(assigned, beam.q, kin, targets, lower, upper, rig, points,
-                                    start, offsets, beam.skips + doubt[k]))
+                grown.append(_solve(assigned, beam.q, kin, targets, bounds, rig.arrays, image,
+                                    beam.skips + doubt[k]))
         beams = sorted(grown, key=lambda b: b.cost)[:BEAM]
     found = []
     for beam in beams:
@@ -193,14 +195,14 @@ def _allowed(m: int, beam: _Beam, targets: np.ndarray, doubt: np.ndarray, from_b
 
 
 def _solve(assigned: np.ndarray, q: np.ndarray, kin: KinematicArrays, targets: np.ndarray,
-           lower: np.ndarray, upper: np.ndarray, rig: Rig, points: np.ndarray, start: np.ndarray,
-           offsets: np.ndarray, skips: float) -> _Beam:
-    """Inverse kinematics from ``q`` of the markers ``assigned`` (M,) onto their targets."""
+           bounds: _kernels.Bounds, views: RigArrays, image: _kernels.Image, skips: float) -> _Beam:
+    """Inverse kinematics from ``q`` within ``bounds`` of the markers ``assigned`` (M,) onto
+    their targets (``_kernels.refine`` in target mode, which takes but does not read
+    ``image``)."""
     posed = assigned >= 0
     sub = kin._replace(marker_joint=kin.marker_joint[posed],
                        marker_pos=np.ascontiguousarray(kin.marker_pos[posed]))
-    solved = _kernels.refine(q, _kernels.Bounds(lower, upper), sub, rig.arrays,
-                             _kernels.Image.of(points, start, offsets, penalty=0.0, fuse_px=0.0), np.inf,
-                             IK_STEPS, np.ascontiguousarray(targets[assigned[posed]]))
+    solved = _kernels.refine(q, bounds, sub, views, image, np.inf, IK_STEPS,
+                             np.ascontiguousarray(targets[assigned[posed]]))
     d = _markers(solved, kin)[posed] - targets[assigned[posed]]
     return _Beam(assigned, solved, float(np.sum(d * d)), skips)
