@@ -532,7 +532,8 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
     score = np.inf  # the two-sided error, computed once there is a conflict to judge
     previous: list[int] = []
     for _ in range(CONFLICT_SWEEPS):
-        conflicted = _conflicts(q, det, model, rig, tree, off)
+        contested = _contested(q, det, model, rig, tree, off)
+        conflicted = [b for b, part in enumerate(branches) if contested[:, part.markers].any()]
         if not conflicted or conflicted == previous:
             break
         previous = conflicted
@@ -542,7 +543,11 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             part, saved = branches[b], q.copy()
             free = _reaches(q, det, model, rig, [part], off)[0] & ~_claimed(q, det, model, rig, tree, off,
                                                                              exclude=b)
-            fit_part(part, *_subset(det, free))
+            points, start = _subset(det, free)
+            if _explained_without(part, q, contested[:, part.markers], points, start, model, rig, params,
+                                  off, views_seen, shared.get(part.name, _kernels.NO_UNSEEN)):
+                continue
+            fit_part(part, points, start)
             new = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
             if new < score:
                 score = new
@@ -581,10 +586,7 @@ def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], post
     image instead of 5 ms, to end where the warm start was. The same checks judge the
     retry (:func:`warm_start`): the projections left must be explained at twice ε shrunk in
     proportion, which a leg in another basin, pixels off in the views that do not fuse it,
-    is not; and every marker with a projection left out must still be compared in two
-    views, so that it keeps its depth (with two cameras, a marker left to one view can
-    slide along that camera's ray: a leg of the 2-camera hexapod with 10 % of its markers
-    hidden went 5° off in several DOFs without this)."""
+    is not; and :func:`_may_leave_out` must allow the projections left out."""
     at = posture.copy()
     at[part.dofs] = tried[0]
     near = max(float(params.fusion_px), CLAIM_PX)
@@ -593,15 +595,50 @@ def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], post
                               points, start, near)
     before = _in_seen_views(unseen, start) if unseen.size else np.zeros_like(again)
     again |= before
-    left_out = int(np.count_nonzero(again))
-    compared = _seen_views(start)[:, None] & ~again  # (V, m)
-    if (left_out == np.count_nonzero(before) or left_out > MAX_LOST_SHARE * _compared(
-            _kernels.NO_UNSEEN, start, len(part.markers))
-            or (compared.sum(axis=0)[again.any(axis=0)] < 2).any()):
+    if np.count_nonzero(again) == np.count_nonzero(before) or not _may_leave_out(again, start):
         return tried
     retried = warm_start(part.dofs, kin, points, start, at[None], model, rig, params, eps, off, again,
                          ceiling)
     return tried if retried is None else retried
+
+
+def _may_leave_out(left_out: np.ndarray, start: np.ndarray) -> bool:
+    """Whether a part's warm start may be judged without its projections ``left_out`` (V, m)
+    (views with detections grouped at ``start`` only): at most :data:`MAX_LOST_SHARE` of its
+    compared projections, and every marker with a projection left out still compared in
+    two views, so that it keeps its depth (with two cameras, a marker left to one view can
+    slide along that camera's ray: a leg of the 2-camera hexapod with 10 % of its markers
+    hidden went 5° off in several DOFs without this)."""
+    seen = _seen_views(start)
+    compared = seen[:, None] & ~left_out
+    return bool(np.count_nonzero(left_out) <= MAX_LOST_SHARE * left_out.shape[1] * np.count_nonzero(seen)
+                and (compared.sum(axis=0)[left_out.any(axis=0)] >= 2).all())
+
+
+def _explained_without(part: Part, q: np.ndarray, left_out: np.ndarray, points: np.ndarray, start: np.ndarray,
+                       model: KinematicModel, rig: Rig, params: FitParams, off: np.ndarray, views_seen: int,
+                       shared: np.ndarray) -> bool:
+    """Whether branch ``part`` at posture ``q`` (D,), refined as a warm start
+    (:func:`warm_start`), explains the detections ``points`` grouped at ``start`` (those no
+    other branch claims) within twice its ε without its projections ``left_out`` (V, m)
+    (those on a detection another branch claims too) and ``shared`` (V, m) (next to another
+    part's marker, :func:`shared_projections`), where :func:`_may_leave_out` allows it.
+
+    Why: the conflict sweep searches such a branch again by SA on those detections, for a
+    branch on its neighbour's blobs. A branch in the right basin whose marker projects onto
+    the same blob as a neighbour's in one view (two markers nearly coincide, and the blob is
+    no larger than one) explains everything else: its search ends worse and is thrown away,
+    0.1 s of a 6-camera hexapod image. A branch in another basin is pixels off in the other
+    views as well, and is searched."""
+    if shared.size:
+        left_out = left_out | shared
+    left_out = _in_seen_views(left_out, start)
+    if not _may_leave_out(left_out, start):
+        return False
+    kin = part.at(*_base_frame(q, model, part))
+    tried = warm_start(part.dofs, kin, points, start, q[None], model, rig, params,
+                       _part_eps(part, params, views_seen), off, left_out)
+    return tried is not None and tried[2]
 
 
 def _on_merged_blobs(proj: np.ndarray, points: np.ndarray, start: np.ndarray, radius: float) -> np.ndarray:
@@ -855,25 +892,34 @@ def _subset(det: Detections, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(det.kernel_points[keep]), start
 
 
-def _claims(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
-            off: np.ndarray) -> np.ndarray:
-    """(B, N) bool: detections claimed (nearest, within :data:`CLAIM_PX`) by each branch's
-    markers in their view."""
+def _claiming(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
+              off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(V, M) int64: the detection (index into ``det``) each projection of a branch's marker
+    claims, the nearest in its view within :data:`CLAIM_PX`, else -1; and (M,) each marker's
+    branch (index into ``tree.branches``, -1 for a marker in none)."""
     owner = np.full(len(model.markers), -1)
     for k, part in enumerate(tree.branches):
         owner[part.markers] = k
-    mine = owner >= 0
-    proj = rig.project(model.marker_positions(q)[mine]) + off[:, None, :]  # (V, m, 2)
-    owner = owner[mine]
-    out = np.zeros((len(tree.branches), len(det.points)), dtype=bool)
+    proj = rig.project(model.marker_positions(q)) + off[:, None, :]  # (V, M, 2)
+    out = np.full(proj.shape[:2], -1)
     for v in np.flatnonzero(_seen_views(det.start)):
         a, b = det.start[v], det.start[v + 1]
         du = proj[v, :, :1] - det.points[a:b, 0]
         dv = proj[v, :, 1:] - det.points[a:b, 1]
-        d2 = du * du + dv * dv  # (m, n)
-        nearest = d2.argmin(axis=1)
-        close = d2.min(axis=1) <= CLAIM_PX ** 2
-        out[owner[close], a + nearest[close]] = True
+        d2 = du * du + dv * dv  # (M, n)
+        close = (d2.min(axis=1) <= CLAIM_PX ** 2) & (owner >= 0)
+        out[v, close] = a + d2.argmin(axis=1)[close]
+    return out, owner
+
+
+def _claims(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
+            off: np.ndarray) -> np.ndarray:
+    """(B, N) bool: detections claimed (nearest, within :data:`CLAIM_PX`) by each branch's
+    markers in their view."""
+    claiming, owner = _claiming(q, det, model, rig, tree, off)
+    out = np.zeros((len(tree.branches), len(det.points)), dtype=bool)
+    view, marker = np.nonzero(claiming >= 0)
+    out[owner[marker], claiming[view, marker]] = True
     return out
 
 
@@ -884,12 +930,14 @@ def _claimed(q, det, model, rig, tree, off, exclude: int) -> np.ndarray:
     return claims.any(axis=0)
 
 
-def _conflicts(q, det, model, rig, tree, off) -> list[int]:
-    """Branches that claim a detection another branch claims too, where that detection is
-    too small to be markers the detector merged (``Detections.kernel_points``' flag)."""
+def _contested(q, det, model, rig, tree, off) -> np.ndarray:
+    """(V, M) bool: the projections of branch markers that claim a detection another branch
+    claims too, where that detection is too small to be markers the detector merged
+    (``Detections.kernel_points``' flag)."""
     claims = _claims(q, det, model, rig, tree, off)
     shared = (claims.sum(axis=0) > 1) & (det.kernel_points[:, 2] == 0.0)
-    return [k for k in range(len(tree.branches)) if (claims[k] & shared).any()]
+    claiming = _claiming(q, det, model, rig, tree, off)[0]
+    return (claiming >= 0) & shared[np.maximum(claiming, 0)]
 
 
 def _gains(q: np.ndarray, part: Part, value: float, kept: tuple[np.ndarray, float, bool], eps: float,
