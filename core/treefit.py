@@ -81,6 +81,7 @@ __all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "part_ob
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
+FUSED_PX = 1.0  # a blob within this of two markers' midpoint is the two of them fused
 CONFLICT_SWEEPS = 2
 JOINT_STEPS = 10  # LM steps of the joint refinement: the parts arrive refined
 WARM_STEPS = 10  # LM steps refining the previous image's posture of a part (a warm start)
@@ -461,8 +462,10 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             asked.update(ceilings())
         return asked.get(name, math.nan)
 
-    def fit_part(part: Part, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None = None) -> None:
-        """Fit ``part`` in ``q``, its base where the parts fitted before put it."""
+    def fit_part(part: Part, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None = None,
+                 defer: bool = False) -> bool:
+        """Fit ``part`` in ``q``, its base where the parts fitted before put it; with ``defer``,
+        only where its warm start stands in for SA. Whether it is fitted."""
         nonlocal iterations
         rotation, origin = _base_frame(q, model, part)
         kin = part.at(rotation, origin)
@@ -477,7 +480,10 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
                                          rig, tree, params, eps, off, unseen, ceiling)
         if tried is not None and tried[2]:
             q[part.dofs] = tried[0]
-            return
+            return True
+        if defer:
+            done[part.dofs] = False
+            return False
         stop = eps if keep is None or tried is None else _reanalysis_stop(tried[0], eps, kin, points, start,
                                                                           rig, params, off)
         q[part.dofs], _, _, its, runs = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
@@ -497,6 +503,7 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
                                       rig, space, params, eps, off, unseen)
             if proposed is not None and proposed[1] < value:
                 q[part.dofs] = proposed[0]
+        return True
 
     branches = tree.branches  # parents first: a branch's base is fitted when it comes
 
@@ -504,12 +511,26 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
         """Fit every branch in ``q`` given the trunk there: (B, N) the detections each reaches."""
         reach = np.zeros((len(branches), len(det.points)), dtype=bool)
         known = np.zeros(len(branches), dtype=bool)
+        deferred: list[int] = []  # branches whose warm start did not stand in, on the last base
+
+        def search_deferred() -> None:
+            # Their warm starts tried again first: the branches on their base are in place
+            # now, and where two legs touch, the fusion of their markers places each
+            # (_fusions) only once both are where this image has them.
+            for k in deferred:
+                fit_part(branches[k], *_subset(det, reach[k]), warm)
+            deferred.clear()
+
         for b, part in enumerate(branches):
+            if deferred and part.base != branches[deferred[0]].base:
+                search_deferred()
             if not known[b]:  # every branch on this base at once: the base is fitted
                 group = [k for k, p in enumerate(branches) if p.base == part.base]
                 reach[group] = _reaches(q, det, model, rig, [branches[k] for k in group], off)
                 known[group] = True
-            fit_part(part, *_subset(det, reach[b]), warm)
+            if not fit_part(part, *_subset(det, reach[b]), warm, defer=warm is not None):
+                deferred.append(b)
+        search_deferred()
         return reach
 
     if tree.trunk is not None:
@@ -544,8 +565,8 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             free = _reaches(q, det, model, rig, [part], off)[0] & ~_claimed(q, det, model, rig, tree, off,
                                                                              exclude=b)
             points, start = _subset(det, free)
-            if _explained_without(part, q, contested[:, part.markers], points, start, model, rig, params,
-                                  off, views_seen, shared.get(part.name, _kernels.NO_UNSEEN)):
+            if _explained_without(part, q, contested[:, part.markers], det, points, start, model, rig,
+                                  params, off, views_seen, shared.get(part.name, _kernels.NO_UNSEEN)):
                 continue
             fit_part(part, points, start)
             new = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
@@ -595,34 +616,69 @@ def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], post
                               points, start, near)
     before = _in_seen_views(unseen, start) if unseen.size else np.zeros_like(again)
     again |= before
-    if np.count_nonzero(again) == np.count_nonzero(before) or not _may_leave_out(again, start):
+    fused = _fusions(at, part, model, rig, points, start, off, near)
+    if np.count_nonzero(again) == np.count_nonzero(before) or not _may_leave_out(again, start, fused):
         return tried
     retried = warm_start(part.dofs, kin, points, start, at[None], model, rig, params, eps, off, again,
                          ceiling)
     return tried if retried is None else retried
 
 
-def _may_leave_out(left_out: np.ndarray, start: np.ndarray) -> bool:
+def _may_leave_out(left_out: np.ndarray, start: np.ndarray, fused: np.ndarray | None = None) -> bool:
     """Whether a part's warm start may be judged without its projections ``left_out`` (V, m)
     (views with detections grouped at ``start`` only): at most :data:`MAX_LOST_SHARE` of its
     compared projections, and every marker with a projection left out still compared in
     two views, so that it keeps its depth (with two cameras, a marker left to one view can
     slide along that camera's ray: a leg of the 2-camera hexapod with 10 % of its markers
-    hidden went 5° off in several DOFs without this)."""
+    hidden went 5° off in several DOFs without this), except where the projection left out
+    is ``fused`` (V, m) (:func:`_fusions`: its blob is where it and another part's marker
+    merge, which places it as well as a blob of its own would). Fused projections may take
+    the left-out share to twice :data:`MAX_LOST_SHARE`, no more: a leg lying on another
+    leg's markers would look fused everywhere."""
     seen = _seen_views(start)
+    unexplained = left_out if fused is None else left_out & ~fused
     compared = seen[:, None] & ~left_out
-    return bool(np.count_nonzero(left_out) <= MAX_LOST_SHARE * left_out.shape[1] * np.count_nonzero(seen)
-                and (compared.sum(axis=0)[left_out.any(axis=0)] >= 2).all())
+    limit = MAX_LOST_SHARE * left_out.shape[1] * np.count_nonzero(seen)
+    return bool(np.count_nonzero(unexplained) <= limit and np.count_nonzero(left_out) <= 2 * limit
+                and (compared.sum(axis=0)[unexplained.any(axis=0)] >= 2).all())
 
 
-def _explained_without(part: Part, q: np.ndarray, left_out: np.ndarray, points: np.ndarray, start: np.ndarray,
-                       model: KinematicModel, rig: Rig, params: FitParams, off: np.ndarray, views_seen: int,
-                       shared: np.ndarray) -> bool:
+def _fusions(q: np.ndarray, part: Part, model: KinematicModel, rig: Rig, points: np.ndarray,
+             start: np.ndarray, off: np.ndarray, near: float) -> np.ndarray:
+    """(V, m) bool: the projections of ``part``'s markers at posture ``q`` (D,) that lie
+    within ``near`` px of a marker of another part whose midpoint with it is within
+    :data:`FUSED_PX` of a detection of the view (``points`` (N, 3) grouped at ``start``):
+    the two markers seen as one blob, where a merged blob's centroid lies.
+
+    Two legs whose joints touch (the hexapod's femur-tibia joints, seed 3, images 65 and 75)
+    fuse in every view; leaving those projections out for being shared would leave the
+    marker in no view, yet each blob is where the two markers' fusion puts it."""
+    proj = rig.project(model.marker_positions(q)) + off[:, None, :]  # (V, M, 2)
+    others = np.ones(len(model.markers), dtype=bool)
+    others[part.markers] = False
+    out = np.zeros((len(start) - 1, len(part.markers)), dtype=bool)
+    for v in np.flatnonzero(_seen_views(start)):
+        mine, theirs = proj[v, part.markers], proj[v, others]
+        gap = np.linalg.norm(mine[:, None] - theirs[None], axis=2)  # (m, M - m)
+        i, j = np.nonzero(gap <= near)
+        if len(i) == 0:
+            continue
+        mid = 0.5 * (mine[i] + theirs[j])
+        blob = np.linalg.norm(mid[:, None] - points[None, start[v]:start[v + 1], :2], axis=2)
+        out[v, i[blob.min(axis=1) <= FUSED_PX]] = True
+    return out
+
+
+def _explained_without(part: Part, q: np.ndarray, left_out: np.ndarray, det: Detections, points: np.ndarray,
+                       start: np.ndarray, model: KinematicModel, rig: Rig, params: FitParams, off: np.ndarray,
+                       views_seen: int, shared: np.ndarray) -> bool:
     """Whether branch ``part`` at posture ``q`` (D,), refined as a warm start
-    (:func:`warm_start`), explains the detections ``points`` grouped at ``start`` (those no
-    other branch claims) within twice its ε without its projections ``left_out`` (V, m)
-    (those on a detection another branch claims too) and ``shared`` (V, m) (next to another
-    part's marker, :func:`shared_projections`), where :func:`_may_leave_out` allows it.
+    (:func:`warm_start`), explains the detections ``points`` grouped at ``start`` (those of
+    the image ``det`` no other branch claims) within twice its ε without its projections
+    ``left_out`` (V, m) (those on a detection another branch claims too) and ``shared``
+    (V, m) (next to another part's marker, :func:`shared_projections`), where
+    :func:`_may_leave_out` allows it (fusions read on all of ``det``: the blob two branches
+    share is not among the free ones).
 
     Why: the conflict sweep searches such a branch again by SA on those detections, for a
     branch on its neighbour's blobs. A branch in the right basin whose marker projects onto
@@ -633,7 +689,9 @@ def _explained_without(part: Part, q: np.ndarray, left_out: np.ndarray, points: 
     if shared.size:
         left_out = left_out | shared
     left_out = _in_seen_views(left_out, start)
-    if not _may_leave_out(left_out, start):
+    near = max(float(params.fusion_px), CLAIM_PX)
+    fused = _fusions(q, part, model, rig, det.kernel_points, det.start, off, near)
+    if not _may_leave_out(left_out, start, fused):
         return False
     kin = part.at(*_base_frame(q, model, part))
     tried = warm_start(part.dofs, kin, points, start, q[None], model, rig, params,
