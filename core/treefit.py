@@ -597,7 +597,7 @@ def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], post
     other parts at ``posture`` (D,) (where this attempt fitted them, else at the previous
     image's posture), and those on a detection the detector flags as merged markers
     (:func:`_on_merged_blobs`); ``tried`` where that finds none that ``unseen`` (V, m) does
-    not mark, or more than :data:`MAX_LOST_SHARE` of the part's compared projections.
+    not mark, or :func:`_may_leave_out` does not allow them.
 
     Why: the shared projections are read at the previous image's posture, and legs that
     moved together since then leave a marker fused with another leg's in some view. The
@@ -663,9 +663,8 @@ def _fusions(q: np.ndarray, part: Part, model: KinematicModel, rig: Rig, points:
         i, j = np.nonzero(gap <= near)
         if len(i) == 0:
             continue
-        mid = 0.5 * (mine[i] + theirs[j])
-        blob = np.linalg.norm(mid[:, None] - points[None, start[v]:start[v + 1], :2], axis=2)
-        out[v, i[blob.min(axis=1) <= FUSED_PX]] = True
+        d2 = _nearest(0.5 * (mine[i] + theirs[j]), points[start[v]:start[v + 1]])[1]
+        out[v, i[d2 <= FUSED_PX ** 2]] = True
     return out
 
 
@@ -706,11 +705,8 @@ def _on_merged_blobs(proj: np.ndarray, points: np.ndarray, start: np.ndarray, ra
     out = np.zeros(proj.shape[:2], dtype=bool)
     for v in np.flatnonzero(_seen_views(start)):
         a, b = start[v], start[v + 1]
-        du = proj[v, :, :1] - points[a:b, 0]
-        dv = proj[v, :, 1:] - points[a:b, 1]
-        d2 = du * du + dv * dv  # (m, n)
-        nearest = d2.argmin(axis=1)
-        out[v] = (points[a + nearest, 2] > 0.0) & (d2.min(axis=1) <= radius * radius)
+        nearest, d2 = _nearest(proj[v], points[a:b])
+        out[v] = (points[a + nearest, 2] > 0.0) & (d2 <= radius * radius)
     return out
 
 
@@ -950,6 +946,16 @@ def _subset(det: Detections, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(det.kernel_points[keep]), start
 
 
+def _nearest(proj: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each of the projections ``proj`` (k, 2) of one view, its nearest detection of that
+    view (``points`` (n, >= 2), n > 0, u and v first): (index (k,), squared distance (k,) px²)."""
+    du = proj[:, :1] - points[:, 0]
+    dv = proj[:, 1:2] - points[:, 1]
+    d2 = du * du + dv * dv  # (k, n)
+    nearest = d2.argmin(axis=1)
+    return nearest, d2[np.arange(len(proj)), nearest]
+
+
 def _claiming(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
               off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(V, M) int64: the detection (index into ``det``) each projection of a branch's marker
@@ -962,11 +968,9 @@ def _claiming(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, t
     out = np.full(proj.shape[:2], -1)
     for v in np.flatnonzero(_seen_views(det.start)):
         a, b = det.start[v], det.start[v + 1]
-        du = proj[v, :, :1] - det.points[a:b, 0]
-        dv = proj[v, :, 1:] - det.points[a:b, 1]
-        d2 = du * du + dv * dv  # (M, n)
-        close = (d2.min(axis=1) <= CLAIM_PX ** 2) & (owner >= 0)
-        out[v, close] = a + d2.argmin(axis=1)[close]
+        nearest, d2 = _nearest(proj[v], det.points[a:b])
+        close = (d2 <= CLAIM_PX ** 2) & (owner >= 0)
+        out[v, close] = a + nearest[close]
     return out, owner
 
 
@@ -974,8 +978,12 @@ def _claims(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tre
             off: np.ndarray) -> np.ndarray:
     """(B, N) bool: detections claimed (nearest, within :data:`CLAIM_PX`) by each branch's
     markers in their view."""
-    claiming, owner = _claiming(q, det, model, rig, tree, off)
-    out = np.zeros((len(tree.branches), len(det.points)), dtype=bool)
+    return _claims_of(*_claiming(q, det, model, rig, tree, off), len(tree.branches), len(det.points))
+
+
+def _claims_of(claiming: np.ndarray, owner: np.ndarray, branches: int, detections: int) -> np.ndarray:
+    """(B, N) bool from :func:`_claiming`'s (V, M) claimed detections and (M,) owners."""
+    out = np.zeros((branches, detections), dtype=bool)
     view, marker = np.nonzero(claiming >= 0)
     out[owner[marker], claiming[view, marker]] = True
     return out
@@ -992,9 +1000,9 @@ def _contested(q, det, model, rig, tree, off) -> np.ndarray:
     """(V, M) bool: the projections of branch markers that claim a detection another branch
     claims too, where that detection is too small to be markers the detector merged
     (``Detections.kernel_points``' flag)."""
-    claims = _claims(q, det, model, rig, tree, off)
+    claiming, owner = _claiming(q, det, model, rig, tree, off)
+    claims = _claims_of(claiming, owner, len(tree.branches), len(det.points))
     shared = (claims.sum(axis=0) > 1) & (det.kernel_points[:, 2] == 0.0)
-    claiming = _claiming(q, det, model, rig, tree, off)[0]
     return (claiming >= 0) & shared[np.maximum(claiming, 0)]
 
 
