@@ -20,7 +20,8 @@ detector merged), and the new posture is kept where it lowers the
 plus, for every blob within the branches' reach, its distance to the nearest marker, both
 capped at the empty-view penalty), which does charge the stolen leg's blobs. A real
 fusion (two markers imaged as one blob) survives: refitting without the shared blob raises
-the error, and the first posture stays.
+the error, and the first posture stays; a branch that, refined where it is, explains every
+other blob at twice its ε is not searched at all (:func:`_explained_without`).
 
 A root trunk whose own markers are left unexplained after the first pass (hidden, or on
 a blob a branch claims) is refined again on every marker of the model, the branches held
@@ -32,7 +33,10 @@ Within a chunk, each part first tries the previous image's posture (:func:`warm_
 refined on the part's detections, it replaces the part's SA where it reaches twice the
 part's ε or, under sliding skin markers, the part's level in the previous image plus what
 its residual cannot tell apart (:func:`warm_ceilings`), or on its other projections with
-those of markers that look hidden left out (:func:`_without_lost`); when every part came
+those of markers that look hidden left out (:func:`_without_lost`). One that misses is
+tried again after the other branches on its base are fitted, without the projections this
+image's postures put on another part's marker or a merged blob
+(:func:`_reshared_warm_start`); when every part came
 from a warm start the joint refinement takes
 :data:`WARM_JOINT_STEPS` steps: at 50-200 Hz most parts of most images skip SA (figures in
 docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
