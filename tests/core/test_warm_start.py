@@ -151,7 +151,7 @@ def test_legs_whose_markers_share_a_blob_where_the_previous_posture_had_none_run
     does not say are shared, so its right warm start missed 2 ε; and a front leg's claw and a
     middle leg's tibia-tarsus joint project 0.7 px apart in one view, onto one blob no larger
     than one marker's, which both claim. The leg's warm start was searched again by SA, and
-    both conflicting legs by SA and triangulated starts, 6700 and 4500 iterations, to end
+    both conflicting legs by SA and triangulated starts, 11400 and 8400 iterations, to end
     where they were. Now neither image runs SA, and the fit is on the truth."""
     _assert_warm_started_without_sa(seed=0, images=(34, 47))
 
