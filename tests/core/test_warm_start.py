@@ -160,9 +160,9 @@ def test_legs_whose_joints_touch_run_no_sa():
     """The benchmark hexapod, seed 3, images 65 and 75: a middle and a hind leg's
     femur-tibia joints touch, so their markers make one blob in all six views. Left out as
     shared, the marker would be in no view, and the hind leg's right warm start stayed 5 px
-    over 2 ε (SA, 3900 iterations, ended there); both legs claimed the blobs, and the
-    conflict sweep searched both (6900 iterations). Each blob lies where the two markers'
-    midpoint projects (``_fusions``), which places them: no SA now."""
+    over 2 ε (SA ended there); both legs claimed the blobs, and the conflict sweep searched
+    both: 4000 and 7500 iterations with ``_fusions`` finding nothing. Each blob lies where
+    the two markers' midpoint projects, which places them: no SA now."""
     _assert_warm_started_without_sa(seed=3, images=(65, 75))
 
 
