@@ -36,7 +36,7 @@ from core.model import KinematicModel
 from core.rig import Rig
 
 __all__ = ["DEFAULT_EMPTY_VIEW_PENALTY_PX", "Detections", "fusion_distance", "marker_errors",
-           "view_error"]
+           "nearest_detection", "view_error"]
 
 DEFAULT_EMPTY_VIEW_PENALTY_PX = 5.0
 # fusion_px in marker diameters: reading every view apart as well makes a generous distance
@@ -186,8 +186,22 @@ def marker_errors(markers: np.ndarray, detections: Detections) -> np.ndarray:
     for v in range(markers.shape[0]):
         points = detections.view(v)
         if len(points):
-            out[v] = np.linalg.norm(markers[v, :, None, :] - points[None], axis=2).min(axis=1)
+            out[v] = np.sqrt(nearest_detection(markers[v], points)[1])
     return out
+
+
+def nearest_detection(proj: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each of the projections ``proj`` (k, 2) of one view, its nearest detection of that
+    view (``points`` (n, >= 2), n > 0, u and v first): (index (k,), squared distance (k,) px²).
+
+    >>> nearest_detection(np.array([[3.0, 4.0], [9.0, 0.0]]), np.array([[0.0, 0.0], [10.0, 0.0]]))
+    (array([0, 1]), array([25.,  1.]))
+    """
+    du = proj[:, :1] - points[:, 0]
+    dv = proj[:, 1:2] - points[:, 1]
+    d2 = du * du + dv * dv  # (k, n)
+    nearest = d2.argmin(axis=1)
+    return nearest, d2[np.arange(len(proj)), nearest]
 
 
 def view_offsets(offsets: np.ndarray | None, rig: Rig) -> np.ndarray:

@@ -69,7 +69,7 @@ from core.ambiguity import (
 )
 from core.anneal import kernel_params
 from core.epipolar_start import branch_start
-from core.error import Detections, view_offsets
+from core.error import Detections, nearest_detection, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
 from core.tree import Part, Tree, _subtrees, reach_points
@@ -667,7 +667,7 @@ def _fusions(q: np.ndarray, part: Part, model: KinematicModel, rig: Rig, points:
         i, j = np.nonzero(gap <= near)
         if len(i) == 0:
             continue
-        d2 = _nearest(0.5 * (mine[i] + theirs[j]), points[start[v]:start[v + 1]])[1]
+        d2 = nearest_detection(0.5 * (mine[i] + theirs[j]), points[start[v]:start[v + 1]])[1]
         out[v, i[d2 <= FUSED_PX ** 2]] = True
     return out
 
@@ -709,7 +709,7 @@ def _on_merged_blobs(proj: np.ndarray, points: np.ndarray, start: np.ndarray, ra
     out = np.zeros(proj.shape[:2], dtype=bool)
     for v in np.flatnonzero(_seen_views(start)):
         a, b = start[v], start[v + 1]
-        nearest, d2 = _nearest(proj[v], points[a:b])
+        nearest, d2 = nearest_detection(proj[v], points[a:b])
         out[v] = (points[a + nearest, 2] > 0.0) & (d2 <= radius * radius)
     return out
 
@@ -950,16 +950,6 @@ def _subset(det: Detections, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(det.kernel_points[keep]), start
 
 
-def _nearest(proj: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For each of the projections ``proj`` (k, 2) of one view, its nearest detection of that
-    view (``points`` (n, >= 2), n > 0, u and v first): (index (k,), squared distance (k,) px²)."""
-    du = proj[:, :1] - points[:, 0]
-    dv = proj[:, 1:2] - points[:, 1]
-    d2 = du * du + dv * dv  # (k, n)
-    nearest = d2.argmin(axis=1)
-    return nearest, d2[np.arange(len(proj)), nearest]
-
-
 def _claiming(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
               off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(V, M) int64: the detection (index into ``det``) each projection of a branch's marker
@@ -972,7 +962,7 @@ def _claiming(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, t
     out = np.full(proj.shape[:2], -1)
     for v in np.flatnonzero(_seen_views(det.start)):
         a, b = det.start[v], det.start[v + 1]
-        nearest, d2 = _nearest(proj[v], det.points[a:b])
+        nearest, d2 = nearest_detection(proj[v], det.points[a:b])
         close = (d2 <= CLAIM_PX ** 2) & (owner >= 0)
         out[v, close] = a + nearest[close]
     return out, owner
