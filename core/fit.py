@@ -437,13 +437,13 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     views without detections), so an image whose plain error does not widen the tolerance,
     most clean ones, is passed over without reading it.
     """
-    if not _witness_searched(params, det, model, fit.error):
+    if _witness_readings(params, det, model, fit.error) is None:
         return None
     scatter = scatter_error(fit.dofs, det, model, rig, view_offsets(offsets, rig),
                             params.empty_view_penalty_px)
-    if not _witness_searched(params, det, model, scatter):
+    if (readings := _witness_readings(params, det, model, scatter)) is None:
         return None
-    floor, residual = witness_tolerance(params, det, model, scatter)
+    floor, residual = readings
     return undetermined_alternative(
         fit, det, model=model, rig=rig, tolerance_px=max(floor, residual), residual_px=residual,
         fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
@@ -451,12 +451,15 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     )
 
 
-def _witness_searched(params: FitParams, det: Detections, model: KinematicModel, scatter: float) -> bool:
-    """Whether the undetermined-DOF witness is looked for in an image of residual ``scatter``
-    (px): the search is on, and the residual widens the tolerance beyond the fixed floor or
-    the model has DOFs that no posture determines."""
+def _witness_readings(params: FitParams, det: Detections, model: KinematicModel,
+                      scatter: float) -> tuple[float, float] | None:
+    """:func:`witness_tolerance` of an image of residual ``scatter`` (px) where the
+    undetermined-DOF witness is looked for in it, else None: the search is on, and the
+    residual widens the tolerance beyond the fixed floor or the model has DOFs that no
+    posture determines."""
     floor, residual = witness_tolerance(params, det, model, scatter)
-    return floor > 0 and (residual > floor or bool(model.identifiability.undetermined))
+    searched = floor > 0 and (residual > floor or bool(model.identifiability.undetermined))
+    return (floor, residual) if searched else None
 
 
 def witness_tolerance(params: FitParams, det: Detections, model: KinematicModel,
