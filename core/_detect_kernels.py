@@ -366,4 +366,3 @@ def _gauss_newton_disc(theta, data, xcols, yrows):
         if abs(step[0]) < _DISC_TOLERANCE_PX and abs(step[1]) < _DISC_TOLERANCE_PX:
             return True
     return abs(step[1]) < 10 * _DISC_TOLERANCE_PX
-
