@@ -1,6 +1,6 @@
 """Whole-animal accuracy and speed benchmark (issue 13): subjects from published anatomy.
 
-    python bench/animals.py [--subject hexapod|biped|fullbody|stick|locust|rat|mouse|all] [--images N]
+    python bench/animals.py [--subject hexapod|freefly|biped|fullbody|stick|locust|rat|mouse|all] [--images N]
         [--cameras 6|3|2] [--soft-tissue] [--ghosts N] [--occlusion F] [--seed S] [--jobs 1]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
@@ -324,7 +324,7 @@ def main() -> None:
     parser.add_argument("--images", type=int, default=20,
                         help="images per subject (the engine of 2026-11-23 fits ~0.05 hexapod images/s)")
     parser.add_argument("--cameras", type=int, choices=(6, 3, 2), default=None,
-                        help="hexapod cameras (default 6) or rat cameras (default 3)")
+                        help="fly cameras (hexapod, freefly: default 6) or rat cameras (default 3)")
     parser.add_argument("--soft-tissue", action="store_true",
                         help="skin markers slide 2 px RMS; unmodelled markers in every view")
     parser.add_argument("--ghosts", type=int, default=None,

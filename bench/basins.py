@@ -1,6 +1,6 @@
 """Why images are off with real markers: a wrong basin, or the minimum itself moved?
 
-    python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|rat|mouse [--images N]
+    python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|freefly|rat|mouse [--images N]
         [--soft-tissue] [--cameras 6|3|2] [--occlusion F] [--off DEG] [--seed S] [--huber PX]
 
 Renders and fits a subject as ``bench/animals.py`` does (same seed, same images), then
@@ -52,7 +52,7 @@ def main() -> None:
     parser.add_argument("--images", type=int, default=300)
     parser.add_argument("--soft-tissue", action="store_true")
     parser.add_argument("--cameras", type=int, choices=(6, 3, 2), default=None,
-                        help="hexapod cameras (default 6) or rat cameras (default 3)")
+                        help="fly cameras (hexapod, freefly: default 6) or rat cameras (default 3)")
     parser.add_argument("--occlusion", type=float, default=0.0, metavar="F",
                         help="fraction of marker projections hidden, as bench/animals.py")
     parser.add_argument("--off", type=float, default=10.0,

@@ -4,6 +4,8 @@ Each subject is a model (FORMATS §1) and a rig (FORMATS §2) in ``bench/subject
 or ``core/examples/<name>/``, a frame size, a frame rate, and a movement generator:
 
 - ``hexapod``: a tethered fruit fly, 6 legs × 7 DOFs, walking in a tripod gait;
+- ``freefly``: the same fly with its thorax free (3 translations, 3 rotations), turning,
+  pitching, rolling and shifting as it walks;
 - ``biped``: a human lower body walking along a 2.4 m walkway, pelvis moving forward;
 - ``fullbody``: a whole human (spine, head, arms) walking there, swinging its arms;
 - ``rat``: a rat's hindquarters trotting on a treadmill, filmed from both sides and below;
@@ -28,13 +30,13 @@ from core.rig import Rig
 from core.synth import natural_movements
 
 ROOT = Path(__file__).resolve().parents[2]
-NAMES = ("hexapod", "biped", "fullbody", "stick", "locust", "rat", "mouse")
+NAMES = ("hexapod", "freefly", "biped", "fullbody", "stick", "locust", "rat", "mouse")
 # Camera subsets of the hexapod's six (a ring at 30, 90, …, 330° azimuth): every other one,
 # and the two side cameras.
 HEXAPOD_CAMERAS = {6: (0, 1, 2, 3, 4, 5), 3: (0, 2, 4), 2: (1, 4)}
 # The rat's three (right, left, below) and its two side cameras.
 RAT_CAMERAS = {3: (0, 1, 2), 2: (0, 1)}
-CAMERAS = {"hexapod": HEXAPOD_CAMERAS, "rat": RAT_CAMERAS}
+CAMERAS = {"hexapod": HEXAPOD_CAMERAS, "freefly": HEXAPOD_CAMERAS, "rat": RAT_CAMERAS}
 
 
 @dataclass(frozen=True)
@@ -66,7 +68,7 @@ class Subject:
 
 def load(name: str, cameras: int | None = None) -> Subject:
     """The subject ``name`` (one of :data:`NAMES`); ``cameras`` picks a subset of its views
-    (:data:`CAMERAS`: the hexapod's 6, 3 or 2, the rat's 3 or 2; all by default)."""
+    (:data:`CAMERAS`: the flies' 6, 3 or 2, the rat's 3 or 2; all by default)."""
     if name not in NAMES:
         raise ValueError(f"subject must be one of {', '.join(NAMES)}, got {name!r}")
     folder = {"stick": EXAMPLES / "stick_insect_front_leg",
@@ -78,8 +80,9 @@ def load(name: str, cameras: int | None = None) -> Subject:
             raise ValueError(f"{name!r} has no {cameras}-camera variant")
         # Each camera keeps its own video file: renumber the chosen ones 0..k-1.
         rig = Rig(tuple(replace(rig.views[v], video=i) for i, v in enumerate(CAMERAS[name][cameras])))
-    if name == "hexapod":
-        return Subject(name, model, rig, (640, 480), 100.0, tripod_walk,
+    if name in ("hexapod", "freefly"):
+        return Subject(name, model, rig, (640, 480), 100.0,
+                       tripod_walk if name == "hexapod" else free_walk,
                        (("RM_femur_roll", (0.45, 0.03, 0.0)),))
     if name == "biped":
         return Subject(name, model, rig, (720, 576), 100.0, walkway_gait,
@@ -100,10 +103,10 @@ def load(name: str, cameras: int | None = None) -> Subject:
 def camera_choice(name: str, asked: int | None) -> int | None:
     """The ``cameras`` to :func:`load` subject ``name`` with when a run asks for ``asked``
     (None: the default): ``asked`` if the subject has that variant, else the hexapod's 6
-    (named in its labels) and every other subject's full rig (None)."""
+    (named in its labels; the free fly's too) and every other subject's full rig (None)."""
     if asked in CAMERAS.get(name, {}):
         return asked
-    return 6 if name == "hexapod" else None
+    return 6 if name in ("hexapod", "freefly") else None
 
 
 def _natural(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -129,13 +132,14 @@ def tripod_walk(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarra
     """A tripod gait: each DOF a sinusoid of the step phase, with slowly drifting step rate,
     amplitude and centre (turning, speeding up), the two tripods half a cycle apart.
 
-    Returns (n, 42) postures in model order, inside the DOF ranges.
+    Returns (n, D) postures in model order, inside the DOF ranges: the 42 leg DOFs, any
+    others (a free thorax's) zero.
     """
     t = np.arange(n) / subject.fps
     rate = _smooth_noise(rng, t, 0.5, *_STEP_HZ)
     phase = 2 * np.pi * np.cumsum(rate) / subject.fps + rng.uniform(0, 2 * np.pi)
     names = subject.model.dof_names
-    q = np.empty((n, len(names)))
+    q = np.zeros((n, len(names)))  # a free thorax's columns: free_walk's
     for leg, offset in _TRIPOD.items():
         pair, mirror = leg[1], -1.0 if leg[0] == "R" else 1.0
         for k, dof in enumerate(("coxa_pro", "coxa_roll", "coxa_abd", "femur", "femur_roll",
@@ -147,6 +151,27 @@ def tripod_walk(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarra
             # Protraction and the rolls turn the other way on the right (mirrored frames).
             sign = mirror if dof in ("coxa_pro", "coxa_roll", "femur_roll") else 1.0
             q[:, names.index(f"{leg}_{dof}")] = sign * value
+    return _inside(subject.model, q)
+
+
+# The free fly's thorax sway: per DOF, the half-range (mm, degrees) of a smooth random
+# signal varying over about 0.7 s, inside the model's ranges (bench/subjects/build.py).
+_THORAX_SWAY = {"thorax_tx": 0.3, "thorax_ty": 0.12, "thorax_tz": 0.2, "thorax_yaw": 20.0,
+                "thorax_roll": 7.0, "thorax_pitch": 8.0}
+
+
+def free_walk(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
+    """:func:`tripod_walk`'s legs (the same as the tethered fly's for the same ``rng``) on a
+    thorax that turns, pitches, rolls and shifts (:data:`_THORAX_SWAY`), kept within the
+    cameras' view (a fly walking off would leave it).
+
+    Returns (n, 48) postures in model order, inside the DOF ranges.
+    """
+    q = tripod_walk(subject, n, rng)
+    t = np.arange(n) / subject.fps
+    names = subject.model.dof_names
+    for name, half in _THORAX_SWAY.items():
+        q[:, names.index(name)] = _smooth_noise(rng, t, 0.7, -half, half)
     return _inside(subject.model, q)
 
 

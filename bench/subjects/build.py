@@ -2,8 +2,8 @@
 
     python bench/subjects/build.py
 
-Rewrites ``bench/subjects/hexapod/``, ``biped/``, ``fullbody/`` and ``rat/``; the files are
-committed, this script says how they were made. Sources and every number's origin:
+Rewrites ``bench/subjects/hexapod/``, ``freefly/``, ``biped/``, ``fullbody/``, ``rat/`` and
+``mouse/``; the files are committed, this script says how they were made. Sources and every number's origin:
 ``docs/BENCH_SUBJECTS.md``.
 """
 
@@ -71,9 +71,16 @@ def _marker(name: str, joint: str, pos=(0.0, 0.0, 0.0)) -> str:
     return f'  <marker name="{name}" joint="{joint}" {xyz}/>'
 
 
-def hexapod_xml() -> str:
-    """42 DOFs: per leg coxa pro/roll/abd, femur, femur roll, tibia, tarsus; 4 markers per leg."""
-    joints = [_joint("thorax", None, (0, 0, 0), [])]
+# The free fly's thorax (``freefly``): its ranges (mm, degrees) around the tethered pose.
+FREE_THORAX = (("tx", "thorax_tx", 0.4), ("ty", "thorax_ty", 0.2), ("tz", "thorax_tz", 0.3),
+               ("y", "thorax_yaw", 25.0), ("x", "thorax_roll", 10.0), ("z", "thorax_pitch", 12.0))
+
+
+def hexapod_xml(free: bool = False) -> str:
+    """42 DOFs: per leg coxa pro/roll/abd, femur, femur roll, tibia, tarsus; 4 markers per leg.
+    ``free``: the thorax as well, 3 translations and 3 rotations (:data:`FREE_THORAX`; 48 DOFs)."""
+    thorax = [_dof(axis, name, -r, r) for axis, name, r in FREE_THORAX] if free else []
+    joints = [_joint("thorax", None, (0, 0, 0), thorax)]
     markers = [_marker(n, "thorax", p) for n, p in FLY_THORAX_MARKERS.items()]
     for side in "LR":
         s = 1.0 if side == "R" else -1.0
@@ -104,13 +111,17 @@ def hexapod_xml() -> str:
             markers += [_marker(f"{leg}_{m}", f"{leg}_{j}")
                         for m, j in (("CTr", "femur"), ("FTi", "tibia"), ("TiTa", "tarsus"),
                                      ("claw", "claw"))]
-    comment = """  <!-- A tethered fruit fly (Drosophila melanogaster): the thorax is fixed, six legs of
+    head = ("A free fruit fly (Drosophila melanogaster): the thorax free (3 translations, yaw,\n"
+            "       roll, pitch), six legs of" if free
+            else "A tethered fruit fly (Drosophila melanogaster): the thorax is fixed, six legs of")
+    comment = f"""  <!-- {head}
        7 DOFs (coxa protraction/roll/adduction, trochanter-femur flexion, femur roll, tibia,
        tarsus). Insertion points and segment lengths from NeuroMechFly (Lobato-Rios et al.
        2022, Nature Methods 19:620-627, neuromechfly_noLimits.sdf); ranges around its tripod
        pose and walking-data limits, widened. x forward, y up, z right; mm.
        Made by bench/subjects/build.py; docs/BENCH_SUBJECTS.md. -->"""
-    return "\n".join(['<model name="drosophila_hexapod" units="mm">', comment, *joints, *markers,
+    name = "drosophila_free" if free else "drosophila_hexapod"
+    return "\n".join([f'<model name="{name}" units="mm">', comment, *joints, *markers,
                       "</model>", ""])
 
 
@@ -554,7 +565,8 @@ def main() -> None:
                            ("biped", biped_xml(), biped_rig()),
                            ("fullbody", fullbody_xml(), fullbody_rig()),
                            ("rat", rat_xml(), rat_rig()),
-                           ("mouse", mouse_xml(), mouse_rig())):
+                           ("mouse", mouse_xml(), mouse_rig()),
+                           ("freefly", hexapod_xml(free=True), hexapod_rig())):
         folder = HERE / name
         folder.mkdir(exist_ok=True)
         (folder / "model.xml").write_text(xml)

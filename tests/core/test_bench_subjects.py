@@ -25,7 +25,7 @@ SUBJECTS = Path(__file__).resolve().parents[2] / "bench" / "subjects"
 MARGIN_PX = 5.0
 
 
-@pytest.mark.parametrize("name", ["hexapod", "biped", "fullbody", "rat"])
+@pytest.mark.parametrize("name", ["hexapod", "freefly", "biped", "fullbody", "rat"])
 def test_subject_files_load(name):
     model = KinematicModel.from_xml(SUBJECTS / name / "model.xml")
     rig = Rig.from_json(SUBJECTS / name / "rig.json")
@@ -34,6 +34,11 @@ def test_subject_files_load(name):
         assert len(rig.views) == 6 and len(model.dofs) == 42 and len(model.markers) == 27
         assert not any(d.joint == "thorax" for d in model.dofs)
         assert sum(m.joint == "thorax" for m in model.markers) == 3
+    elif name == "freefly":  # the same fly, its thorax with 3 translations and 3 rotations
+        hexapod = KinematicModel.from_xml(SUBJECTS / "hexapod" / "model.xml")
+        assert len(rig.views) == 6 and len(model.dofs) == 48
+        assert model.dof_names[6:] == hexapod.dof_names and model.markers == hexapod.markers
+        assert sorted(d.axis for d in model.dofs if d.joint == "thorax") == ["tx", "ty", "tz", "x", "y", "z"]
     else:  # pelvis with 3 translations and 3 rotations; hip 3 DOFs, knee, ankle
         assert len(rig.views) == (6 if name == "fullbody" else 3)
         assert sum(d.joint == "R_knee" for d in model.dofs) == 1
@@ -83,8 +88,19 @@ def test_movement_projects_inside_every_image(name, cameras):
         assert np.all(np.isfinite(proj[:, v]))
         assert u.min() >= x + MARGIN_PX and u.max() <= x + w - MARGIN_PX, view.name
         assert vv.min() >= y + MARGIN_PX and vv.max() <= y + h - MARGIN_PX, view.name
-    if name == "hexapod":  # walking is smooth (the others jump on purpose: kicks, new passes)
+    if name in ("hexapod", "freefly"):  # walking is smooth (the others jump on purpose: kicks, new passes)
         assert np.abs(np.diff(truth, axis=0)).max() < 30.0
+
+
+def test_free_fly_walks_as_the_tethered_one_on_a_moving_thorax():
+    """Same seed, same legs; the thorax turns by more than 10 degrees and shifts by more
+    than a tenth of a millimetre."""
+    rng = 3
+    tethered = load("hexapod").trajectory(200, np.random.default_rng(rng))
+    free = load("freefly").trajectory(200, np.random.default_rng(rng))
+    np.testing.assert_array_equal(free[:, 6:], tethered)
+    thorax = free[:, :6]
+    assert np.ptp(thorax[:, 3]) > 10.0 and np.ptp(thorax[:, :3], axis=0).max() > 0.1
 
 
 def test_hexapod_camera_subsets_are_views_of_the_six():
