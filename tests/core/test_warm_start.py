@@ -181,6 +181,54 @@ def _assert_warm_started_without_sa(seed: int, images: tuple[int, ...]) -> None:
         assert angle_errors(fit.dofs, data.truth[k]).max() < 0.1
 
 
+def test_a_claw_left_to_one_view_of_three_does_not_let_a_warm_start_stand_in():
+    """The free-walking benchmark fly (3 cameras, 2 ghost blobs per view, seed 0), image 17:
+    its left hind leg's warm start, refined, put the claw on the tibia-tarsus joint's blob in
+    one view and off its blobs in the other two. Left out of those two as hidden, the claw
+    could slide along the third camera's ray: the warm start stood in for SA with the tarsus
+    at its range limit, 32° off, and image 18's warm start carried it on (49° off), both
+    reported ``ok``. A marker with a projection left out as hidden must now keep two views
+    where there are three: SA runs, and both images are on the truth."""
+    subject = load("freefly", 3)
+    data = render_and_detect(subject, 19, soft=False, ghosts=2, rng=np.random.default_rng(0))
+    model = subject.model
+    for k in (17, 18):
+        fit = fit_sequence(data.detections[k - 3:k + 1], model=model, rig=subject.rig,
+                           histograms=Histograms.uniform(model, prior_weight=100.0),
+                           params=fit_params(data)[0], seed=0).fits[-1]
+        assert angle_errors(fit.dofs, data.truth[k]).max() < 0.5, k
+
+
+def test_a_dof_placed_only_by_hidden_markers_needs_two_views_of_three_and_one_of_two(legs):
+    """``_left_in_too_few_views`` on leg 0 of the two-legged insect (4 markers: coxa-femur
+    joint, knee, tibia-tarsus joint, claw): the claw hidden in one view of three is still
+    compared in two; hidden in two, the DOF that only it moves (the tarsus) is left to one
+    view; the knee hidden in two keeps its DOFs placed by the markers below it. With two
+    views, the claw may be left to one, not to none. Projections ``unseen`` marks (next
+    to another part's marker) count as compared."""
+    model, _, truth, _ = legs
+    part = model.tree.branches[0]
+    q = truth[1]
+    kin = part.at(*_base_frame(q, model, part))
+    knee, claw = 1, 3
+
+    def too_few(views: int, *hidden: tuple[int, int], unseen: tuple[tuple[int, int], ...] = ()) -> bool:
+        lost = np.zeros((views, len(part.markers)), dtype=bool)
+        shared = np.zeros_like(lost)
+        for (view, marker), mask in [*((h, lost) for h in hidden), *((u, shared) for u in unseen)]:
+            mask[view, marker] = True
+        image = treefit._image(np.zeros((views, 3)), np.arange(views + 1), FitParams(),
+                               np.zeros((views, 2)), shared)
+        return treefit._left_in_too_few_views(lost, q[part.dofs], kin, image)
+
+    assert not too_few(3, (0, claw))
+    assert too_few(3, (0, claw), (1, claw))
+    assert not too_few(3, (0, knee), (1, knee))
+    assert not too_few(3, (0, claw), unseen=((1, claw), (2, claw)))
+    assert not too_few(2, (0, claw))
+    assert too_few(2, (0, claw), (1, claw))
+
+
 def test_a_warm_start_judged_on_one_view_of_three_stands_in_for_nothing(legs):
     """Leg 0's posture, refined on this image, reaches 2 ε however many of its projections
     are left out as shared with another part; it stands in for SA where those it is judged
