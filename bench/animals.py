@@ -268,7 +268,7 @@ def report(subject: Subject, label: str, data: Rendered, result: SequenceResult,
          *target(f">= {100 * TARGET_WITHIN_5:.0f} %", within >= TARGET_WITHIN_5))
     line("images > 10 deg off, ok, no alternative given", f"{off_ok_unflagged}", "0",
          off_ok_unflagged == 0)
-    line("images > 10 deg off, ok (alternative given)", f"{off_ok}")
+    line("images > 10 deg off, ok (with or without an alternative)", f"{off_ok}")
     if soft:
         med = float(np.median(abs_rot))  # failed images count as infinitely wrong
         p90 = float(np.percentile(abs_rot, 90, method="higher"))

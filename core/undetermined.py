@@ -28,7 +28,7 @@ from core.treefit import MAX_LOST_SHARE, world_frames
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "confidence_chi2",
            "hidden_projections", "interval_chi2", "residual_tolerance", "scatter_error",
-           "shared_scatter_inflation", "undetermined_alternative"]
+           "shared_scatter_inflation", "typical_inflation", "undetermined_alternative"]
 
 # An image does not determine a DOF when a posture this far from its fit in that DOF (degrees,
 # the issue's "more than 10 degrees off the truth") explains it within its tolerance.
@@ -257,6 +257,19 @@ def _point_jacobian(points: np.ndarray, rig: Rig, seen: np.ndarray) -> np.ndarra
     G = (proj[1:] - proj[:1]) / h  # (3 axes, V', M, 2)
     B = np.einsum("avmc,mn->vmcna", G, np.eye(M))  # marker m's rows move with m alone
     return B.reshape(-1, 3 * M)
+
+
+def typical_inflation(compared: int, n_markers: int, n_dofs: int) -> float:
+    """About what :func:`shared_scatter_inflation` comes to for views around the animal,
+    from counts alone: (2P − D) / (3M − D) for ``compared`` P marker projections of
+    ``n_markers`` M markers and ``n_dofs`` D DOFs, at least 1 (one view, which cannot see a
+    slide in depth); the residual's coordinates over the markers' own, each less the D
+    the fit absorbs. Costs no Jacobian: it says where the witness is worth looking for.
+
+    >>> round(typical_inflation(162, 27, 48), 2), typical_inflation(4, 4, 5)
+    (8.36, 1.0)
+    """
+    return max(1.0, (2 * compared - n_dofs) / max(3 * n_markers - n_dofs, 1))
 
 
 def shared_scatter_inflation(J: np.ndarray, C: np.ndarray, B: np.ndarray) -> np.ndarray:

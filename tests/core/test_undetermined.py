@@ -235,6 +235,28 @@ def test_a_short_trial_with_sliding_skin_reports_no_image_10_degrees_off_as_ok_u
     assert not np.any(off & ok & ~flagged)
 
 
+def test_a_free_fly_with_sliding_markers_reports_no_image_10_degrees_off_as_ok_unflagged():
+    """12 images of the free fly (``bench/animals.py --subject freefly --soft-tissue``: six
+    cameras, 2 px RMS of sliding markers, an unmodelled one): the thorax's roll and the
+    short-coxa legs' adduction trade against each other, and the objective's minimum lies
+    12-22 deg off the truth at about 0.9 px a projection, under the threshold. Its residual
+    read as independent scatter stayed under the fixed floor, so the witness was never
+    looked for and such images were `ok` with no alternative; read as the markers' 3D
+    scatter (what the witness's tolerance is), it is looked for and found."""
+    subject = load("freefly")
+    data = render_and_detect(subject, 12, soft=True, ghosts=0, rng=np.random.default_rng(0))
+    params, _ = fit_params(data)
+    model = subject.model
+    result = fit_sequence(data.detections, model=model, rig=subject.rig,
+                          histograms=Histograms.uniform(model, prior_weight=100.0), params=params, seed=0)
+    fitted = np.array([f.dofs for f in result.fits])
+    off = np.abs(angle_errors(model, fitted, data.truth)[:, model.rotational]).max(axis=1) > UNDETERMINED_DEG
+    ok = np.array([f.status is Status.OK for f in result.fits])
+    flagged = np.array([math.isfinite(f.alternative_deg(model.rotational)) for f in result.fits])
+    assert np.count_nonzero(off & ok) >= 3  # the case this test is about
+    assert not np.any(off & ok & ~flagged)
+
+
 def _hidden(model: KinematicModel, rig: Rig, q: np.ndarray, drop: dict[int, list[int]]) -> Detections:
     """Exact projections of ``q`` without the markers ``drop[view]`` (hidden from that view)."""
     proj = rig.project(model.marker_positions(q))
