@@ -459,13 +459,12 @@ def _witness_readings(params: FitParams, det: Detections, model: KinematicModel,
     residual, read as the markers' own 3D scatter, widens the tolerance beyond the fixed
     floor, or the model has DOFs that no posture determines.
 
-    As 3D scatter: the witness widens each DOF's tolerance by
-    ``core.undetermined.shared_scatter_inflation`` (about
-    ``core.undetermined.typical_inflation``, 8.4 for the free fly's 27 markers in six
-    views). Read as scatter independent in every projection, a free fly with sliding
-    markers stayed under the floor (residual 4.6-5.3 px against 10.1), and images 12-22°
-    off were `ok` with nothing flagged, where the witness, asked, moves a DOF 20-24°
-    within the widened tolerance."""
+    As 3D scatter because the witness widens each DOF's tolerance so
+    (``core.undetermined.shared_scatter_inflation``, about
+    ``core.undetermined.typical_inflation``): read as scatter independent in every
+    projection, the residual of many markers in many views stays under the floor while
+    sliding markers move some DOF's minimum tens of degrees, and nothing was flagged
+    (docs/BENCH_SUBJECTS.md, the free fly)."""
     floor, residual = witness_tolerance(params, det, model, scatter)
     compared = _compared(tuple(det.counts.tolist()), len(model.markers))
     widened = residual * typical_inflation(compared, len(model.markers), len(model.dofs))

@@ -254,8 +254,8 @@ def _left_in_too_few_views(lost: np.ndarray, q: np.ndarray, kin, image: _kernels
 
     Per DOF, not per marker: a knee marker hidden from two of three cameras is still placed
     by the shank and foot markers that move with the same DOFs, and leaving it out keeps
-    the warm start (requiring two views of every such marker made the biped with a tenth of
-    its projections hidden fit 1.9 times slower, to the same angles). With two cameras a
+    the warm start; asking two views of every such marker sent those warm starts to SA for
+    the same angles (docs/BENCH_SUBJECTS.md, the free fly). With two cameras a
     hidden marker is left to one view, as it is by the objective anyway. Projections
     ``image.unseen`` leaves out (next to another part's marker) count as compared:
     :func:`_may_leave_out` judged them, and a fusion places them."""
