@@ -70,6 +70,7 @@ from core.ambiguity import (
 from core.anneal import kernel_params
 from core.epipolar_start import branch_start
 from core.error import Detections, nearest_detection, view_offsets
+from core.identifiability import marker_jacobian
 from core.model import KinematicModel
 from core.rig import Rig
 from core.tree import Part, Tree, _subtrees, reach_points
@@ -271,12 +272,15 @@ def _left_in_too_few_views(lost: np.ndarray, q: np.ndarray, kin, image: _kernels
 
 def _moved_markers(q: np.ndarray, kin) -> np.ndarray:
     """(d, m) bool: which of a part's markers each DOF moves at posture ``q`` (d,) (posed by
-    ``kin``), by central differences: a marker on a rotation's axis, or above its joint, is
-    not moved by it."""
+    ``kin``), from the Jacobian of the marker positions (``core.identifiability.marker_jacobian``,
+    every column in model units per step: only which markers a DOF moves is read, against the
+    most it moves any): a marker on a rotation's axis, or above its joint, is not moved by it."""
+    def positions(postures: np.ndarray) -> np.ndarray:
+        return _kernels.marker_positions_many(np.ascontiguousarray(postures), kin)
+
     d = len(q)
-    step = np.diag(np.full(d, 1e-3))
-    moved = _kernels.marker_positions_many(np.ascontiguousarray(np.vstack([q + step, q - step])), kin)
-    speed = np.linalg.norm(moved[:d] - moved[d:], axis=2)  # (d, m)
+    jac = marker_jacobian(positions, q, np.zeros(d, dtype=bool), 1.0)  # (3m, d)
+    speed = np.linalg.norm(jac.T.reshape(d, -1, 3), axis=2)  # (d, m)
     return speed > 1e-6 * np.maximum(speed.max(axis=1, keepdims=True), 1e-300)
 
 
