@@ -32,7 +32,7 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -293,7 +293,10 @@ def report(subject: Subject, label: str, data: Rendered, result: SequenceResult,
 def run(name: str, args: argparse.Namespace) -> None:
     cameras = camera_choice(name, args.cameras)
     subject = load(name, cameras)
+    if args.fps:
+        subject = replace(subject, fps=args.fps)
     label = (name + (f" ({cameras} cameras)" if cameras else "")
+             + (f" at {args.fps:g} Hz" if args.fps else "")
              + (" + soft tissue" if args.soft_tissue else ""))
     rng = np.random.default_rng(args.seed)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts,
@@ -306,7 +309,8 @@ def run(name: str, args: argparse.Namespace) -> None:
               f"{h.sum() / max(1, _run_starts(h)):.1f} images")
     result, timing = fit(subject, data, seed=args.seed, jobs=args.jobs)
     tag = (name + (f"-{cameras}cams" if cameras else "") + ("-soft" if args.soft_tissue else "")
-           + (f"-occ{round(100 * args.occlusion)}" if args.occlusion else ""))
+           + (f"-occ{round(100 * args.occlusion)}" if args.occlusion else "")
+           + (f"-{args.fps:g}hz" if args.fps else ""))
     OUT.mkdir(parents=True, exist_ok=True)
     csv_path = OUT / f"animals-{tag}.csv"
     write_angles_csv(csv_path, subject.model, result.fits, SampleClock(subject.fps))
@@ -333,13 +337,17 @@ def main() -> None:
     parser.add_argument("--occlusion", type=float, default=0.0, metavar="F",
                         help="fraction of marker projections hidden, in runs of "
                              f"{OCCLUSION_RUN_S:g} s per view and marker (default 0)")
+    parser.add_argument("--fps", type=float, default=None,
+                        help="frame rate of the movement (default: the subject's own, 50-250 Hz)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=1, help="processes fitting chunks")
     args = parser.parse_args()
     if args.ghosts is None:
         args.ghosts = 0 if args.soft_tissue else 2
-    if args.images < 1 or args.jobs < 1 or args.ghosts < 0 or not 0 <= args.occlusion <= 0.5:
-        parser.error("--images and --jobs must be >= 1, --ghosts >= 0, --occlusion in [0, 0.5]")
+    if (args.images < 1 or args.jobs < 1 or args.ghosts < 0 or not 0 <= args.occlusion <= 0.5
+            or (args.fps is not None and args.fps <= 0)):
+        parser.error("--images and --jobs must be >= 1, --ghosts >= 0, --occlusion in [0, 0.5], "
+                     "--fps > 0")
     names = NAMES if args.subject == "all" else (args.subject,)
     print(f"bench/animals.py: seed {args.seed}, {args.images} images per subject, "
           f"{MARKER_DIAMETER_PX:g} px markers, {args.ghosts} ghost blobs per view"

@@ -1,7 +1,8 @@
 """Why images are off with real markers: a wrong basin, or the minimum itself moved?
 
     python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|freefly|rat|mouse [--images N]
-        [--soft-tissue] [--cameras 6|3|2] [--occlusion F] [--off DEG] [--seed S] [--huber PX]
+        [--soft-tissue] [--cameras 6|3|2] [--occlusion F] [--off DEG] [--fps HZ] [--seed S]
+        [--huber PX]
 
 Renders and fits a subject as ``bench/animals.py`` does (same seed, same images), then
 refines the *true* posture on every image (``core.treefit.refine_whole``, as a fit's last
@@ -57,10 +58,13 @@ def main() -> None:
                         help="fraction of marker projections hidden, as bench/animals.py")
     parser.add_argument("--off", type=float, default=10.0,
                         help="degrees: list the ok images this far off (5: the noise-free target)")
+    parser.add_argument("--fps", type=float, default=None, help="the movement's frame rate")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--huber", type=float, default=None, help="px, for the truth's refinement")
     args = parser.parse_args()
     subject = load(args.subject, camera_choice(args.subject, args.cameras))
+    if args.fps:
+        subject = replace(subject, fps=args.fps)
     model, rig, rot = subject.model, subject.rig, subject.model.rotational
     data = render_and_detect(subject, args.images, soft=args.soft_tissue,
                              ghosts=0 if args.soft_tissue else 2,
