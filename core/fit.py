@@ -111,7 +111,7 @@ class FitParams:
         among its alternatives by continuity with its neighbours (``core.ambiguity``).
     outlier_factor : an image whose objective is more than this times the sequence's
         median (and above where the search itself stops, ``core.treefit.search_floor``:
-        ε, or its parts' for a tree) is re-analysed as if over the threshold; 0: only
+        ε, or the smallest of its parts' for a tree) is re-analysed as if over the threshold; 0: only
         the threshold (the paper).
     """
 
@@ -685,8 +685,8 @@ def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
     and is over the error threshold (paper §3.2), or its objective is an outlier: above
     ``params.outlier_factor`` times ``typical`` (the sequence's
     ``core.sequence.typical_objective``) and above the level where ``model``'s search stops
-    in the image's views (``core.treefit.search_floor``: ε for a chain, the sum of its
-    parts' ε for a tree).
+    in the image's views (``core.treefit.search_floor``: ε for a chain, the smallest of
+    its parts' ε for a tree).
 
     The paper's 10 px threshold was "clearly larger than the expected analysis
     result" (2.9 px); clean footage now fits at ~0.1 px, so a local minimum at

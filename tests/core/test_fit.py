@@ -211,18 +211,19 @@ def test_outliers_are_reanalysed_as_if_over_the_threshold(locust):
     assert needs_reanalysis(replace(fit, status=Status.OVER_THRESHOLD), model, params)
 
 
-def test_a_tree_image_under_its_parts_eps_is_no_outlier(locust):
+def test_a_tree_image_under_its_smallest_part_eps_is_no_outlier(locust):
     """A whole animal stops each part's search at the part's ε: an image above 10x the typical
-    objective but under the sum of those is where another attempt stops too, and is left
-    alone; one above it is re-analysed. A single chain keeps ε itself as the floor."""
-    tree = insect(legs=2, root_dofs=FREE_ROOT)  # 11 markers: 3 views stop at 8.25 px
-    good = ImageFit(0, np.zeros(len(tree.dofs)), 0.5, 0.5, 1, Status.OK, 500, (11, 11, 11))
+    objective but under the smallest of those has every part within its own, is where
+    another attempt stops too, and is left alone; one above it is re-analysed. A single
+    chain keeps ε itself as the floor."""
+    tree = insect(legs=2, root_dofs=FREE_ROOT)  # trunk of 3 markers: 3 views stop at 2.25 px
+    good = ImageFit(0, np.zeros(len(tree.dofs)), 0.1, 0.1, 1, Status.OK, 500, (11, 11, 11))
     fits = [*(replace(good, sample=s) for s in range(5)),
-            replace(good, sample=5, objective=6.0),  # 12x the median, under 8.25 px
-            replace(good, sample=6, objective=9.0),  # over 8.25 px
-            replace(good, sample=7, objective=6.0, detections=(11, 11, 0))]  # 2 views: 5.5 px
+            replace(good, sample=5, objective=2.0),  # 20x the median, under 2.25 px
+            replace(good, sample=6, objective=3.0),  # over 2.25 px
+            replace(good, sample=7, objective=2.0, detections=(11, 11, 0))]  # 2 views: 1.5 px
     plan = plan_reanalysis(Histograms.uniform(tree), [], fits, tree, FitParams())
-    assert plan.typical == pytest.approx(0.5)
+    assert plan.typical == pytest.approx(0.1)
     assert plan.images == [(6, 2), (7, 2)]
     chain, _ = locust
     as_chain = [replace(f, dofs=np.zeros(5), detections=(4, 4)) for f in fits]

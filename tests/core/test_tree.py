@@ -114,16 +114,17 @@ def test_a_free_root_with_a_nested_branch_is_fitted_first():
                                                   "arm0_coxa", "arm1_coxa"]
 
 
-def test_the_search_floor_is_the_sum_of_the_parts_eps_or_eps_for_a_chain():
+def test_the_search_floor_is_the_smallest_part_eps_or_eps_for_a_chain():
     """A part stops at ε (1 px) per 4 of its marker projections into the views with
-    detections; markers on a trunk without DOFs belong to no part."""
+    detections; markers on a trunk without DOFs belong to no part. Below the smallest
+    part's ε every part is within its own."""
     params = FitParams()
     free = insect(legs=2, root_dofs=FREE_ROOT)  # trunk 3 markers + 2 legs x 4
-    assert search_floor(free, params, 3) == pytest.approx((3 + 4 + 4) * 3 / 4)
-    assert search_floor(free, params, 2) == pytest.approx((3 + 4 + 4) * 2 / 4)
-    assert search_floor(insect(legs=2), params, 3) == pytest.approx((4 + 4) * 3 / 4)
+    assert search_floor(free, params, 3) == pytest.approx(3 * 3 / 4)
+    assert search_floor(free, params, 2) == pytest.approx(3 * 2 / 4)
+    assert search_floor(insect(legs=2), params, 3) == pytest.approx(4 * 3 / 4)
     wider = FitParams(anneal=replace(params.anneal, eps=2.0))
-    assert search_floor(free, wider, 3) == pytest.approx(2.0 * (3 + 4 + 4) * 3 / 4)
+    assert search_floor(free, wider, 3) == pytest.approx(2.0 * 3 * 3 / 4)
     chain = KinematicModel.from_xml(EXAMPLES / "locust_hind_leg" / "model.xml")
     assert search_floor(chain, params, 2) == search_floor(chain, params, 6) == params.anneal.eps
     assert search_floor(chain, wider, 2) == 2.0

@@ -15,6 +15,7 @@ from tree_subjects import angle_errors, detections, insect, movement, ring_rig
 from core import treefit
 from core.ambiguity import Candidate
 from core.anneal import search_space
+from core.detect import detect
 from core.error import Detections, view_error
 from core.examples import LOCUST
 from core.fit import (
@@ -32,6 +33,7 @@ from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 from core.sequence import _ceilings, fit_chunk, fit_sequence
+from core.synth import render_frames
 from core.treefit import (
     EPS_PROJECTIONS,
     WARM_EPS_FACTOR,
@@ -46,7 +48,7 @@ from core.treefit import (
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from bench.animals import fit_params, render_and_detect
+from bench.animals import MARKER_DIAMETER_PX, Rendered, fit_params, render_and_detect
 from bench.subjects import load
 
 SEED = 1  # with this seed the locust's side view lands on the mirror in 11 of 24 images (checked below)
@@ -197,6 +199,28 @@ def test_a_claw_left_to_one_view_of_three_does_not_let_a_warm_start_stand_in():
                            histograms=Histograms.uniform(model, prior_weight=100.0),
                            params=fit_params(data)[0], seed=0).fits[-1]
         assert angle_errors(fit.dofs, data.truth[k]).max() < 0.5, k
+
+
+def test_an_image_with_one_leg_in_another_basin_is_re_analysed():
+    """The benchmark fly (6 cameras, 2 ghost blobs per view, seed 0) filmed at 50 Hz, images
+    60-71: its left hind leg moved 20-30° between images 70 and 71. The warm start, refined,
+    put the tibia-tarsus marker more than the empty-view penalty from every blob in five
+    views; left out as hidden there, the rest fit within twice ε and the warm start stood in
+    for SA, 38° off. The image scored 33 px against the others' 1.5-7, an outlier, but under
+    the sum of the parts' ε (40.5 px), so it was not re-analysed and was reported ``ok``.
+    Above the smallest part's ε, it is re-analysed and ends on the truth."""
+    subject = replace(load("hexapod", 6), fps=50.0)
+    truth = subject.trajectory(72, np.random.default_rng(0))[60:]
+    frames = [render_frames(subject.model, subject.rig, truth, rng=np.random.default_rng(k), video=k,
+                            frame_size=subject.frame_size, marker_diameter_px=MARKER_DIAMETER_PX,
+                            ghosts_per_view=2) for k in range(subject.rig.n_videos)]
+    data = Rendered(truth, [detect(list(image), rig=subject.rig) for image in zip(*frames, strict=True)],
+                    0.0)
+    fits = fit_sequence(data.detections, model=subject.model, rig=subject.rig,
+                        histograms=Histograms.uniform(subject.model, prior_weight=100.0),
+                        params=fit_params(data)[0], seed=0).fits
+    assert fits[-1].attempts > 1
+    assert angle_errors(fits[-1].dofs, truth[-1]).max() < 0.5
 
 
 def test_a_dof_placed_only_by_hidden_markers_needs_two_views_of_three_and_one_of_two(legs):
