@@ -53,6 +53,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -92,6 +93,7 @@ JOINT_STEPS = 10  # LM steps of the joint refinement: the parts arrive refined
 WARM_STEPS = 10  # LM steps refining the previous image's posture of a part (a warm start)
 WARM_JOINT_STEPS = 2  # joint refinement of parts that all came from warm starts
 WARM_EPS_FACTOR = 2.0  # a warm start stands in for SA within this many times the part's ε
+HIDDEN_SEEN_VIEWS = 3  # unexplained blobs of this many views meeting in space: a marker not hidden
 MAX_LOST_SHARE = 0.25  # of a part's projections, at most this share may look hidden in a warm start
 
 
@@ -115,7 +117,9 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
 def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None,
                model: KinematicModel, rig: Rig, params: FitParams, eps: float, off: np.ndarray,
                unseen: np.ndarray = _kernels.NO_UNSEEN,
-               ceiling: Callable[[], float] | None = None) -> tuple[np.ndarray, float, bool] | None:
+               ceiling: Callable[[], float] | None = None,
+               unexplained: Callable[[np.ndarray, np.ndarray], bool] | None = None,
+               ) -> tuple[np.ndarray, float, bool] | None:
     """The warm starts ``warm`` (k, D), each one's posture of the DOFs ``dofs`` (a part posed
     by ``kin``) refined on detections ``points`` (N, 3) grouped at ``start`` (V + 1,) by
     :data:`WARM_STEPS` LM steps: (posture (d,), objective in pixels, whether it stands in
@@ -149,6 +153,11 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     (2-camera hexapod, 10 % of projections hidden: 97 of 116 such warm starts). The image's
     depth flips and undetermined DOFs are still searched (``core.fit``), and a chunk's first
     image and every re-analysis run SA on every part.
+
+    ``unexplained(q, hidden)``, where given (a re-analysis), says whether a marker the part
+    at posture ``q`` (d,) leaves out as hidden (``hidden`` (V, m)) has unexplained blobs in
+    those views that meet in space (:func:`_hidden_marker_triangulated`); such a warm start
+    does not stand in (:func:`_without_lost`).
 
     ``unseen`` (V, m) bool marks projections next to another part's marker
     (:func:`shared_projections`): they are left out of the refinement and of the objective
@@ -186,7 +195,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
         if value < WARM_EPS_FACTOR * eps and views:
             return q, value, True
         if params.refine and views and (seen := _without_lost(q, row[dofs], kin, image, bounds, rig,
-                                                              params, eps)) is not None:
+                                                              params, eps, unexplained)) is not None:
             return seen, part_objective(seen, kin, points, start, unseen, rig, params, off), True
         if best is None or value < best[1]:
             best = (q, value, False)
@@ -197,7 +206,8 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
 
 
 def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bounds: _kernels.Bounds,
-                  rig: Rig, params: FitParams, eps: float) -> np.ndarray | None:
+                  rig: Rig, params: FitParams, eps: float,
+                  unexplained: Callable[[np.ndarray, np.ndarray], bool] | None = None) -> np.ndarray | None:
     """A part's warm start ``row`` (d,) refined within ``bounds`` on its detections
     ``image`` (``_kernels.Image``, the projections its ``unseen`` marks left out) without
     its projections that look hidden as well, where that reaches :data:`WARM_EPS_FACTOR`
@@ -222,7 +232,11 @@ def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bo
     free in the refinement without them. A free-walking fly's warm start, refined, had its
     claw on the tibia-tarsus joint's blob in one of three views and off its blobs in the
     other two; left to that view, it stood in for SA with the tarsus at its range limit,
-    32° off, and the next image's warm start carried it on."""
+    32° off, and the next image's warm start carried it on.
+
+    Nor where ``unexplained`` says a marker left out as hidden has unexplained blobs that
+    meet in space in three of the views that leave it out (:func:`_hidden_marker_triangulated`):
+    re-analysed, the free fly filmed at 50 Hz kept a hind leg 36° off that way, `ok`."""
     unseen, start = image.unseen, image.start
     if (without := _left_out_with_lost(q, kin, rig, image)) is None:
         return None
@@ -234,7 +248,11 @@ def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bo
                               image._replace(unseen=without), float(params.anneal.huber_px), WARM_STEPS,
                               _kernels.NO_TARGETS)
     value = part_objective(refined, kin, image.det, start, without, rig, params, image.offset)
-    return refined if value < WARM_EPS_FACTOR * eps * (1.0 - hidden / compared) else None
+    if value >= WARM_EPS_FACTOR * eps * (1.0 - hidden / compared):
+        return None
+    if unexplained is not None and unexplained(refined, without & ~unseen if unseen.size else without):
+        return None
+    return refined
 
 
 def _left_out_with_lost(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) -> np.ndarray | None:
@@ -486,7 +504,9 @@ def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spa
     its own objective only, or taken back by the conflict sweeps): more attempts search the
     same way. A part whose kept posture reaches twice its ε skips SA (SA stops there) and is
     settled. ``settled`` is True when every part is (``core.fit.reanalyse_image`` settles an
-    image whose attempt is not lower than the kept posture as well).
+    image whose attempt is not lower than the kept posture as well). A kept posture that
+    reaches it only with a marker left out as hidden is searched where that marker's
+    unexplained blobs meet in space (:func:`_hidden_marker_triangulated`).
     """
     return _fit_tree(det, model, rig, tree, space, params, stream, True, off, keep[None], None,
                      keep)
@@ -525,11 +545,14 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
         unseen = shared.get(part.name, _kernels.NO_UNSEEN)
         ceiling = None if ceilings is None else lambda: levels(part.name)
         done[part.dofs] = True
+        # A re-analysis has every other part where the kept posture (or this attempt) has it.
+        unexplained = None if keep is None else partial(_hidden_marker_triangulated, q, part, points,
+                                                         start, model, rig, params, off)
         tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen,
-                           ceiling)
+                           ceiling, unexplained)
         if tried is not None and not tried[2] and warm is not None:
             tried = _reshared_warm_start(part, tried, np.where(done, q, warm[0]), kin, points, start, model,
-                                         rig, tree, params, eps, off, unseen, ceiling)
+                                         rig, tree, params, eps, off, unseen, ceiling, unexplained)
         if tried is not None and tried[2]:
             q[part.dofs] = tried[0]
             return True
@@ -642,7 +665,9 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
 def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], posture: np.ndarray, kin,
                          points: np.ndarray, start: np.ndarray, model: KinematicModel, rig: Rig, tree: Tree,
                          params: FitParams, eps: float, off: np.ndarray, unseen: np.ndarray,
-                         ceiling: Callable[[], float] | None) -> tuple[np.ndarray, float, bool]:
+                         ceiling: Callable[[], float] | None,
+                         unexplained: Callable[[np.ndarray, np.ndarray], bool] | None,
+                         ) -> tuple[np.ndarray, float, bool]:
     """A part's warm start that did not stand in for SA (``tried``, from :func:`warm_start`)
     tried again with more of its projections left out: those next to another part's marker
     (:func:`shared_projections`) where the part stands at its refined warm start and the
@@ -672,8 +697,48 @@ def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], post
     if np.count_nonzero(again) == np.count_nonzero(before) or not _may_leave_out(again, start, fused):
         return tried
     retried = warm_start(part.dofs, kin, points, start, at[None], model, rig, params, eps, off, again,
-                         ceiling)
+                         ceiling, unexplained)
     return tried if retried is None else retried
+
+
+def _hidden_marker_triangulated(posture: np.ndarray, part: Part, points: np.ndarray, start: np.ndarray,
+                                model: KinematicModel, rig: Rig, params: FitParams, off: np.ndarray,
+                                q: np.ndarray, hidden: np.ndarray) -> bool:
+    """Whether a marker of ``part`` at ``q`` (d,), the rest of the model at ``posture`` (D,),
+    left out as hidden in :data:`HIDDEN_SEEN_VIEWS` or more views (``hidden`` (V, m)), has
+    a 3D point there after all: blobs of that many of those views among ``points`` (N, 3)
+    grouped at ``start`` (V + 1,) (the part's reach) that no marker projection explains
+    (none within the fusion distance, at least :data:`CLAIM_PX`) and that meet in space
+    (``core.triangulate``).
+
+    A marker hidden from a camera leaves no blob in its view. Unexplained blobs of three
+    such views that meet in space are most likely the marker itself, with the part in
+    another basin, and the part is searched. Two views are not enough: any two blobs on
+    each other's epipolar lines meet, and in the 3-camera fly with 10 % of projections
+    hidden, every pair found (3 images) belonged to markers truly hidden there (ghosts, or
+    blobs of another leg in another basin); searching those legs again changed 5 images
+    for the worse. Asked in a re-analysis only (:func:`refit_tree`), where every other part
+    is fitted: in a first attempt the parts not yet fitted stand at the previous image's
+    posture, pixels off their blobs."""
+    markers = np.flatnonzero(np.count_nonzero(hidden, axis=0) >= HIDDEN_SEEN_VIEWS)
+    if len(markers) == 0:
+        return False
+    at = posture.copy()
+    at[part.dofs] = q
+    proj = rig.project(model.marker_positions(at)) + off[:, None, :]  # (V, M, 2)
+    near2 = max(float(params.fusion_px), CLAIM_PX) ** 2
+    unexplained = []
+    for v in range(len(start) - 1):
+        blobs = points[start[v]:start[v + 1], :2]
+        gap = blobs[:, None, :] - proj[v][None]  # (n, M, 2)
+        unexplained.append(blobs[np.einsum("nmk,nmk->nm", gap, gap).min(axis=1) > near2] if len(blobs)
+                           else blobs)
+    for m in markers:
+        views = [u if hidden[v, m] else u[:0] for v, u in enumerate(unexplained)]
+        found = triangulate(Detections.from_views(views), rig=rig, offsets=off)
+        if np.any(found.n_views >= HIDDEN_SEEN_VIEWS):
+            return True
+    return False
 
 
 def _may_leave_out(left_out: np.ndarray, start: np.ndarray, fused: np.ndarray | None = None) -> bool:

@@ -209,18 +209,67 @@ def test_an_image_with_one_leg_in_another_basin_is_re_analysed():
     for SA, 38° off. The image scored 33 px against the others' 1.5-7, an outlier, but under
     the sum of the parts' ε (40.5 px), so it was not re-analysed and was reported ``ok``.
     Above the smallest part's ε, it is re-analysed and ends on the truth."""
-    subject = replace(load("hexapod", 6), fps=50.0)
-    truth = subject.trajectory(72, np.random.default_rng(0))[60:]
+    truth, fits = _fly_at_50_hz("hexapod", 72, 60)
+    assert fits[-1].attempts > 1
+    assert angle_errors(fits[-1].dofs, truth[-1]).max() < 0.5
+
+
+def test_a_re_analysis_searches_a_leg_whose_hidden_marker_meets_in_space():
+    """The free fly (6 cameras, 2 ghost blobs per view, seed 0) at 50 Hz, images 26-37: image
+    37's warm start stood in with a hind leg 36° off, a marker left out as hidden in several
+    views, and its objective (30 px against a median of 1.4) sent it to re-analysis. There
+    the kept posture's warm start stood in again the same way and the image settled, 36°
+    off, ``ok``, with no alternative. The unexplained blobs of those views pair up in space
+    (``_hidden_marker_triangulated``): the leg is searched, and the image ends on the truth."""
+    truth, fits = _fly_at_50_hz("freefly", 38, 26)
+    assert fits[-1].attempts > 1
+    assert angle_errors(fits[-1].dofs, truth[-1]).max() < 0.5
+
+
+def _fly_at_50_hz(name: str, n: int, first: int) -> tuple[np.ndarray, list[ImageFit]]:
+    """The benchmark subject ``name``'s movement (seed 0) of ``n`` images filmed at 50 Hz by
+    its 6 cameras, images ``first`` to ``n - 1`` rendered (2 ghost blobs per view) and
+    fitted by ``fit_sequence``: their truth and fits."""
+    subject = replace(load(name, 6), fps=50.0)
+    truth = subject.trajectory(n, np.random.default_rng(0))[first:]
     frames = [render_frames(subject.model, subject.rig, truth, rng=np.random.default_rng(k), video=k,
                             frame_size=subject.frame_size, marker_diameter_px=MARKER_DIAMETER_PX,
                             ghosts_per_view=2) for k in range(subject.rig.n_videos)]
     data = Rendered(truth, [detect(list(image), rig=subject.rig) for image in zip(*frames, strict=True)],
                     0.0)
-    fits = fit_sequence(data.detections, model=subject.model, rig=subject.rig,
-                        histograms=Histograms.uniform(subject.model, prior_weight=100.0),
-                        params=fit_params(data)[0], seed=0).fits
-    assert fits[-1].attempts > 1
-    assert angle_errors(fits[-1].dofs, truth[-1]).max() < 0.5
+    return truth, fit_sequence(data.detections, model=subject.model, rig=subject.rig,
+                               histograms=Histograms.uniform(subject.model, prior_weight=100.0),
+                               params=fit_params(data)[0], seed=0).fits
+
+
+def test_a_marker_left_out_as_hidden_whose_blobs_meet_in_space_was_not_hidden(legs):
+    """``_hidden_marker_triangulated`` on leg 0 of the two-legged insect, its knee 30° off
+    the truth so that the claw misses its blobs: the claw left out as hidden in all three
+    views, whose claw blobs no marker explains and meet in space, was seen after all.
+    Truly hidden (no blob there), or left out of two views only (two blobs on each other's
+    epipolar lines meet by chance), it may be hidden."""
+    model, rig, truth, _ = legs
+    q = truth[1]
+    part = model.tree.branches[0]
+    claw = 3
+    wrong = q[part.dofs].copy()
+    knee = list(part.dofs).index(model.dof_names.index("leg0_knee"))
+    wrong[knee] += 30.0 if wrong[knee] < 100.0 else -30.0
+    proj = rig.project(model.marker_positions(q))  # (V, M, 2)
+
+    def seen_after_all(*hidden_views: int, drawn: tuple[int, ...] = (0, 1, 2)) -> bool:
+        views = [proj[v] if v in drawn else np.delete(proj[v], part.markers[claw], axis=0)
+                 for v in range(len(rig.views))]
+        det = Detections.from_views(views)
+        hidden = np.zeros((len(rig.views), len(part.markers)), dtype=bool)
+        hidden[list(hidden_views), claw] = True
+        return treefit._hidden_marker_triangulated(q, part, det.kernel_points, det.start, model, rig,
+                                                   FitParams(), np.zeros((len(rig.views), 2)),
+                                                   wrong, hidden)
+
+    assert seen_after_all(0, 1, 2)
+    assert not seen_after_all(0, 1, 2, drawn=())
+    assert not seen_after_all(0, 1)
 
 
 def test_a_dof_placed_only_by_hidden_markers_needs_two_views_of_three_and_one_of_two(legs):
