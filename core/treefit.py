@@ -164,7 +164,11 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     (:func:`part_objective`), and ``eps`` (per projection) shrinks in proportion. Such a
     blob is two markers fused, off each by pixels, which no posture of this part alone
     explains: left in, it keeps a leg that fits everywhere else above ε (the joint
-    refinement reads it as fused).
+    refinement reads it as fused). They are read at the posture the warm start came from,
+    so a warm start judged without them must leave every DOF placed in two views (one with
+    two cameras, :func:`_left_in_too_few_views`): at 50 Hz the free fly's hind claw, next
+    to another leg's marker in the previous image, was left out in enough views to free
+    the tarsus, and the warm start stood in 25° off.
 
     A warm start stands in only where the projections it is judged on lie in two views,
     wherever the part has detections in two or more (:func:`_judged_in_two_views`): the claim
@@ -192,7 +196,8 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
             q = _kernels.refine(q, bounds, kin, rig.arrays, image, float(params.anneal.huber_px), WARM_STEPS,
                                 _kernels.NO_TARGETS)
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
-        if value < WARM_EPS_FACTOR * eps and views:
+        if value < WARM_EPS_FACTOR * eps and views and not (
+                unseen.any() and _left_in_too_few_views(unseen, q, kin, image)):
             return q, value, True
         if params.refine and views and (seen := _without_lost(q, row[dofs], kin, image, bounds, rig,
                                                               params, eps, unexplained)) is not None:
@@ -277,10 +282,13 @@ def _left_in_too_few_views(lost: np.ndarray, q: np.ndarray, kin, image: _kernels
     the same angles (docs/BENCH_SUBJECTS.md, the free fly). With two cameras a
     hidden marker is left to one view, as it is by the objective anyway. Projections
     ``image.unseen`` leaves out (next to another part's marker) count as compared:
-    :func:`_may_leave_out` judged them, and a fusion places them."""
+    :func:`_may_leave_out` judged them, and a fusion places them. (:func:`warm_start` asks
+    the same of those projections themselves, passed as ``lost``.)"""
     seen = _seen_views(image.start)
     compared = seen[:, None] & ~lost  # (V, m)
     needed = 2 if np.count_nonzero(seen) >= 3 else 1
+    if (np.count_nonzero(compared, axis=0)[lost.any(axis=0)] >= needed).all():
+        return False  # each lost marker is compared in enough views, so each DOF moving it is
     moved = _moved_markers(q, kin)  # (d, m)
     for dof in np.flatnonzero(moved[:, lost.any(axis=0)].any(axis=1)):  # DOFs moving a lost marker
         if np.count_nonzero(compared[:, moved[dof]].any(axis=1)) < needed:
