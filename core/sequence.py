@@ -67,7 +67,7 @@ __all__ = [
 
 MAX_CARRIED = 2  # alternatives of an image followed on to the next, at most
 CYCLE_HISTORY = 64  # images searched for the previous cycle's matching posture
-CYCLE_MIN_IMAGES = 4
+CYCLE_MIN_IMAGES = 4  # fitted images before the cycle is searched (2 steps besides the last one)
 
 
 @dataclass(frozen=True)
