@@ -174,11 +174,12 @@ def fit_chunk(
 
 def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:
     """Warm starts of the image after ``fits`` (the chunk's so far), (k, D), best guess first:
-    the last posture moved on by its last step (constant velocity, within the ranges), then
-    the last posture itself, then, from the chunk's fourth image on, each part moved on by
-    the step its previous cycle took from the same posture (:func:`_next_in_cycle`); None
-    at a chunk's first image and after an image without a posture, so that a chunk's fits
-    depend on nothing before it.
+    the last posture moved on by its last step (constant velocity, within the ranges), then,
+    from the chunk's fourth image on, each part moved on by the step its previous cycle took
+    from the same posture (:func:`_next_in_cycle`), then the last posture itself (last:
+    ``core.fit`` reads it as the previous image's posture); None at a chunk's first image
+    and after an image without a posture, so that a chunk's fits depend on nothing before
+    it.
 
     >>> from core.examples import LOCUST
     >>> from core.model import KinematicModel
@@ -196,7 +197,7 @@ def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | No
         return last[None]
     rows = [np.clip(2.0 * last - before, model.lower, model.upper), last]
     if (cycle := _next_in_cycle(fits, model)) is not None:
-        rows.append(cycle)
+        rows.insert(1, cycle)
     return np.vstack(rows)
 
 

@@ -783,7 +783,7 @@ def test_the_previous_images_alternative_is_followed_where_the_warm_start_carrie
 
 def test_the_previous_cycle_predicts_each_leg_where_its_last_step_does_not():
     """Two legs cycling with periods of 5 and 7 images (a fly's steps filmed at 50 Hz): after
-    one cycle of each, the third warm start (``_next_in_cycle``) is the next posture of both
+    one cycle of each, the second warm start (``_next_in_cycle``) is the next posture of both
     legs, each matched in its own cycle, where the constant-velocity one is degrees off."""
     model = insect(legs=2)
     mid, half = (model.lower + model.upper) / 2, (model.upper - model.lower) / 4
@@ -794,6 +794,7 @@ def test_the_previous_cycle_predicts_each_leg_where_its_last_step_does_not():
     fits = [ImageFit(t, q, 0.1, 0.1, 1, Status.OK, 1, (8, 8, 8)) for t, q in enumerate(postures[:-1])]
     warm = _warm_starts(fits, model)
     assert warm.shape == (3, len(model.dofs))
-    assert np.abs(warm[2] - postures[-1]).max() < 1e-9
+    assert np.abs(warm[1] - postures[-1]).max() < 1e-9
     assert np.abs(warm[0] - postures[-1]).max() > 5.0
+    assert np.array_equal(warm[-1], postures[-2])  # the previous image's posture stays last
     assert _warm_starts(fits[:3], model).shape == (2, len(model.dofs))
