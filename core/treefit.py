@@ -245,17 +245,18 @@ def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bo
     unseen, start = image.unseen, image.start
     if (without := _left_out_with_lost(q, kin, rig, image)) is None:
         return None
-    if _left_in_too_few_views(without & ~unseen if unseen.size else without, q, kin, image):
+    lost = without & ~unseen if unseen.size else without  # those left out as hidden
+    if _left_in_too_few_views(lost, q, kin, image):
         return None
     compared = _compared(unseen, start, len(kin.marker_joint))
-    hidden = int(np.count_nonzero(without)) - int(np.count_nonzero(unseen))
+    hidden = int(np.count_nonzero(lost))
     refined = _kernels.refine(np.ascontiguousarray(row), bounds, kin, rig.arrays,
                               image._replace(unseen=without), float(params.anneal.huber_px), WARM_STEPS,
                               _kernels.NO_TARGETS)
     value = part_objective(refined, kin, image.det, start, without, rig, params, image.offset)
     if value >= WARM_EPS_FACTOR * eps * (1.0 - hidden / compared):
         return None
-    if unexplained is not None and unexplained(refined, without & ~unseen if unseen.size else without):
+    if unexplained is not None and unexplained(refined, lost):
         return None
     return refined
 
@@ -737,10 +738,8 @@ def _hidden_marker_triangulated(posture: np.ndarray, part: Part, points: np.ndar
     near2 = max(float(params.fusion_px), CLAIM_PX) ** 2
     unexplained = []
     for v in range(len(start) - 1):
-        blobs = points[start[v]:start[v + 1], :2]
-        gap = blobs[:, None, :] - proj[v][None]  # (n, M, 2)
-        unexplained.append(blobs[np.einsum("nmk,nmk->nm", gap, gap).min(axis=1) > near2] if len(blobs)
-                           else blobs)
+        blobs = points[start[v]:start[v + 1], :2]  # each blob's nearest projection, roles swapped
+        unexplained.append(blobs[nearest_detection(blobs, proj[v])[1] > near2] if len(blobs) else blobs)
     for m in markers:
         views = [u if hidden[v, m] else u[:0] for v, u in enumerate(unexplained)]
         found = triangulate(Detections.from_views(views), rig=rig, offsets=off)
