@@ -1,7 +1,7 @@
 """OpenSim's own readers load our .mot and .trc (the opensim extra, ~380 MB).
 
-Deselected by the default ``-m 'not opensim'``; the second step of ``.ci/run`` installs the
-extra and runs ``pytest -m opensim``, where a missing opensim fails the import below.
+Deselected by the default ``-m 'not opensim'``; the last step of ``.ci/run`` installs the
+extra and selects them, where a missing opensim fails the import below.
 """
 
 from __future__ import annotations
