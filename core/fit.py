@@ -283,7 +283,7 @@ def fit_image(
     offsets: np.ndarray | None = None,
     warm: np.ndarray | None = None,
     ceilings: Callable[[], Mapping[str, float]] | None = None,
-) -> tuple[np.ndarray, float, float, int]:
+) -> tuple[np.ndarray, float, float, int, np.ndarray]:
     """One attempt on one image: SA from the histogram means (paper §3.1), then refinement.
 
     ``draw_start`` starts from a posture drawn from the histograms instead
@@ -309,7 +309,10 @@ def fit_image(
 
     Returns
     -------
-    (dofs (D,), plain Eq. 5 error in pixels, minimised objective, SA iterations)
+    (dofs (D,), plain Eq. 5 error in pixels, minimised objective, SA iterations, searched
+    (D,) bool: where SA ran, False for the DOFs of a tree's parts that a warm start placed,
+    standing in for SA under twice their ε (``core.treefit._searched``); a chain's every DOF
+    where SA ran)
     """
     check_views(detections, rig)
     off = view_offsets(offsets, rig)
@@ -320,7 +323,7 @@ def fit_image(
         np.arange(len(model.dofs)), model.arrays, detections.kernel_points, detections.start,
         model, rig, space, params, params.anneal.eps, stream, draw_start, off,
     )
-    return dofs, float(error), float(objective), int(iterations)
+    return dofs, float(error), float(objective), int(iterations), np.full(len(dofs), iterations > 0)
 
 
 def flip_geometry(model: KinematicModel, rig: Rig) -> FlipGeometry | TreeFlips:
@@ -392,7 +395,7 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     """
     settled = False
     if keep is None:
-        dofs, error, objective, its = fit_image(
+        dofs, error, objective, its, searched = fit_image(
             det, model=model, rig=rig, space=space, params=params, stream=stream,
             draw_start=draw_start, offsets=offsets, warm=warm, ceilings=ceilings,
         )
@@ -411,7 +414,7 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             huber_px=params.anneal.huber_px, offsets=offsets,
         )
         if warm is not None:
-            others += _warm_alternatives(fit, others, warm, carried, its > 0, det, model, rig,
+            others += _warm_alternatives(fit, others, warm, carried, searched, det, model, rig,
                                          params, tolerance, offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
     if len(ranked) == 1:
@@ -509,7 +512,7 @@ def tolerance_readings(params: FitParams, det: Detections, model: KinematicModel
 
 
 def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray,
-                       carried: np.ndarray | None, searched: bool, det: Detections,
+                       carried: np.ndarray | None, searched: np.ndarray, det: Detections,
                        model: KinematicModel, rig: Rig, params: FitParams, tolerance: float,
                        offsets: np.ndarray | None) -> list[Candidate]:
     """The previous image's posture (``warm[-1]``, of the warm starts (k, D)) refined on this
@@ -518,12 +521,15 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     other alternative in some rotational DOF; and the previous image's alternatives
     (``carried``, (k, D) or None), reported only.
 
-    The previous posture is tried only where SA ran (``searched``: with no SA iteration
-    every part came from the warm starts) and the fit left the warm starts' basin (moved
-    more than :data:`~core.ambiguity.DISTINCT_DEG` from each of them; at 50-200 Hz most
-    images do not, and nothing is refined). For a tree (``core.tree``), each part that
-    moved is taken from ``warm[-1]`` on its own, the rest of the fit kept: one leg that
-    jumped must not need every other leg to be as it was. At most the best two are kept.
+    The previous posture is tried only where the attempt searched (``searched``, (D,) bool,
+    :func:`fit_image`'s) and the fit left the warm starts' basin (moved more than
+    :data:`~core.ambiguity.DISTINCT_DEG` from each of them; at 50-200 Hz most images do
+    not, and nothing is refined). A part a warm start placed is those postures refined on
+    this image already: at 50 Hz a leg moves 20-30° between images, so it left their basin,
+    and refining ``warm[-1]`` again found its own fit. For a tree
+    (``core.tree``), each searched part that moved is taken from ``warm[-1]`` on its own,
+    the rest of the fit kept: one leg that jumped must not need every other leg to be as it
+    was. At most the best two are kept.
 
     A carried alternative is tried wherever it differs from the fit: where the warm start
     carries a wrong minimum on and this image supports it as well as the right one, SA
@@ -554,7 +560,7 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
         start[dofs] = source[dofs]
         return start
 
-    starts = [spliced(warm[-1], dofs) for dofs in parts if searched and moved(dofs)]
+    starts = [spliced(warm[-1], dofs) for dofs in parts if searched[dofs].any() and moved(dofs)]
     followed = [a for a in (() if carried is None else carried) if distinct(a, fit.dofs, rot)]
     off = view_offsets(offsets, rig)
     found: list[Candidate] = []

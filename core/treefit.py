@@ -461,18 +461,19 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
              params: FitParams, stream: np.ndarray, draw_start: bool, off: np.ndarray,
              warm: np.ndarray | None = None,
              ceilings: Callable[[], Mapping[str, float]] | None = None
-             ) -> tuple[np.ndarray, float, float, int]:
+             ) -> tuple[np.ndarray, float, float, int, np.ndarray]:
     """One attempt on one image, part by part: (dofs (D,), plain Eq. 5 error, objective, SA
-    iterations), as :func:`core.fit.fit_image` returns them. Each part first tries its
-    posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
+    iterations, searched (D,) bool), as :func:`core.fit.fit_image` returns them. Each part
+    first tries its posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
     where none reaches twice the part's ε or its ceiling in ``ceilings()`` (by part name,
     :func:`warm_ceilings` of the previous image, asked for once, where a part first needs
     it), keeping the warm start where SA ends higher.
     A branch that SA leaves above its ε tries its triangulated start too
     (:func:`epipolar_start`), kept where it ends lower; with two views, every branch does
     (:func:`_two_view_starts`)."""
-    return _fit_tree(det, model, rig, tree, space, params, stream, draw_start, off, warm,
-                     ceilings)[:4]
+    q, error, objective, iterations, _, searched = _fit_tree(det, model, rig, tree, space, params, stream,
+                                                             draw_start, off, warm, ceilings)
+    return q, error, objective, iterations, searched
 
 
 def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
@@ -518,16 +519,17 @@ def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spa
     unexplained blobs meet in space (:func:`_hidden_marker_triangulated`).
     """
     return _fit_tree(det, model, rig, tree, space, params, stream, True, off, keep[None], None,
-                     keep)
+                     keep)[:5]
 
 
 def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
               params: FitParams, stream: np.ndarray, draw_start: bool, off: np.ndarray,
               warm: np.ndarray | None, ceilings: Callable[[], Mapping[str, float]] | None,
-              keep: np.ndarray | None = None) -> tuple[np.ndarray, float, float, int, bool]:
+              keep: np.ndarray | None = None
+              ) -> tuple[np.ndarray, float, float, int, bool, np.ndarray]:
     """:func:`fit_tree`, or :func:`refit_tree` given the kept posture ``keep`` (D,) (then
-    ``warm`` is ``keep[None]``); the last value is :func:`refit_tree`'s settled (False
-    without ``keep``)."""
+    ``warm`` is ``keep[None]``): :func:`refit_tree`'s five values (settled False without
+    ``keep``), then :func:`fit_tree`'s searched (:func:`_searched`)."""
     q = space.mean.copy() if keep is None else keep.copy()
     gained: list[Part] = []  # parts whose drawn-start search ended lower than ``keep``'s
     iterations = 0
@@ -537,6 +539,7 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
     minima: dict[str, list[np.ndarray]] = {}  # per part, its SA runs' and warm start's postures
     asked: dict[str, float] = {}  # ``ceilings()``, once a part first needs it
     done = np.zeros(len(q), dtype=bool)  # the DOFs of the parts fitted so far in this attempt
+    placed: dict[str, np.ndarray] = {}  # per part, a warm start that stood in under 2 ε (_searched)
 
     def levels(name: str) -> float:
         if not asked and ceilings is not None:
@@ -564,10 +567,15 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
                                          rig, tree, params, eps, off, unseen, ceiling, unexplained)
         if tried is not None and tried[2]:
             q[part.dofs] = tried[0]
+            if tried[1] < WARM_EPS_FACTOR * eps:
+                placed[part.name] = tried[0]
+            else:  # judged without its hidden projections, or under its ceiling
+                placed.pop(part.name, None)
             return True
         if defer:
             done[part.dofs] = False
             return False
+        placed.pop(part.name, None)
         stop = eps if keep is None or tried is None else _reanalysis_stop(tried[0], eps, kin, points, start,
                                                                           rig, params, off)
         q[part.dofs], _, _, its, runs = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
@@ -668,7 +676,26 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
     q, error, objective = refine_whole(q, det, model, rig, params, off, steps)
     rot = model.rotational
     settled = keep is not None and not any(distinct(q[p.dofs], keep[p.dofs], rot[p.dofs]) for p in gained)
-    return q, error, objective, iterations, settled
+    return q, error, objective, iterations, settled, _searched(q, tree, placed, rot, iterations)
+
+
+def _searched(q: np.ndarray, tree: Tree, placed: Mapping[str, np.ndarray], rot: np.ndarray,
+              iterations: int) -> np.ndarray:
+    """(D,) bool: all False where no SA ran (``iterations`` 0: every part came from its warm
+    starts); else False for the DOFs of each part a warm start placed (``placed``, by part
+    name: it stood in for SA with its objective under :data:`WARM_EPS_FACTOR` times the
+    part's ε, no projection left out as hidden) and that is still within
+    :data:`~core.ambiguity.DISTINCT_DEG` of it in
+    ``q`` (the conflict sweeps, the trunk judged by the whole model, the two-view starts or
+    the joint refinement did not move it away), True elsewhere. A warm start that stood in
+    without its hidden projections, or under its ceiling, leaves the part searched: the image
+    judged it less closely, and the previous posture refined may land in another minimum
+    that the choice by continuity needs (``core.fit._warm_alternatives``)."""
+    searched = np.full(len(q), iterations > 0)
+    for part in tree.parts:
+        if part.name in placed and not distinct(q[part.dofs], placed[part.name], rot[part.dofs]):
+            searched[part.dofs] = False
+    return searched
 
 
 def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], posture: np.ndarray, kin,

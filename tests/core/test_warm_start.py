@@ -63,6 +63,11 @@ def legs() -> tuple[KinematicModel, Rig, np.ndarray, list[Detections]]:
 
 
 def _one(model, rig, det, warm=None, ceilings=None):
+    """fit_image's posture, error, objective and SA iterations."""
+    return _searched_too(model, rig, det, warm, ceilings)[:4]
+
+
+def _searched_too(model, rig, det, warm=None, ceilings=None):
     space = search_space(model, Histograms.uniform(model))
     return fit_image(det, model=model, rig=rig, space=space, params=FitParams(),
                      stream=image_stream(0, 1, 1), warm=warm,
@@ -86,6 +91,28 @@ def test_a_previous_posture_far_from_this_image_is_not_taken(legs):
     fitted, _, _, its = _one(model, rig, images[1], warm=wrong[None])
     assert its > 0
     assert angle_errors(fitted, truth[1]).max() < 0.5
+
+
+def test_searched_marks_the_parts_sa_placed_not_those_a_warm_start_placed(legs):
+    """Leg 1's warm start mirrored within its range, leg 0's the previous posture: SA runs
+    for leg 1 alone, and fit_image says so. ``core.fit._warm_alternatives`` refines the
+    previous posture only for searched parts: leg 0 is that posture refined already. With
+    leg 0's claw hidden from one camera its warm start stands in only once that projection
+    is left out, judged less closely: leg 0 counts as searched then."""
+    model, rig, truth, images = legs
+    leg0, leg1 = (part.dofs for part in model.tree.branches)
+    warm = truth[0].copy()
+    warm[leg1] = (model.lower + model.upper - truth[0])[leg1]
+    fitted, _, _, its, searched = _searched_too(model, rig, images[1], warm=warm[None])
+    assert its > 0 and angle_errors(fitted, truth[1]).max() < 0.5
+    assert searched[leg1].all() and not searched[leg0].any()
+    _, _, _, its, searched = _searched_too(model, rig, images[1], warm=truth[:1])
+    assert its == 0 and not searched.any()
+    claw = int(model.tree.branches[0].markers[-1])
+    hidden = _hiding(model, rig, truth[1], view=0, marker=claw)
+    fitted, _, _, its, searched = _searched_too(model, rig, hidden, warm=warm[None])
+    assert its > 0 and angle_errors(fitted, truth[1]).max() < 0.5
+    assert searched.all()
 
 
 def _hiding(model: KinematicModel, rig: Rig, posture: np.ndarray, view: int, marker: int) -> Detections:
@@ -138,8 +165,9 @@ def test_a_warm_start_on_blobs_the_detector_merged_stands_in_where_each_marker_k
     knee, claw = (int(m) for m in model.tree.branches[0].markers[[1, 3]])
     image = _merging(model, rig, truth[1], [(0, knee), (1, claw)], apart_px=8.0)
     space = search_space(model, Histograms.uniform(model))
-    fitted, _, _, its = fit_image(image, model=model, rig=rig, space=space, params=FitParams(fusion_px=8.0),
-                                  stream=image_stream(0, 1, 1), warm=truth[:1])
+    fitted, _, _, its, _ = fit_image(image, model=model, rig=rig, space=space,
+                                     params=FitParams(fusion_px=8.0), stream=image_stream(0, 1, 1),
+                                     warm=truth[:1])
     if cameras == 3:
         assert its == 0 and angle_errors(fitted, truth[1]).max() < 0.5
     else:
