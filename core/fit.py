@@ -526,10 +526,10 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     :data:`~core.ambiguity.DISTINCT_DEG` from each of them; at 50-200 Hz most images do
     not, and nothing is refined). A part a warm start placed is those postures refined on
     this image already: at 50 Hz a leg moves 20-30° between images, so it left their basin,
-    and refining ``warm[-1]`` again found its own fit. For a tree
-    (``core.tree``), each searched part that moved is taken from ``warm[-1]`` on its own,
-    the rest of the fit kept: one leg that jumped must not need every other leg to be as it
-    was. At most the best two are kept.
+    and refining ``warm[-1]`` again found its own fit. For a tree (``core.tree``), each
+    searched part that moved is taken from ``warm[-1]`` on its own, the rest of the fit
+    kept: one leg that jumped must not need every other leg to be as it was. At most the
+    best two are kept.
 
     A carried alternative is tried wherever it differs from the fit: where the warm start
     carries a wrong minimum on and this image supports it as well as the right one, SA
