@@ -569,7 +569,7 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             q[part.dofs] = tried[0]
             if tried[1] < WARM_EPS_FACTOR * eps:
                 placed[part.name] = tried[0]
-            else:  # judged without its hidden projections, or under its ceiling
+            else:  # stood in above 2 ε: without its hidden projections, or under its ceiling
                 placed.pop(part.name, None)
             return True
         if defer:
@@ -682,13 +682,14 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
 def _searched(q: np.ndarray, tree: Tree, placed: Mapping[str, np.ndarray], rot: np.ndarray,
               iterations: int) -> np.ndarray:
     """(D,) bool: all False where no SA ran (``iterations`` 0: every part came from its warm
-    starts); else False for the DOFs of each part a warm start placed (``placed``, by part
-    name: it stood in for SA with its objective under :data:`WARM_EPS_FACTOR` times the
-    part's ε, no projection left out as hidden) and that is still within
-    :data:`~core.ambiguity.DISTINCT_DEG` of it in
-    ``q`` (the conflict sweeps, the trunk judged by the whole model, the two-view starts or
-    the joint refinement did not move it away), True elsewhere. A warm start that stood in
-    without its hidden projections, or under its ceiling, leaves the part searched: the image
+    starts); else False for the DOFs of each part a warm start placed and True elsewhere.
+
+    Placed (``placed``, by part name): the warm start stood in for SA with its part
+    objective under :data:`WARM_EPS_FACTOR` times the part's ε, and the part is still
+    within :data:`~core.ambiguity.DISTINCT_DEG` of it in ``q`` (the conflict sweeps, the
+    trunk judged by the whole model, the two-view starts or the joint refinement did not
+    move it away). A warm start that stood in above that objective, once its hidden
+    projections were left out or under its ceiling, leaves the part searched: the image
     judged it less closely, and the previous posture refined may land in another minimum
     that the choice by continuity needs (``core.fit._warm_alternatives``)."""
     searched = np.full(len(q), iterations > 0)
