@@ -223,7 +223,8 @@ def choose_candidates(candidates: Sequence[Sequence[Candidate]]) -> list[int]:
         end = t
         while end < n and candidates[end]:
             end += 1
-        choice[t:end] = _viterbi(candidates[t:end], error_scale, step)
+        if end > t:  # not an image without detections (the first, or one after another)
+            choice[t:end] = _viterbi(candidates[t:end], error_scale, step)
         t = end + 1
     return choice
 

@@ -99,6 +99,21 @@ def test_an_image_without_detections_breaks_the_chain():
     assert choose_candidates(run)[1] == 1
 
 
+@pytest.mark.parametrize("empty", [(0,), (1, 2), (3,)])
+def test_images_without_detections_first_in_a_row_or_last_break_the_chain(empty):
+    """A capture that starts dark, or loses the animal for two images, or ends dark: the
+    images with detections are still chosen among (here the last one's lower objective
+    wins), the empty ones keep index 0."""
+    run = [_cands([10.0 + k], [-10.0 - k]) for k in range(4)]
+    run[-1] = [Candidate(np.array([13.0]), 0.5, 0.5), Candidate(np.array([-13.0]), 0.01, 0.01)]
+    for k in empty:
+        run[k] = []
+    chosen = choose_candidates(run)
+    assert [chosen[k] for k in empty] == [0] * len(empty)
+    if 3 not in empty:
+        assert chosen[3] == 1
+
+
 def test_records_keep_the_alternatives():
     fit = ImageFit(4, np.array([1.0, 2.0]), 0.1, 0.1, 1, Status.OK, 500, (4,),
                    (Candidate(np.array([3.0, np.nan]), 0.2, 0.15),))
