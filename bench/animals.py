@@ -1,7 +1,7 @@
 """Whole-animal accuracy and speed benchmark (issue 13): subjects from published anatomy.
 
-    python bench/animals.py [--subject hexapod|freefly|biped|fullbody|stick|locust|rat|mouse|all] [--images N]
-        [--cameras 6|3|2] [--soft-tissue] [--ghosts N] [--occlusion F] [--seed S] [--jobs 1]
+    python bench/animals.py [--subject hexapod|freefly|biped|fullbody|stick|locust|rat|mouse|spider|all]
+        [--images N] [--cameras 6|4|3|2] [--soft-tissue] [--ghosts N] [--occlusion F] [--seed S] [--jobs 1]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
 is rendered by ``core.synth`` (5 px markers, ``--ghosts`` ghost blobs per view and image:
@@ -92,7 +92,7 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
         hidden = occlusion_mask((n, len(subject.rig.views), len(model.markers)), occlusion,
                                 mean_run, rng)
     frames = [
-        render_frames(model, subject.rig, truth, rng=r, video=k, frame_size=subject.frame_size,
+        render_frames(model, subject.rig, truth, rng=r, video=k, frame_size=subject.size_of(k),
                       marker_diameter_px=MARKER_DIAMETER_PX, ghosts_per_view=ghosts,
                       drop=hidden, marker_offsets_px=offsets)
         for k, r in enumerate(noise)
@@ -327,8 +327,9 @@ def main() -> None:
     parser.add_argument("--subject", choices=(*NAMES, "all"), default="all")
     parser.add_argument("--images", type=int, default=20,
                         help="images per subject (the engine of 2026-11-23 fits ~0.05 hexapod images/s)")
-    parser.add_argument("--cameras", type=int, choices=(6, 3, 2), default=None,
-                        help="fly cameras (hexapod, freefly: default 6) or rat cameras (default 3)")
+    parser.add_argument("--cameras", type=int, choices=(6, 4, 3, 2), default=None,
+                        help="fly cameras (hexapod, freefly: default 6), rat cameras (default 3) or "
+                             "spider cameras (default 4)")
     parser.add_argument("--soft-tissue", action="store_true",
                         help="skin markers slide 2 px RMS; unmodelled markers in every view")
     parser.add_argument("--ghosts", type=int, default=None,

@@ -1,7 +1,8 @@
 """Benchmark subjects: model, rig and natural movements of whole animals (``bench/animals.py``).
 
 Each subject is a model (FORMATS §1) and a rig (FORMATS §2) in ``bench/subjects/<name>/``
-or ``core/examples/<name>/``, a frame size, a frame rate, and a movement generator:
+or ``core/examples/<name>/``, a frame size (per video where they differ), a frame rate, and a
+movement generator:
 
 - ``hexapod``: a tethered fruit fly, 6 legs × 7 DOFs, walking in a tripod gait;
 - ``freefly``: the same fly with its thorax free (3 translations, 3 rotations), turning,
@@ -11,6 +12,8 @@ or ``core/examples/<name>/``, a frame size, a frame rate, and a movement generat
 - ``rat``: a rat's hindquarters trotting on a treadmill, filmed from both sides and below;
 - ``mouse``: a whole mouse trotting along a walkway, one camera filming it from the side and
   through a mirror from below;
+- ``spider``: a wolf spider, its cephalothorax free, 8 legs × 6 DOFs, walking in an
+  alternating tetrapod gait, filmed by four cameras of two frame sizes;
 - ``stick`` and ``locust``: the examples, moved by ``core.synth.natural_movements``.
 
 Sources of the anatomy: ``docs/BENCH_SUBJECTS.md``.
@@ -30,13 +33,18 @@ from core.rig import Rig
 from core.synth import natural_movements
 
 ROOT = Path(__file__).resolve().parents[2]
-NAMES = ("hexapod", "freefly", "biped", "fullbody", "stick", "locust", "rat", "mouse")
+NAMES = ("hexapod", "freefly", "biped", "fullbody", "stick", "locust", "rat", "mouse", "spider")
 # Camera subsets of the hexapod's six (a ring at 30, 90, …, 330° azimuth): every other one,
 # and the two side cameras.
 HEXAPOD_CAMERAS = {6: (0, 1, 2, 3, 4, 5), 3: (0, 2, 4), 2: (1, 4)}
 # The rat's three (right, left, below) and its two side cameras.
 RAT_CAMERAS = {3: (0, 1, 2), 2: (0, 1)}
-CAMERAS = {"hexapod": HEXAPOD_CAMERAS, "freefly": HEXAPOD_CAMERAS, "rat": RAT_CAMERAS}
+# The spider's four (two 1280x1024 high-speed, a wide 640x480, a 640x480 from above) and the
+# two high-speed cameras on opposite sides.
+SPIDER_CAMERAS = {4: (0, 1, 2, 3), 2: (0, 2)}
+SPIDER_SIZES = ((1280, 1024), (640, 480), (1280, 1024), (640, 480))
+CAMERAS = {"hexapod": HEXAPOD_CAMERAS, "freefly": HEXAPOD_CAMERAS, "rat": RAT_CAMERAS,
+           "spider": SPIDER_CAMERAS}
 
 
 @dataclass(frozen=True)
@@ -54,6 +62,11 @@ class Subject:
     fps: float
     movement: Callable[[Subject, int, np.random.Generator], np.ndarray]
     unmodelled: tuple[tuple[str, tuple[float, float, float]], ...]
+    frame_sizes: tuple[tuple[int, int], ...] | None = None  # per video, when they differ
+
+    def size_of(self, video: int) -> tuple[int, int]:
+        """The frame size of video ``video``."""
+        return self.frame_sizes[video] if self.frame_sizes else self.frame_size
 
     def trajectory(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """(n, D) true postures, model-file DOF order (degrees, model units)."""
@@ -68,7 +81,8 @@ class Subject:
 
 def load(name: str, cameras: int | None = None) -> Subject:
     """The subject ``name`` (one of :data:`NAMES`); ``cameras`` picks a subset of its views
-    (:data:`CAMERAS`: the flies' 6, 3 or 2, the rat's 3 or 2; all by default)."""
+    (:data:`CAMERAS`: the flies' 6, 3 or 2, the rat's 3 or 2, the spider's 4 or 2; all by
+    default)."""
     if name not in NAMES:
         raise ValueError(f"subject must be one of {', '.join(NAMES)}, got {name!r}")
     folder = {"stick": EXAMPLES / "stick_insect_front_leg",
@@ -80,6 +94,11 @@ def load(name: str, cameras: int | None = None) -> Subject:
             raise ValueError(f"{name!r} has no {cameras}-camera variant")
         # Each camera keeps its own video file: renumber the chosen ones 0..k-1.
         rig = Rig(tuple(replace(rig.views[v], video=i) for i, v in enumerate(CAMERAS[name][cameras])))
+    if name == "spider":  # unmodelled: a marker on the right leg 4 femur, mid-shaft
+        chosen = CAMERAS[name][cameras] if cameras is not None else SPIDER_CAMERAS[4]
+        sizes = tuple(SPIDER_SIZES[v] for v in chosen)
+        return Subject(name, model, rig, sizes[0], 100.0, spider_walk,
+                       (("R4_femur", (4.5, 0.4, 0.0)),), frame_sizes=sizes)
     if name in ("hexapod", "freefly"):
         return Subject(name, model, rig, (640, 480), 100.0,
                        tripod_walk if name == "hexapod" else free_walk,
@@ -395,6 +414,78 @@ def _cycle(keys: tuple[tuple[float, float], ...], phase: np.ndarray, harmonics: 
     k = np.arange(harmonics + 1)
     terms = coeffs[None, :] * np.exp(2j * np.pi * k[None, :] * phase[:, None])
     return (terms[:, 0] + 2 * terms[:, 1:].sum(axis=1)).real
+
+
+# ---- spider: alternating tetrapod gait ----------------------------------------------------------
+
+# Per leg pair 1-4: centre and amplitude (degrees) of coxa yaw (promotion +), coxa pitch,
+# femur pitch (levation +), patella pitch (flexion -), tibia yaw, metatarsus pitch.
+_SPIDER_DOFS = ("coxa_yaw", "coxa_pitch", "femur_pitch", "patella_pitch", "tibia_yaw",
+                "metatarsus_pitch")
+_SPIDER_CENTRE = {"1": (5, 5, 35, -50, 0, -30), "2": (0, 5, 35, -55, 0, -30),
+                  "3": (-5, 5, 38, -60, 0, -30), "4": (-8, 5, 35, -50, 0, -25)}
+_SPIDER_AMPLITUDE = {"1": (15, 4, 10, 15, 6, 12), "2": (14, 4, 10, 12, 6, 10),
+                     "3": (14, 4, 10, 12, 6, 10), "4": (16, 4, 10, 15, 6, 12)}
+# Phase leads over promotion (yaw = A cos phase; swing while it grows): levation in swing;
+# front legs extend the patella reaching forward, hind legs at push-off.
+_SPIDER_LEAD = {"1": 0.0, "2": 0.0, "3": np.pi, "4": np.pi}
+_TETRAPOD = {"L1": 0.0, "R2": 0.0, "L3": 0.0, "R4": 0.0, "R1": 0.5, "L2": 0.5, "R3": 0.5, "L4": 0.5}
+_SPIDER_STEP_HZ = (2.5, 4.5)
+_SPIDER_PASS_MM = 36.0
+_SPIDER_SPEED = (25.0, 45.0)  # mm/s
+
+
+def spider_walk(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
+    """A wolf spider walking across the arena in an alternating tetrapod gait (L1 R2 L3 R4
+    half a cycle from R1 L2 R3 L4), the step rate drifting within 2.5-4.5 Hz; each leg DOF a
+    sinusoid of the step phase about a drifting centre with drifting gain (as the fly's);
+    the cephalothorax on passes of 36 mm at 25-45 mm/s, heading ±35° and turning up to
+    ±25°/s (a new pass restarts at the other end: a jump, like a new trial), bobbing
+    ±0.3 mm twice per stride, yawing ±3°, rolling ±2° per stride, pitching; the abdomen swaying.
+    """
+    fps = subject.fps
+    t = np.arange(n) / fps
+    rate = _smooth_noise(rng, t, 1.0, *_SPIDER_STEP_HZ)
+    phase = 2 * np.pi * np.cumsum(rate) / fps + rng.uniform(0, 2 * np.pi)
+    names = subject.model.dof_names
+    q = np.zeros((n, len(names)))
+    cols: dict[str, np.ndarray] = {k: np.empty(n) for k in ("ceph_tx", "ceph_tz", "ceph_yaw")}
+    start = 0
+    while start < n:
+        speed = rng.uniform(*_SPIDER_SPEED)
+        length = min(n - start, int(_SPIDER_PASS_MM / speed * fps))
+        tt = np.arange(length) / fps
+        heading = np.radians(rng.uniform(-35, 35) + rng.uniform(-25, 25) * tt)
+        step = speed / fps
+        x = np.cumsum(step * np.cos(heading)) - step
+        z = np.cumsum(-step * np.sin(heading)) - step * 0
+        # centre the pass on the arena, a little to one side
+        x = x - 0.5 * _SPIDER_PASS_MM * np.cos(heading[0])
+        z = z + 0.5 * _SPIDER_PASS_MM * np.sin(heading[0]) + rng.uniform(-5, 5)
+        cols["ceph_tx"][start:start + length] = x
+        cols["ceph_tz"][start:start + length] = z
+        cols["ceph_yaw"][start:start + length] = np.degrees(heading)
+        start += length
+    swing = phase
+    q[:, names.index("ceph_tx")] = cols["ceph_tx"]
+    q[:, names.index("ceph_tz")] = cols["ceph_tz"]
+    q[:, names.index("ceph_yaw")] = cols["ceph_yaw"] + _smooth_noise(rng, t, 1.0, -5, 5) + 3 * np.cos(swing)
+    q[:, names.index("ceph_ty")] = -0.5 + 0.3 * np.cos(2 * swing)
+    q[:, names.index("ceph_roll")] = 2 * np.cos(swing - 0.3 * np.pi)
+    q[:, names.index("ceph_pitch")] = _smooth_noise(rng, t, 2.0, -3, 3) + 1.5 * np.cos(2 * swing)
+    q[:, names.index("abd_yaw")] = _smooth_noise(rng, t, 1.5, -6, 6) - 2 * np.cos(swing)
+    q[:, names.index("abd_pitch")] = _smooth_noise(rng, t, 2.0, -10, 5) + np.cos(2 * swing)
+    for leg, offset in _TETRAPOD.items():
+        pair, mirror = leg[1], 1.0 if leg[0] == "R" else -1.0
+        lead = (0.0, np.pi / 2, np.pi / 2, _SPIDER_LEAD[pair], np.pi / 3, _SPIDER_LEAD[pair] + 0.3)
+        for k, dof in enumerate(_SPIDER_DOFS):
+            gain = _smooth_noise(rng, t, 1.0, 0.7, 1.15)
+            drift = _smooth_noise(rng, t, 1.0, -0.4, 0.4) * _SPIDER_AMPLITUDE[pair][k]
+            value = _SPIDER_CENTRE[pair][k] + drift + gain * _SPIDER_AMPLITUDE[pair][k] * np.cos(
+                phase + 2 * np.pi * offset + lead[k])
+            sign = mirror if dof in ("coxa_yaw", "tibia_yaw") else 1.0
+            q[:, names.index(f"{leg}_{dof}")] = sign * value
+    return _inside(subject.model, q)
 
 
 # ---- helpers -------------------------------------------------------------------------------------

@@ -2,8 +2,9 @@
 
     python bench/subjects/build.py
 
-Rewrites ``bench/subjects/hexapod/``, ``freefly/``, ``biped/``, ``fullbody/``, ``rat/`` and
-``mouse/``; the files are committed, this script says how they were made. Sources and every number's origin:
+Rewrites ``bench/subjects/hexapod/``, ``freefly/``, ``biped/``, ``fullbody/``, ``rat/``,
+``mouse/`` and ``spider/``; the files are committed, this script says how they were made. Sources
+and every number's origin:
 ``docs/BENCH_SUBJECTS.md``.
 """
 
@@ -560,13 +561,123 @@ def mouse_rig() -> dict:
          "projection": {"type": "affine", "matrix": bottom}}]}
 
 
+# ---- spider: a wolf spider (Lycosidae) --------------------------------------------------------
+
+# A large female lycosid (Lycosa/Hogna, carapace about 10 mm). Leg segment lengths: the
+# proportions of taxonomic descriptions of large Lycosidae (leg formula IV > I > II > III),
+# rounded, not read from one paper's table; coxa and trochanter lengths ours. Frame: x
+# forward, y up, z right; mm.
+# coxa, trochanter, femur, patella, tibia, metatarsus, tarsus (mm), per leg pair 1..4
+SPIDER_SEGMENTS = {
+    "1": (3.2, 1.4, 8.0, 4.0, 6.6, 6.4, 3.6),
+    "2": (3.0, 1.3, 7.6, 3.8, 6.0, 6.2, 3.4),
+    "3": (2.8, 1.2, 7.0, 3.2, 5.2, 6.6, 3.2),
+    "4": (3.0, 1.3, 9.0, 3.6, 7.6, 10.4, 4.2),
+}
+# Coxa insertions around the sternum (x, y, z of the right leg; left mirrors z) and the
+# resting azimuth of each leg (degrees ahead of lateral).
+SPIDER_INSERTION = {"1": (2.6, 0.0, 2.4), "2": (1.0, 0.0, 3.1), "3": (-0.8, 0.0, 3.1),
+                    "4": (-2.4, 0.0, 2.4)}
+SPIDER_AZIMUTH = {"1": 45.0, "2": 15.0, "3": -15.0, "4": -45.0}
+# Ranges (degrees). coxa_yaw: promotion (+) / remotion about the resting azimuth;
+# coxa_pitch: levation (+) at the body-coxa joint; femur_pitch: coxa-trochanter and
+# trochanter-femur levation lumped; patella_pitch: femur-patella flexion (-);
+# tibia_yaw: patella-tibia lateral rotation; metatarsus_pitch: tibia-metatarsus flexion (-).
+# Ours, widened around reported walking excursions (body-coxa ~±30, femur-patella
+# ~60-80 deg of excursion, tibia-metatarsus ~40 in Cupiennius/Lycosa walking).
+SPIDER_RANGES = {
+    "coxa_yaw": (-45.0, 45.0), "coxa_pitch": (-25.0, 35.0), "femur_pitch": (-10.0, 80.0),
+    "patella_pitch": (-120.0, 10.0), "tibia_yaw": (-30.0, 30.0), "metatarsus_pitch": (-100.0, 15.0),
+}
+TARSUS_BEND = -15.0  # fixed bend of the tarsus against the metatarsus (rest about z)
+# Cephalothorax markers (on the carapace) and the pedicel/abdomen.
+CEPH_MARKERS = {"eyes": (4.6, 2.6, 0.0), "fovea": (-1.2, 3.0, 0.0), "ceph_R": (0.8, 2.2, 3.0),
+                "ceph_L": (0.8, 2.2, -3.0)}
+PEDICEL = (-5.2, 1.0, 0.0)
+ABDOMEN_MARKERS = {"abd_mid": (5.5, 3.0, 0.0), "abd_tip": (11.5, 0.8, 0.0)}  # x backward
+CEPH_RANGES = (("tx", "ceph_tx", -30, 30), ("ty", "ceph_ty", -4, 4), ("tz", "ceph_tz", -20, 20),
+               ("y", "ceph_yaw", -60, 60), ("x", "ceph_roll", -15, 15), ("z", "ceph_pitch", -15, 15))
+CEPH_HEIGHT = 6.0  # the carapace root above the floor at zero translation (mm)
+# 4 cameras: two 1280x1024 (machine vision), two 640x480 (one with a wide lens).
+SPIDER_SIZES = ((1280, 1024), (640, 480), (1280, 1024), (640, 480))
+
+
+def spider_xml() -> str:
+    joints = [_joint("ceph", None, (0, CEPH_HEIGHT, 0),
+                     [_dof(a, n, lo, hi) for a, n, lo, hi in CEPH_RANGES])]
+    markers = [_marker(n, "ceph", p) for n, p in CEPH_MARKERS.items()]
+    joints.append(_joint("abdomen", "ceph", PEDICEL,
+                         [_dof("y", "abd_yaw", -25, 25), _dof("z", "abd_pitch", -30, 30)],
+                         rest=(180.0, 0.0, 0.0)))
+    markers += [_marker(n, "abdomen", p) for n, p in ABDOMEN_MARKERS.items()]
+    for side in "RL":
+        s = 1.0 if side == "R" else -1.0
+        for pair in "1234":
+            leg = f"{side}{pair}"
+            cx, tr, fe, pa, ti, mt, ta = SPIDER_SEGMENTS[pair]
+            x, y, z = SPIDER_INSERTION[pair]
+            # Right legs: Ry(-(90 - az)) points local x laterally, az ahead of lateral; a positive
+            # rotation about y turns a right leg forward, a left one backward: promotion is
+            # +yaw on the right, -yaw on the left (ranges are symmetric).
+            rest_y = -(90.0 - SPIDER_AZIMUTH[pair]) * s
+            R = SPIDER_RANGES
+            joints += [
+                _joint(f"{leg}_coxa", "ceph", (x, y, s * z),
+                       [_dof("y", f"{leg}_coxa_yaw", *R["coxa_yaw"]),
+                        _dof("z", f"{leg}_coxa_pitch", *R["coxa_pitch"])], rest=(rest_y, 0, 0)),
+                _joint(f"{leg}_femur", f"{leg}_coxa", (cx + tr, 0, 0),
+                       [_dof("z", f"{leg}_femur_pitch", *R["femur_pitch"])]),
+                _joint(f"{leg}_patella", f"{leg}_femur", (fe, 0, 0),
+                       [_dof("z", f"{leg}_patella_pitch", *R["patella_pitch"])]),
+                _joint(f"{leg}_tibia", f"{leg}_patella", (pa, 0, 0),
+                       [_dof("y", f"{leg}_tibia_yaw", *R["tibia_yaw"])]),
+                _joint(f"{leg}_metatarsus", f"{leg}_tibia", (ti, 0, 0),
+                       [_dof("z", f"{leg}_metatarsus_pitch", *R["metatarsus_pitch"])]),
+                _joint(f"{leg}_tarsus", f"{leg}_metatarsus", (mt, 0, 0), [],
+                       rest=(0.0, 0.0, TARSUS_BEND)),
+                _joint(f"{leg}_claw", f"{leg}_tarsus", (ta, 0, 0), []),
+            ]
+            # coxa-trochanter joint, femur-patella joint, tibia-metatarsus joint, claw
+            markers += [_marker(f"{leg}_CTr", f"{leg}_coxa", (cx, 0, 0)),
+                        _marker(f"{leg}_FPa", f"{leg}_patella"),
+                        _marker(f"{leg}_TiMt", f"{leg}_metatarsus"),
+                        _marker(f"{leg}_claw", f"{leg}_claw")]
+    comment = """  <!-- A wolf spider (Lycosidae, large female, carapace ~10 mm): cephalothorax root free
+       (3 translations, yaw, roll, pitch) with 4 carapace markers; abdomen on a 2-DOF pedicel
+       (yaw, pitch) with 2 markers; 8 legs of 6 DOFs (coxa yaw and pitch, femur pitch, patella
+       pitch, tibia yaw, metatarsus pitch), tarsus rigid; markers at coxa-trochanter,
+       femur-patella, tibia-metatarsus and the claw.
+       x forward, y up, z right; mm. -->"""
+    return "\n".join(['<model name="wolf_spider" units="mm">', comment, *joints, *markers,
+                      "</model>", ""])
+
+
+def spider_rig() -> dict:
+    """Four cameras around and above an arena, ~60-120 mm away."""
+    target = (0.0, 2.0, 0.0)
+    specs = [  # name, azimuth (deg from +x toward +z), radius, height, f, distortion
+        ("hs_front_right", 40.0, 150.0, 110.0, 2000.0, (-0.04, 0.0, 0.0, 0.0, 0.0)),
+        ("wide_back_right", 150.0, 110.0, 90.0, 620.0, (-0.18, 0.05, 0.0005, -0.0005, 0.0)),
+        ("hs_back_left", 220.0, 150.0, 120.0, 2000.0, (-0.03, 0.0, 0.0, 0.0, 0.0)),
+        ("top_left", 300.0, 40.0, 160.0, 720.0, (0.0, 0.0, 0.0, 0.0, 0.0)),
+    ]
+    views = []
+    for i, (name, az, r, h, f, dist) in enumerate(specs):
+        a = np.radians(az)
+        pos = (target[0] + r * np.cos(a), h, target[2] + r * np.sin(a))
+        views.append({"name": name, "video": i,
+                      "projection": look_at(pos, target, f=f, size=SPIDER_SIZES[i], dist=dist)})
+    return {"views": views}
+
+
 def main() -> None:
     for name, xml, rig in (("hexapod", hexapod_xml(), hexapod_rig()),
                            ("biped", biped_xml(), biped_rig()),
                            ("fullbody", fullbody_xml(), fullbody_rig()),
                            ("rat", rat_xml(), rat_rig()),
                            ("mouse", mouse_xml(), mouse_rig()),
-                           ("freefly", hexapod_xml(free=True), hexapod_rig())):
+                           ("freefly", hexapod_xml(free=True), hexapod_rig()),
+                           ("spider", spider_xml(), spider_rig())):
         folder = HERE / name
         folder.mkdir(exist_ok=True)
         (folder / "model.xml").write_text(xml)

@@ -25,7 +25,7 @@ SUBJECTS = Path(__file__).resolve().parents[2] / "bench" / "subjects"
 MARGIN_PX = 5.0
 
 
-@pytest.mark.parametrize("name", ["hexapod", "freefly", "biped", "fullbody", "rat"])
+@pytest.mark.parametrize("name", ["hexapod", "freefly", "biped", "fullbody", "rat", "spider"])
 def test_subject_files_load(name):
     model = KinematicModel.from_xml(SUBJECTS / name / "model.xml")
     rig = Rig.from_json(SUBJECTS / name / "rig.json")
@@ -39,6 +39,11 @@ def test_subject_files_load(name):
         assert len(rig.views) == 6 and len(model.dofs) == 48
         assert model.dof_names[6:] == hexapod.dof_names and model.markers == hexapod.markers
         assert sorted(d.axis for d in model.dofs if d.joint == "thorax") == ["tx", "ty", "tz", "x", "y", "z"]
+    elif name == "spider":  # free cephalothorax (4 markers), a 2-DOF abdomen, 8 legs × 6 DOFs
+        assert len(rig.views) == 4
+        assert len(model.dofs) == 6 + 2 + 8 * 6 and len(model.markers) == 4 + 2 + 8 * 4
+        assert sorted(d.axis for d in model.dofs if d.joint == "ceph") == ["tx", "ty", "tz", "x", "y", "z"]
+        assert any(any(v != 0.0 for v in view.projection["dist"]) for view in rig.views)
     else:  # pelvis with 3 translations and 3 rotations; hip 3 DOFs, knee, ankle
         assert len(rig.views) == (6 if name == "fullbody" else 3)
         assert sum(d.joint == "R_knee" for d in model.dofs) == 1
@@ -81,9 +86,8 @@ def test_movement_projects_inside_every_image(name, cameras):
     assert truth.shape == (150, len(subject.model.dofs))
     assert np.all(truth >= subject.model.lower) and np.all(truth <= subject.model.upper)
     proj = subject.rig.project(model.marker_positions(truth))  # (T, V, M + 1, 2)
-    width, height = subject.frame_size
     for v, view in enumerate(subject.rig.views):
-        x, y, w, h = view.roi if view.roi is not None else (0, 0, width, height)
+        x, y, w, h = view.roi if view.roi is not None else (0, 0, *subject.size_of(view.video))
         u, vv = proj[:, v, :, 0], proj[:, v, :, 1]
         assert np.all(np.isfinite(proj[:, v]))
         assert u.min() >= x + MARGIN_PX and u.max() <= x + w - MARGIN_PX, view.name
@@ -159,7 +163,7 @@ def test_camera_choice_defaults():
 
 def test_load_refuses_unknown_subjects_and_cameras():
     with pytest.raises(ValueError, match="subject"):
-        load("spider")
+        load("scorpion")
     with pytest.raises(ValueError, match="camera"):
         load("biped", 3)
 
