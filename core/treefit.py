@@ -586,14 +586,22 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
         if keep is not None and tried is not None and _gains(q, part, value, tried, eps, det, model, rig,
                                                              params, off):
             gained.append(part)
-        if tried is not None and tried[1] < value:
+        # Other minima replace SA's where lower in the objective SA compares its runs in, a
+        # marker that looks hidden charged the empty-view penalty: charged its distance to some
+        # other blob (part_objective), a leg whose claw is hidden scores above one in another
+        # basin that puts the claw on another marker's blob.
+        def lower(other: np.ndarray) -> bool:
+            return (_charged_objective(other, kin, points, start, rig, params, off)
+                    < _charged_objective(q[part.dofs], kin, points, start, rig, params, off))
+
+        if tried is not None and lower(tried[0]):
             q[part.dofs], value = tried[0], tried[1]  # SA ended in a worse minimum than the warm start's
         if value >= eps and part.base >= 0:
             if not candidates:
                 candidates.append(triangulate(det, rig=rig, offsets=off))
             proposed = epipolar_start(part, rotation, origin, candidates[0], points, start, model,
                                       rig, space, params, eps, off, unseen)
-            if proposed is not None and proposed[1] < value:
+            if proposed is not None and lower(proposed[0]):
                 q[part.dofs] = proposed[0]
         return True
 
