@@ -159,11 +159,15 @@ def fit(
     print(f"{report['images']} images in {report['seconds']} s ({report['images_per_s']} images/s); "
           f"status {report['status']}; mean error {report['error_px']['mean']} px; "
           f"wrote {out}/angles.csv, histograms.xml, report.json{exported}")
+    warn_few_detections(report, len(kinematic.markers))
     with user_errors():
         if overlay:
             _draw_overlay(job, out, OVERLAY_WORST)
         if plots:
             _draw_plots(out, kinematic, built.start, outcome.result.histograms)
+
+
+FEW_BLOBS_SHARE = 0.25  # of the model's markers: fewer blobs per image in a view earn a warning
 
 
 def warn_undetermined(path: Path, model: KinematicModel) -> None:
@@ -172,6 +176,21 @@ def warn_undetermined(path: Path, model: KinematicModel) -> None:
     advice = model.identifiability.advice()
     if advice:
         typer.echo(f"mocap: warning: {path}: {advice}", err=True)
+
+
+def warn_few_detections(report: dict[str, Any], n_markers: int) -> None:
+    """One line on stderr per view whose images had on average fewer blobs than
+    :data:`FEW_BLOBS_SHARE` of the model's ``n_markers`` (``report``: ``report.json``'s
+    content): the detector's settings, not the animal, are then the likely cause. A
+    background brighter than the threshold is one region larger than the largest marker
+    and dropped; markers dimmer than it (motion blur) are not found."""
+    detector = report["settings"]["detector"]
+    for view, counts in report["detections_per_view"].items():
+        if counts["mean"] is not None and counts["mean"] < FEW_BLOBS_SHARE * n_markers:
+            typer.echo(f"mocap: warning: view {view!r} has {counts['mean']:g} blobs per image on "
+                       f"average for the model's {n_markers} markers: check --threshold "
+                       f"({detector['threshold']}) and --max-area ({detector['max_area']}) on a few "
+                       "frames with `mocap detect`", err=True)
 
 
 @contextmanager
