@@ -60,7 +60,8 @@ class Bounds:
             text = f"one (u, v) pair of finite pixels per view, at most {self.max_length}"
         else:
             number = "an integer" if self.kind is int else "a number"
-            text = " or ".join([*(repr(w) for w in self.words), number + self._range()])
+            words = ", ".join(repr(w) for w in self.words)
+            text = (words + " or " if words else "") + number + self._range()
         return text + (" (or none)" if self.optional else "")
 
     def _range(self) -> str:

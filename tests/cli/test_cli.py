@@ -106,7 +106,8 @@ def test_fit_warns_about_a_view_whose_background_is_brighter_than_the_threshold(
     """The locust filmed on a lit background (grey 150, markers 255): at the default threshold
     the whole view is one region, larger than the largest marker, and nothing is detected.
     The fit goes on (every image ``no_detections``) and one line per view names the view and
-    the settings to check; ``--threshold 200`` finds the markers, and no warning is given."""
+    the settings to check; ``--threshold 200`` and ``--threshold auto`` find the markers, and
+    no warning is given."""
     model, rig = KinematicModel.from_xml(LOCUST / "model.xml"), Rig.from_json(LOCUST / "rig.json")
     truth = natural_movements(model, rig, 6, rng=np.random.default_rng(0))
     write_video(tmp_path / "lit.avi", render_frames(model, rig, truth, rng=np.random.default_rng(1),
@@ -117,13 +118,14 @@ def test_fit_warns_about_a_view_whose_background_is_brighter_than_the_threshold(
     warnings = [line for line in lit.stderr.splitlines() if "warning" in line]
     assert [w.split(" has ")[0] for w in warnings] == ["mocap: warning: view 'side'",
                                                        "mocap: warning: view 'top'"], lit.stderr
-    assert all("--threshold (100.0)" in w and "--max-area (2000)" in w for w in warnings)
-    set_right = _invoke("fit", tmp_path / "lit.avi", "--model", LOCUST / "model.xml", "--rig",
-                        LOCUST / "rig.json", "--out", tmp_path / "right", "--marker-diameter-px", "4",
-                        "--threshold", "200")
-    assert set_right.exit_code == 0 and "warning" not in set_right.stderr, set_right.output
-    report = json.loads((tmp_path / "right" / "report.json").read_text())
-    assert report["status"]["no_detections"] == 0
+    assert all("--threshold (100.0;" in w and "--max-area (2000)" in w for w in warnings)
+    for threshold in ("200", "auto"):
+        set_right = _invoke("fit", tmp_path / "lit.avi", "--model", LOCUST / "model.xml", "--rig",
+                            LOCUST / "rig.json", "--out", tmp_path / threshold, "--marker-diameter-px", "4",
+                            "--threshold", threshold)
+        assert set_right.exit_code == 0 and "warning" not in set_right.stderr, set_right.output
+        report = json.loads((tmp_path / threshold / "report.json").read_text())
+        assert report["status"]["no_detections"] == 0
 
 
 def test_two_jobs_give_the_same_result_as_one_with_the_same_chunks(clip, tmp_path):

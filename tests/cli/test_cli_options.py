@@ -85,7 +85,7 @@ def test_root_start_in_json_is_a_list_of_pairs():
 
 @pytest.mark.parametrize(("args", "message"), [
     (["--blur", "4"], "--blur must be 0 (none) or an odd kernel size, got 4"),
-    (["--threshold", "bright"], "--threshold must be 'otsu' or a number in 0..255, got 'bright'"),
+    (["--threshold", "bright"], "--threshold must be 'otsu', 'auto' or a number in 0..255, got 'bright'"),
     (["--seed", "-1"], "--seed must be an integer >= 0"),
     (["--field-order", "odd"], "--field-order must be one of even-first, odd-first"),
     (["--root-marker", "M0", "--root-start", "1,2;3"], "--root-start must be 'u,v;u,v'"),
