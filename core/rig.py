@@ -128,29 +128,41 @@ class Rig:
         """How many video files the rig expects: its views use video indices 0 .. n_videos - 1."""
         return max(v.video for v in self.views) + 1
 
-    def check_videos(self, sizes: Sequence[tuple[int, int]]) -> None:
+    def check_videos(self, sizes: Sequence[tuple[int, int]], labels: Sequence[str] | None = None) -> None:
         """Refuse videos that do not fit the rig, before any frame is decoded.
 
         Parameters
         ----------
         sizes : sequence of (width, height), pixels, one per video file given with the job,
             in ``video`` index order (``VideoInfo.width``, ``VideoInfo.height``).
+        labels : how messages name each of those videos to the lab (a file name, an upload),
+            in the same order; without, "video k".
 
         Raises
         ------
         RigError
-            If the number of videos is not :attr:`n_videos`, or a view's roi does not lie
-            inside the frame of its video.
+            If the number of videos is not :attr:`n_videos`, a view's roi does not lie inside
+            the frame of its video, or a pinhole view's principal point does not (strictly):
+            a camera's calibration given another camera's video, of another size (videos in
+            the wrong order), which would run the whole job to fit nothing.
         """
         if len(sizes) != self.n_videos:
             raise RigError(f"the rig expects {self.n_videos} video(s), got {len(sizes)}")
         for v in self.views:
             width, height = sizes[v.video]
+            video = f"video {v.video}" if labels is None else f"the rig's video {v.video}, {labels[v.video]}"
             if v.roi is not None and (v.roi[0] + v.roi[2] > width or v.roi[1] + v.roi[3] > height):
                 raise RigError(
                     f"view '{v.name}': roi {list(v.roi)} lies outside the {width}×{height} frame "
-                    f"of video {v.video}"
+                    f"of {video}"
                 )
+            if v.projection["type"] == "pinhole":
+                cx, cy = v.projection["K"][0][2], v.projection["K"][1][2]
+                if not (0 < cx < width and 0 < cy < height):
+                    raise RigError(
+                        f"view '{v.name}': its principal point ({cx:g}, {cy:g}) lies outside the "
+                        f"{width}×{height} frame of {video}: is that video this camera's?"
+                    )
 
     @cached_property
     def arrays(self) -> RigArrays:

@@ -281,7 +281,8 @@ def _new_job(
     videos = [owned(session, Video, v, lab) for v in video_ids]
     if len(videos) != rig.n_videos:
         raise InvalidError(f"rig {rig_id} expects {rig.n_videos} video(s), the job names {len(videos)}")
-    rig.check_videos([(v.width, v.height) for v in videos])  # a roi outside its frame → 422 now
+    # A roi or a camera's principal point outside its frame → 422 now
+    rig.check_videos([(v.width, v.height) for v in videos], [video_label(v) for v in videos])
     # Videos that cannot be read as one set (as `mocap fit` reads them) → 422 now, not in a worker.
     check_synchronised([video_label(v) for v in videos], [v.frames for v in videos], [v.fps for v in videos])
     limits.check_frames(videos, settings)

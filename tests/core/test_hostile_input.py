@@ -349,9 +349,12 @@ def _two_camera_rig() -> Rig:
      ([(720, 576)] * 3, r"the rig expects 2 video\(s\), got 3"),
      ([(720, 575), (640, 480)],
       r"view 'top': roi \[0, 288, 360, 288\] lies outside the 720×575 frame of video 0"),
-     ([(359, 576), (640, 480)], r"view 'side': roi \[0, 0, 360, 288\] lies outside the 359×576 frame")],
+     ([(359, 576), (640, 480)], r"view 'side': roi \[0, 0, 360, 288\] lies outside the 359×576 frame"),
+     ([(720, 576), (320, 240)],  # a camera calibrated at 640×480 given a half-size video
+      r"view 'cam': its principal point \(320, 240\) lies outside the 320×240 frame of video 1: is "
+      r"that video this camera's\?")],
     ids=["no_video", "one_video_missing", "one_video_too_many", "roi_below_the_frame",
-         "roi_right_of_the_frame"],
+         "roi_right_of_the_frame", "principal_point_outside_the_frame"],
 )
 def test_videos_that_do_not_fit_the_rig_are_refused(sizes, match):
     with pytest.raises(RigError, match=match):

@@ -120,8 +120,9 @@ def test_batch_one_job_per_trial_and_archive_with_a_folder_each(redis_pg, clip):
 
 def test_footage_that_does_not_fit_the_rig_is_refused_at_submission(redis_pg, tmp_path):
     """Footage smaller than the rig's regions of interest: the job is refused (422) with
-    ``core.rig.Rig.check_videos``' message from the probed sizes of the videos, before any job
-    exists (it used to fail in planning, after a worker had probed the videos again)."""
+    ``core.rig.Rig.check_videos``' message from the probed sizes of the videos, naming the
+    upload, before any job exists (it used to fail in planning, after a worker had probed the
+    videos again)."""
     client = redis_pg.create_lab("failing")
     small = tmp_path / "small.avi"
     write_video(small, (np.zeros((100, 100), np.uint8) for _ in range(12)), fps=50.0)
@@ -130,7 +131,8 @@ def test_footage_that_does_not_fit_the_rig_is_refused_at_submission(redis_pg, tm
                                           "video_ids": [ids["video_id"]]})
     assert response.status_code == 422
     detail = response.json()["detail"]
-    assert detail == "view 'side': roi [0, 0, 360, 288] lies outside the 100×100 frame of video 0"
+    assert detail == (f"view 'side': roi [0, 0, 360, 288] lies outside the 100×100 frame of the rig's "
+                      f"video 0, video {ids['video_id']} ('small.avi')")
     assert client.get("/jobs").json()["items"] == []
 
 
