@@ -10,8 +10,8 @@ the rig, :func:`draw` marks on a copy of the view's video frame:
   (:data:`MARK_BGR`): ``ok``, ``over_threshold``, or ``ambiguous`` when angles.csv's
   optional ``alternative_deg`` column says another posture fits about as well;
 - each marker's name and its distance to the nearest detection of the view (its
-  term of Eq. 5), the view's name at its roi, and the frame, field, Eq. 5 error and
-  mark of the image.
+  term of Eq. 5), the view's name at its roi, and the frame, field, Eq. 5 error (and per
+  compared marker projection, what the threshold is compared with) and mark of the image.
 
 Projections are ``core.model`` forward kinematics and ``core.rig`` projection, with
 the root-tracking offsets when the fit tracked the root. :func:`render_overlay`
@@ -89,6 +89,7 @@ class ImageMarks:
     joints: np.ndarray
     errors: np.ndarray
     error_px: float
+    error_per_marker_px: float
     mark: str
 
 
@@ -120,6 +121,7 @@ def image_marks(
         sample=int(table.samples[row]), frame=int(table.frames[row]), field=table.fields[row],
         detections=detections, markers=markers, joints=joints,
         errors=marker_errors(markers, detections), error_px=float(table.errors[row]),
+        error_per_marker_px=float(table.error_per_marker[row]),
         mark="ambiguous" if ambiguous else status.value,
     )
 
@@ -161,9 +163,12 @@ def draw(frames: Sequence[np.ndarray], marks: ImageMarks, *, model: KinematicMod
 
 
 def header(marks: ImageMarks) -> str:
-    """The image's line of text: frame (field), sample, Eq. 5 error and mark."""
+    """The image's line of text: frame (field), sample, Eq. 5 error (and per compared marker
+    projection, what the threshold is compared with, where angles.csv has it) and mark."""
     field = f" {marks.field}" if marks.field else ""
     error = "-" if not math.isfinite(marks.error_px) else f"{marks.error_px:.2f} px"
+    if math.isfinite(marks.error_per_marker_px):
+        error += f" ({marks.error_per_marker_px:.2f} per marker)"
     return f"frame {marks.frame}{field}  sample {marks.sample}  error {error}  {marks.mark}"
 
 

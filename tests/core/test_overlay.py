@@ -13,6 +13,7 @@ from core.overlay import (
     DETECTION_RADIUS_PX,
     MARK_BGR,
     draw,
+    header,
     image_marks,
     select_images,
 )
@@ -73,6 +74,17 @@ def test_an_image_without_detections_draws_no_model():
                         Detections.from_views([[]]), model=STICK, rig=PIXELS)
     (image,) = draw([np.zeros((200, 200, 3), dtype=np.uint8)], marks, model=STICK, rig=PIXELS)
     assert np.all(np.isnan(marks.markers)) and image[80, 60].tolist() == [0, 0, 0]
+
+
+def test_the_header_gives_the_error_per_marker_the_threshold_is_compared_with():
+    """A whole animal's Eq. 5 error is tens of pixels where every marker is within a pixel:
+    the header also gives it per compared marker projection, where angles.csv has it."""
+    rows = table([0.0, 0.0], [39.93, 2.0], [Status.OK, Status.OK])
+    rows.error_per_marker[0] = 0.106
+    det = Detections.from_views([[[60.5, 80.5], [100.5, 80.5]]])
+    first, second = (header(image_marks(rows, k, det, model=STICK, rig=PIXELS)) for k in (0, 1))
+    assert first == "frame 0  sample 0  error 39.93 px (0.11 per marker)  ok"
+    assert second == "frame 1  sample 1  error 2.00 px  ok"
 
 
 def test_marker_errors_are_the_terms_of_eq5():
