@@ -28,6 +28,7 @@ from core.model import KinematicModel
 from core.results import AnglesTable
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
 __all__ = [
@@ -102,7 +103,8 @@ def angles_figure(table: AnglesTable, model: KinematicModel, final: Histograms |
         ax.plot(t[reanalysed], np.full(reanalysed.sum(), 0.04), "|", color=_REANALYSED, ms=8,
                 transform=bottom, label="re-analysed")
         ax.set_ylim(dof.min, dof.max)
-        ax.set_ylabel(f"{dof.name} ({'deg' if dof.rotational else model.units})")
+        _name(ax, dof.name)
+        ax.set_ylabel("deg" if dof.rotational else model.units)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("time (s)")
     legend: dict = {}
@@ -140,12 +142,20 @@ def histograms_figure(start: Histograms, final: Histograms) -> Figure:
         ax.step(x, 100.0 * start.probs[r, order], where="mid", color="0.3", lw=1.0,
                 label=f"start (N = {start.counts[r]:g})")
         ax.set_xlim(lower, upper)
-        ax.set_ylabel(f"{name} (% per bin)")
+        _name(ax, name)
+        ax.set_ylabel("% per bin")
         ax.legend(loc="upper right", fontsize="small")
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("angle (deg, in the DOF's range)")
     figure.suptitle(f"{final.model}: joint-angle histograms (Eq. 4), {final.bins} bins")
     return figure
+
+
+def _name(ax: Axes, name: str) -> None:
+    """A DOF's name at the top left inside its axis: a y label of a whole animal's long DOF
+    names (``R1_metatarsus_pitch (deg)``) ran past the axis' height and was clipped."""
+    ax.text(0.005, 0.96, name, transform=ax.transAxes, va="top", fontsize="small",
+            bbox={"facecolor": "white", "alpha": 0.7, "lw": 0, "pad": 1})
 
 
 def write_plots(out: Path, table: AnglesTable, model: KinematicModel, start: Histograms,

@@ -72,6 +72,10 @@ def test_the_angle_figure_marks_what_the_table_says():
     np.testing.assert_allclose(lines["ambiguous"].get_xdata(), [0.16, 0.18])
     np.testing.assert_allclose(lines["re-analysed"].get_xdata(), [0.10, 0.34, 0.40])
     assert figure.axes[0].get_ylim() == (model.dofs[0].min, model.dofs[0].max)
+    # each axis names its DOF inside it, the unit alone on the y axis (a y label of a long
+    # name, R1_metatarsus_pitch (deg), was clipped)
+    assert [[t.get_text() for t in ax.texts] for ax in figure.axes] == [[d.name] for d in model.dofs]
+    assert [ax.get_ylabel() for ax in figure.axes] == ["deg"] * len(model.dofs)
 
 
 def test_histogram_interval_holds_the_central_mass():
