@@ -64,8 +64,9 @@ _FONT_SCALE = 0.4
 
 OVERLAY_DIR = "overlay"  # under a results directory
 MANIFEST = "overlay.json"
-# Contact sheet: tiles at most this wide (pixels), this many columns, this many tiles
-# (the sheet is held in memory; every selected image is also a PNG file of its own).
+# Contact sheet, per video file side by side in an image: tiles at most this wide (pixels),
+# this many columns, this many tiles (the sheet is held in memory; every selected image is
+# also a PNG file of its own). Four cameras make tiles four times as wide, in one column.
 TILE_WIDTH_PX = 320
 SHEET_COLUMNS = 4
 MAX_SHEET_TILES = 48
@@ -297,15 +298,15 @@ def render_overlay(
                 if sample in wanted:
                     side = _side_by_side(drawn)
                     cv2.imwrite(str(out / "images" / _image_name(sample)), side)
-                    if len(tiles) < MAX_SHEET_TILES:
-                        tiles[sample] = _tile(side, header(marks), MARK_BGR[marks.mark])
+                    if len(tiles) < MAX_SHEET_TILES // len(drawn):
+                        tiles[sample] = _tile(side, header(marks), MARK_BGR[marks.mark], len(drawn))
                 sample += 1
     finally:
         for writer in writers:
             writer.release()
     sheet = [tiles[r] for r in chosen if r in tiles]
     if sheet:
-        cv2.imwrite(str(out / "contact_sheet.png"), _sheet(sheet))
+        cv2.imwrite(str(out / "contact_sheet.png"), _sheet(sheet, len(writers)))
     manifest = _manifest(table, chosen, writers, sheet, worst)
     (out / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
     return manifest
@@ -353,9 +354,10 @@ def _side_by_side(images: list[np.ndarray]) -> np.ndarray:
     return np.concatenate(padded, axis=1)
 
 
-def _tile(image: np.ndarray, caption: str, colour: tuple[int, int, int]) -> np.ndarray:
-    """The image scaled to at most :data:`TILE_WIDTH_PX` wide, its caption legible above it."""
-    scale = min(1.0, TILE_WIDTH_PX / image.shape[1])
+def _tile(image: np.ndarray, caption: str, colour: tuple[int, int, int], videos: int) -> np.ndarray:
+    """The image (``videos`` frames side by side) scaled to at most :data:`TILE_WIDTH_PX` wide
+    a frame, its caption legible above it."""
+    scale = min(1.0, videos * TILE_WIDTH_PX / image.shape[1])
     size = (round(image.shape[1] * scale), max(1, round(image.shape[0] * scale)))
     small = cv2.resize(image, size, interpolation=cv2.INTER_AREA) if scale < 1.0 else image
     tile = np.zeros((small.shape[0] + 20, small.shape[1], 3), dtype=np.uint8)
@@ -364,11 +366,13 @@ def _tile(image: np.ndarray, caption: str, colour: tuple[int, int, int]) -> np.n
     return tile
 
 
-def _sheet(tiles: list[np.ndarray]) -> np.ndarray:
-    """Tiles in a grid of :data:`SHEET_COLUMNS` columns, each cell the largest tile's size."""
+def _sheet(tiles: list[np.ndarray], videos: int) -> np.ndarray:
+    """Tiles of ``videos`` frames side by side in a grid of :data:`SHEET_COLUMNS` columns for
+    one frame a tile, fewer for more (one from four on), fewer if there are fewer tiles; each
+    cell the largest tile's size."""
     h = max(t.shape[0] for t in tiles)
     w = max(t.shape[1] for t in tiles)
-    columns = min(SHEET_COLUMNS, len(tiles))
+    columns = min(max(1, SHEET_COLUMNS // videos), len(tiles))
     rows = -(-len(tiles) // columns)
     sheet = np.zeros((rows * h, columns * w, 3), dtype=np.uint8)
     for i, t in enumerate(tiles):

@@ -12,6 +12,9 @@ from core.overlay import (
     DETECTION_BGR,
     DETECTION_RADIUS_PX,
     MARK_BGR,
+    TILE_WIDTH_PX,
+    _sheet,
+    _tile,
     draw,
     header,
     image_marks,
@@ -85,6 +88,17 @@ def test_the_header_gives_the_error_per_marker_the_threshold_is_compared_with():
     first, second = (header(image_marks(rows, k, det, model=STICK, rig=PIXELS)) for k in (0, 1))
     assert first == "frame 0  sample 0  error 39.93 px (0.11 per marker)  ok"
     assert second == "frame 1  sample 1  error 2.00 px  ok"
+
+
+@pytest.mark.parametrize(("videos", "columns"), [(1, 4), (2, 2), (4, 1), (6, 1)])
+def test_contact_sheet_tiles_are_wider_and_fewer_a_row_with_more_cameras(videos, columns):
+    """Each camera's frame keeps TILE_WIDTH_PX in a tile: four 640-px frames side by side
+    make a 1280-px tile, one to a row (a 320-px tile showed each camera 80 px wide)."""
+    side = np.full((480, videos * 640, 3), 90, np.uint8)
+    tile = _tile(side, "frame 0", MARK_BGR["ok"], videos)
+    assert tile.shape[1] == videos * TILE_WIDTH_PX
+    sheet = _sheet([tile] * 5, videos)
+    assert sheet.shape[1] == columns * tile.shape[1]
 
 
 def test_marker_errors_are_the_terms_of_eq5():
