@@ -73,9 +73,9 @@ class DetectorParams:
     threshold : float in [0, 255], 'otsu' or 'auto', default 100
         A pixel belongs to a marker if its (blurred) intensity is greater than
         this; 'otsu' picks it per view and image (Otsu's method), which suits
-        images that contain markers; 'auto' per view and image above the
-        background's level and noise (:func:`auto_threshold`), for a lit
-        background or markers dimmed by motion blur.
+        images that contain markers; 'auto' per view and image from the
+        background's level and noise and the markers' level (:func:`auto_threshold`),
+        for a lit background or markers dimmed by motion blur.
     erode, dilate : int >= 0, default 0
         Iterations of binary erosion, then dilation, with a 3×3 kernel
         (erode then dilate removes speckles smaller than the markers).
@@ -88,8 +88,8 @@ class DetectorParams:
     channel: str = option("grey", kind=str, words=CHANNELS, help="intensity used (colour frames: BGR)")
     threshold: float | str = option(100.0, ge=0, le=255, words=("otsu", "auto"),
                                     help="a pixel brighter than this grey level is a marker's; 'otsu': "
-                                         "picked per view and image; 'auto': above each view's "
-                                         "background level and noise")
+                                         "picked per view and image; 'auto': per view and image, "
+                                         "from its background's level and noise and its markers' level")
     erode: int = option(0, kind=int, ge=0, le=MAX_MORPHOLOGY_ITERATIONS,
                         help="erosion iterations after the threshold")
     dilate: int = option(0, kind=int, ge=0, le=MAX_MORPHOLOGY_ITERATIONS,
@@ -237,28 +237,41 @@ def marker_mask(image: np.ndarray, params: DetectorParams) -> np.ndarray:
 
 AUTO_NOISE_SIGMAS = 6.0  # 'auto': the threshold lies this many noise deviations above the background
 AUTO_MIN_CONTRAST = 30.0  # grey levels above the background at least (a noise-free background)
+AUTO_MARKER_SHARE = 1e-4  # of a view's pixels, the brightest: the markers' level
+AUTO_MARKER_PIXELS = 20  # at least this many of the brightest pixels (a small view)
+AUTO_MARKER_FRACTION = 0.25  # of the way from the background up to the markers' level
 
 
 def auto_threshold(image: np.ndarray) -> float:
     """The 'auto' threshold of one view's (h, w) uint8 image (grey levels): its background
-    level, the median (markers cover a small share of a view), plus the larger of
+    level, the median (markers cover a small share of a view), plus the largest of
+    :data:`AUTO_MARKER_FRACTION` of the way up to the markers' level (the level of the
+    brightest :data:`AUTO_MARKER_SHARE` of the pixels, at least :data:`AUTO_MARKER_PIXELS`),
     :data:`AUTO_NOISE_SIGMAS` times the background's noise (1.4826 × the median absolute
     deviation, a standard deviation that the markers do not inflate) and
     :data:`AUTO_MIN_CONTRAST`; at most 254.
 
     Why: a fixed level fails both ways. A lit background above it becomes one region,
     larger than any marker, and is dropped; markers that motion blur spreads over a few
-    pixels fall under it. Read from the image's histogram (OpenCV's: under a millisecond on
-    a megapixel view)."""
+    pixels fall under it. A quarter of the way up keeps the skirts of two bright markers a
+    few pixels apart from joining into one region, as a level just above the noise does
+    (the spider's dense markers), and stays under a blurred marker's level where others
+    are sharp (half way up lost them). Read from the image's histogram (OpenCV's: under a
+    millisecond on a megapixel view)."""
     if image.size == 0:
         return 254.0
     counts = cv2.calcHist([image], [0], None, [256], [0, 256]).ravel()
+    cumulative = np.cumsum(counts)
     half = image.size / 2.0
-    background = int(np.searchsorted(np.cumsum(counts), half))
+    background = int(np.searchsorted(cumulative, half))
     spread = np.abs(np.arange(256) - background)
     order = np.argsort(spread, kind="stable")
     deviation = float(spread[order][np.searchsorted(np.cumsum(counts[order]), half)])
-    return min(background + max(AUTO_NOISE_SIGMAS * 1.4826 * deviation, AUTO_MIN_CONTRAST), 254.0)
+    brightest = max(AUTO_MARKER_PIXELS, AUTO_MARKER_SHARE * image.size)
+    markers = int(np.searchsorted(cumulative, max(image.size - brightest, 0.0)))
+    above = max(AUTO_MARKER_FRACTION * (markers - background), AUTO_NOISE_SIGMAS * 1.4826 * deviation,
+                AUTO_MIN_CONTRAST)
+    return min(background + above, 254.0)
 
 
 def _detect_view(
