@@ -253,10 +253,11 @@ def auto_threshold(image: np.ndarray) -> float:
 
     Why: a fixed level fails both ways. A lit background above it becomes one region,
     larger than any marker, and is dropped; markers that motion blur spreads over a few
-    pixels fall under it. A quarter of the way up keeps the skirts of two bright markers a
-    few pixels apart from joining into one region, as a level just above the noise does
-    (the spider's dense markers), and stays under a blurred marker's level where others
-    are sharp (half way up lost them). Read from the image's histogram (OpenCV's: under a
+    pixels fall under it. A quarter of the way up keeps bright markers' blobs (and the
+    marker diameter estimated from them) as a fixed level does, where a level just above
+    the noise widened them and cost the spider's clean footage accuracy, and stays under a
+    blurred marker's level where others are sharp (half way up lost them;
+    docs/BENCH_SUBJECTS.md, footage). Read from the image's histogram (OpenCV's: under a
     millisecond on a megapixel view)."""
     if image.size == 0:
         return 254.0
