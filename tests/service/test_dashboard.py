@@ -165,6 +165,10 @@ def test_a_finished_job_shows_its_plot_counts_artifacts_and_downloads(page, lab)
             assert page.locator(image).evaluate("img => img.decode().then(() => img.naturalWidth)") > 0
         else:
             assert page.locator(f"{image}:visible").count() == 0
+    if "plots/angles.png" in names:  # a plot taller than its window (40rem) scrolls inside it
+        window = page.locator("#job-plots .plot-window").first
+        assert window.evaluate("w => w.clientHeight") <= 40 * 16
+        assert window.evaluate("w => getComputedStyle(w).overflowY") == "auto"
 
     with page.expect_download() as download:
         page.get_by_role("link", name="angles.csv").click()

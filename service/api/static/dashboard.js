@@ -355,8 +355,9 @@
     for (const name of plots) {
       const what = name.includes("histograms") ? "Joint-angle histograms (Eq. 4), at the start and after the job"
         : "Each degree of freedom over time: histogram range shaded, over-threshold, ambiguous and re-analysed images marked";
-      $("job-plots-body").append(el("figure", {}, el("img", { src: await image(job, name), alt: what,
-        "data-artifact": name }), el("figcaption", { text: `${what} (${name}).` })));
+      $("job-plots-body").append(el("figure", {}, el("div", { class: "plot-window" }, el("img", {
+        src: await image(job, name), alt: what, "data-artifact": name })),
+      el("figcaption", { text: `${what} (${name}).` })));
     }
     if (extra.includes(CONTACT_SHEET)) {
       $("job-overlay-image").src = await image(job, CONTACT_SHEET);
