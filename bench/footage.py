@@ -31,6 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.animals import angle_errors  # noqa: E402
 from core.examples import LOCUST  # noqa: E402
 from core.model import KinematicModel  # noqa: E402
 from core.rig import Rig  # noqa: E402
@@ -170,8 +171,7 @@ def evaluate(truth_csv: Path, fitted: Path, model: KinematicModel) -> str:
     with open(fitted / "angles.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     angles = np.array([[float(r[d]) if r[d] else np.nan for d in model.dof_names] for r in rows])
-    error = np.abs(angles - truth)
-    error[:, model.rotational] = np.abs((angles - truth + 180.0) % 360.0 - 180.0)[:, model.rotational]
+    error = np.abs(angle_errors(model, angles, truth))
     worst = np.where(np.isnan(error).all(axis=1), np.inf, np.nanmax(np.nan_to_num(error, nan=np.inf), axis=1))
     status = np.array([r["status"] for r in rows])
     rmse = np.sqrt(np.nanmean(error ** 2, axis=0))

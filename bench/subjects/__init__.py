@@ -95,8 +95,7 @@ def load(name: str, cameras: int | None = None) -> Subject:
         # Each camera keeps its own video file: renumber the chosen ones 0..k-1.
         rig = Rig(tuple(replace(rig.views[v], video=i) for i, v in enumerate(CAMERAS[name][cameras])))
     if name == "spider":  # unmodelled: a marker on the right leg 4 femur, mid-shaft
-        chosen = CAMERAS[name][cameras] if cameras is not None else SPIDER_CAMERAS[4]
-        sizes = tuple(SPIDER_SIZES[v] for v in chosen)
+        sizes = tuple(SPIDER_SIZES[v] for v in SPIDER_CAMERAS[4 if cameras is None else cameras])
         return Subject(name, model, rig, sizes[0], 100.0, spider_walk,
                        (("R4_femur", (4.5, 0.4, 0.0)),), frame_sizes=sizes)
     if name in ("hexapod", "freefly"):
@@ -458,7 +457,7 @@ def spider_walk(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarra
         heading = np.radians(rng.uniform(-35, 35) + rng.uniform(-25, 25) * tt)
         step = speed / fps
         x = np.cumsum(step * np.cos(heading)) - step
-        z = np.cumsum(-step * np.sin(heading)) - step * 0
+        z = np.cumsum(-step * np.sin(heading))
         # centre the pass on the arena, a little to one side
         x = x - 0.5 * _SPIDER_PASS_MM * np.cos(heading[0])
         z = z + 0.5 * _SPIDER_PASS_MM * np.sin(heading[0]) + rng.uniform(-5, 5)
@@ -466,15 +465,14 @@ def spider_walk(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarra
         cols["ceph_tz"][start:start + length] = z
         cols["ceph_yaw"][start:start + length] = np.degrees(heading)
         start += length
-    swing = phase
     q[:, names.index("ceph_tx")] = cols["ceph_tx"]
     q[:, names.index("ceph_tz")] = cols["ceph_tz"]
-    q[:, names.index("ceph_yaw")] = cols["ceph_yaw"] + _smooth_noise(rng, t, 1.0, -5, 5) + 3 * np.cos(swing)
-    q[:, names.index("ceph_ty")] = -0.5 + 0.3 * np.cos(2 * swing)
-    q[:, names.index("ceph_roll")] = 2 * np.cos(swing - 0.3 * np.pi)
-    q[:, names.index("ceph_pitch")] = _smooth_noise(rng, t, 2.0, -3, 3) + 1.5 * np.cos(2 * swing)
-    q[:, names.index("abd_yaw")] = _smooth_noise(rng, t, 1.5, -6, 6) - 2 * np.cos(swing)
-    q[:, names.index("abd_pitch")] = _smooth_noise(rng, t, 2.0, -10, 5) + np.cos(2 * swing)
+    q[:, names.index("ceph_yaw")] = cols["ceph_yaw"] + _smooth_noise(rng, t, 1.0, -5, 5) + 3 * np.cos(phase)
+    q[:, names.index("ceph_ty")] = -0.5 + 0.3 * np.cos(2 * phase)
+    q[:, names.index("ceph_roll")] = 2 * np.cos(phase - 0.3 * np.pi)
+    q[:, names.index("ceph_pitch")] = _smooth_noise(rng, t, 2.0, -3, 3) + 1.5 * np.cos(2 * phase)
+    q[:, names.index("abd_yaw")] = _smooth_noise(rng, t, 1.5, -6, 6) - 2 * np.cos(phase)
+    q[:, names.index("abd_pitch")] = _smooth_noise(rng, t, 2.0, -10, 5) + np.cos(2 * phase)
     for leg, offset in _TETRAPOD.items():
         pair, mirror = leg[1], 1.0 if leg[0] == "R" else -1.0
         lead = (0.0, np.pi / 2, np.pi / 2, _SPIDER_LEAD[pair], np.pi / 3, _SPIDER_LEAD[pair] + 0.3)
