@@ -255,11 +255,12 @@ def _ceilings(fit: ImageFit, det: Detections, model: KinematicModel, rig: Rig, p
     The fit is the candidate of lowest *whole* objective; where an alternative fits a part
     better (a posture the whole objective prefers because a marker of that part counts as
     lost, say), the part's own level is the alternative's, and a warm start carrying the
-    fit's posture of that part forward must beat it, or the part is searched again."""
+    fit's posture of that part forward must beat it, or the part is searched again. NaN
+    levels (no ceiling) count only where every candidate has one."""
     off = view_offsets(offsets, rig)
     levels = [warm_ceilings(c.dofs, det, model, rig, params, off)
               for c in (fit, *fit.alternatives)]
-    return {name: min(level[name] for level in levels) for name in levels[0]}
+    return {name: float(np.fmin.reduce([level[name] for level in levels])) for name in levels[0]}
 
 
 def typical_objective(fits: Iterable[ImageFit]) -> float:
