@@ -106,11 +106,21 @@ class SequenceResult:
 
 
 def plan_chunks(n_images: int, chunk_size: int | None) -> list[tuple[int, int]]:
-    """Step 1: contiguous ``[first, last)`` sample ranges covering ``n_images``; one chunk for ``None``."""
+    """Step 1: contiguous ``[first, last)`` sample ranges covering ``n_images``, as few as
+    hold at most ``chunk_size`` images each, of sizes that differ by one at most; one chunk
+    for ``None``.
+
+    Even sizes because chunks run in parallel: 60 images in chunks of at most 50 are two of
+    30, which two workers finish together, not 50 and 10.
+
+    >>> plan_chunks(60, 50), plan_chunks(7, 3), plan_chunks(4, None)
+    ([(0, 30), (30, 60)], [(0, 2), (2, 4), (4, 7)], [(0, 4)])
+    """
     if chunk_size is not None and (isinstance(chunk_size, bool) or chunk_size < 1):
         raise ValueError(f"chunk_size must be at least 1, got {chunk_size!r}")
-    size = max(n_images, 1) if chunk_size is None else chunk_size
-    return [(a, min(a + size, n_images)) for a in range(0, n_images, size)]
+    count = 1 if chunk_size is None else -(-n_images // chunk_size)
+    bounds = [k * n_images // count for k in range(count + 1)] if n_images else []
+    return list(zip(bounds[:-1], bounds[1:], strict=True))
 
 
 def fit_chunk(
