@@ -67,7 +67,14 @@ def detect_regions(image, binary, pixels, min_area, max_area, index):
     region in their 3×3 window and k the largest in their 5×5), or the image's
     median when it has none; a region whose weights do not sum to a positive
     number gets its plain centroid. Returns the (K, 2) centroids (u, v) in pixels,
-    centres at +0.5, and the (K,) areas in pixels of the kept regions.
+    centres at +0.5, and the (K,) areas in pixels of the kept regions: the weights'
+    sum over the region's brightest pixel's weight, the area of a flat disc as bright
+    that holds as much light (the pixel count where the weights do not sum to a
+    positive number). A pixel count grows as the threshold goes down, and over-counts
+    the disc's anti-aliased edge: ``core.synth``'s 4 px discs on a background of 20
+    count 14 pixels at 100 and 15 at 'auto' (73), read as 4.22 and 4.37 px; this
+    reads 3.98 at both (5 px: 4.96; 8 px: 7.92), so the marker diameter estimated from
+    it, and the fusion distance set by that, do not depend on the threshold.
     """
     H, W = binary.shape
     n = pixels.shape[0]
@@ -127,7 +134,7 @@ def detect_regions(image, binary, pixels, min_area, max_area, index):
         if n_ring == 0 and np.isnan(fallback):
             fallback = np.median(image[::4, ::4].copy())
         background = ring / n_ring if n_ring else fallback
-        total = su = sv = own = ou = ov = 0.0
+        total = su = sv = own = ou = ov = peak = 0.0
         for y in range(y0, y1):
             for x in range(x0, x1):
                 if _max_rank(binary, ranks, y, x, 1) == k:
@@ -139,10 +146,13 @@ def detect_regions(image, binary, pixels, min_area, max_area, index):
                     own += 1.0
                     ou += x + 0.5
                     ov += y + 0.5
+                    peak = max(peak, image[y, x] - background)
         if total > 0.0:
             out[k - 1, 0], out[k - 1, 1] = su / total, sv / total
         else:
             out[k - 1, 0], out[k - 1, 1] = ou / own, ov / own
+        if total > 0.0 and peak > 0.0:
+            kept_area[k - 1] = total / peak
     return out, kept_area
 
 
