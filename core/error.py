@@ -55,7 +55,8 @@ def fusion_distance(marker_diameter_px: float) -> float:
 
 
 # A detection this many times the image's median area is large enough to be markers the
-# detector merged: one 4 px marker covers 12-16 pixels, two merged 16-28 (median 13).
+# detector merged: one 4 px marker's area (its light over its peak) is 12.4 px², two merged
+# more, up to twice that where they just touch.
 MERGED_AREA_RATIO = 1.2
 
 
