@@ -65,8 +65,8 @@ class FitOptions:
                              help="SA iterations N_end (N_l, N_tau scale along)")
     seed: int = option(0, kind=int, ge=0, lt=2**63, help="random seed: same seed, same result")
     chunk_size: int | None = option(None, kind=int, ge=1, le=MAX_CHUNK_SIZE, optional=True,
-                                    help="images per chunk at most, chunks of even sizes (none: one chunk, or 4 per process of "
-                                         "`mocap fit --jobs`, or the server's default)")
+                                    help="images per chunk at most, chunks of even sizes (none: one chunk, "
+                                         "or 4 per process of `mocap fit --jobs`, or the server's default)")
     marker_diameter_px: float | str = option(
         "auto", ge=0, le=MAX_MARKER_DIAMETER_PX, words=("auto",),
         help="markers' diameter in pixels, closer markers may image as one blob: 'auto' (from the "

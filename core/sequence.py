@@ -32,6 +32,7 @@ import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
+from itertools import pairwise
 
 import numpy as np
 
@@ -120,7 +121,7 @@ def plan_chunks(n_images: int, chunk_size: int | None) -> list[tuple[int, int]]:
         raise ValueError(f"chunk_size must be at least 1, got {chunk_size!r}")
     count = 1 if chunk_size is None else -(-n_images // chunk_size)
     bounds = [k * n_images // count for k in range(count + 1)] if n_images else []
-    return list(zip(bounds[:-1], bounds[1:], strict=True))
+    return list(pairwise(bounds))
 
 
 def fit_chunk(
