@@ -2,12 +2,14 @@
 
     python bench/animals.py [--subject hexapod|freefly|biped|fullbody|stick|locust|rat|mouse|spider|all]
         [--images N] [--cameras 6|4|3|2] [--soft-tissue] [--ghosts N] [--occlusion F] [--seed S] [--jobs 1]
+        [--threshold auto|otsu|100]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
 is rendered by ``core.synth`` (5 px markers, ``--ghosts`` ghost blobs per view and image:
 2, or 0 with soft tissue),
 detected by ``core.detect`` and fitted by ``core.sequence.fit_sequence`` with the settings
-``mocap fit`` uses by default (marker diameter estimated from the blobs). With
+``mocap fit`` uses by default (marker diameter estimated from the blobs; ``--threshold``
+sets the detector's). With
 ``--soft-tissue`` every marker slides by a slowly varying 3D offset whose image displacement
 is 2 px RMS, and the markers the model lacks (one; the rat and the mouse two) are drawn in
 every view.
@@ -40,7 +42,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.subjects import NAMES, Subject, camera_choice, load
-from core.detect import detect, marker_diameter
+from core.detect import DetectorParams, detect, marker_diameter
 from core.error import Detections, fusion_distance
 from core.fit import FitParams, ImageFit, Status
 from core.histogram import Histograms
@@ -75,10 +77,12 @@ class Rendered:
 
 
 def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
-                      rng: np.random.Generator, occlusion: float = 0.0) -> Rendered:
+                      rng: np.random.Generator, occlusion: float = 0.0,
+                      detector: DetectorParams = DetectorParams()) -> Rendered:
     """Render ``n`` images of the subject's movement in every camera, then detect them (timed).
 
     ``occlusion``: the fraction of (image, view, marker) hidden (:func:`occlusion_mask`).
+    ``detector``: the detection settings (``mocap fit``'s defaults unless given).
     """
     truth = subject.trajectory(n, rng)
     model, offsets = subject.model, None
@@ -100,7 +104,7 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
     detections, seconds = [], 0.0
     for image in zip(*frames, strict=True):
         t0 = time.perf_counter()
-        detections.append(detect(list(image), rig=subject.rig))
+        detections.append(detect(list(image), rig=subject.rig, params=detector))
         seconds += time.perf_counter() - t0
     return Rendered(truth, detections, seconds, hidden)
 
@@ -300,7 +304,7 @@ def run(name: str, args: argparse.Namespace) -> None:
              + (" + soft tissue" if args.soft_tissue else ""))
     rng = np.random.default_rng(args.seed)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts,
-                             rng=rng, occlusion=args.occlusion)
+                             rng=rng, occlusion=args.occlusion, detector=args.detector)
     if data.hidden is not None:
         h = data.hidden
         print(f"\n{label}: hidden {int(h.sum())} of {h.size} marker projections "
@@ -342,7 +346,15 @@ def main() -> None:
                         help="frame rate of the movement (default: the subject's own, 50-250 Hz)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=1, help="processes fitting chunks")
+    parser.add_argument("--threshold", default=None,
+                        help="detection threshold: a grey level, 'otsu' or 'auto' (default: mocap fit's)")
     args = parser.parse_args()
+    try:
+        args.detector = (DetectorParams() if args.threshold is None else
+                         DetectorParams(threshold=args.threshold if args.threshold in ("otsu", "auto")
+                                        else float(args.threshold)))
+    except ValueError as exc:
+        parser.error(f"--threshold: {exc}")
     if args.ghosts is None:
         args.ghosts = 0 if args.soft_tissue else 2
     if (args.images < 1 or args.jobs < 1 or args.ghosts < 0 or not 0 <= args.occlusion <= 0.5
@@ -353,7 +365,8 @@ def main() -> None:
     print(f"bench/animals.py: seed {args.seed}, {args.images} images per subject, "
           f"{MARKER_DIAMETER_PX:g} px markers, {args.ghosts} ghost blobs per view"
           + (f", soft tissue {SOFT_TISSUE_PX:g} px RMS + unmodelled markers" if args.soft_tissue else "")
-          + (f", {100 * args.occlusion:g} % of marker projections hidden" if args.occlusion else ""))
+          + (f", {100 * args.occlusion:g} % of marker projections hidden" if args.occlusion else "")
+          + f", threshold {args.detector.threshold}")
     for name in names:
         run(name, args)
 

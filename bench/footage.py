@@ -1,7 +1,7 @@
 """Detection and fit on footage drawn another way: an independent renderer, then `mocap fit`.
 
     python bench/footage.py [--subject locust|hexapod|rat|spider|all] [--variant NAME|all]
-        [--frames 60] [--seed 1] [--threshold 100|otsu|auto]
+        [--frames 60] [--seed 1] [--threshold auto|otsu|100]
 
 ``core.synth`` draws flat anti-aliased discs on a dark, lightly noisy background; a lab's
 footage, or another implementation's renders of the same contract, look otherwise. This
@@ -10,8 +10,8 @@ alone: it uses only forward kinematics (``KinematicModel.marker_positions``) and
 (``Rig.project``), which FORMATS §1 and §2 define; how a marker looks is its own
 (:data:`VARIANTS`). Postures are a sinusoid per DOF about the middle of its range (a quarter
 of the range in amplitude, periods of 30-90 images). Every run writes raw grey AVI (MJPG
-where a variant says so), runs ``mocap fit`` on it with default settings plus
-``--threshold``, and prints per-DOF RMSE (median and worst), the share of images with every
+where a variant says so), runs ``mocap fit`` on it with default settings (and
+``--threshold`` where given), and prints per-DOF RMSE (median and worst), the share of images with every
 DOF within 5°, images more than 10° off (and how many of those are ``ok``), status counts,
 ambiguous images and the estimated marker diameter. Files go to ``bench/out/footage/``.
 """
@@ -155,11 +155,11 @@ def render(model: KinematicModel, rig: Rig, variant: str, n: int, seed: int, out
     return [out / f"video{k}.avi" for k in sorted(sizes)]
 
 
-def fit(videos: list[Path], folder: Path, out: Path, threshold: str) -> None:
-    """``mocap fit`` with default settings and ``--threshold``, as a lab runs it."""
+def fit(videos: list[Path], folder: Path, out: Path, threshold: str | None) -> None:
+    """``mocap fit`` with default settings and ``--threshold`` where given, as a lab runs it."""
     command = [sys.executable, "-c", "from cli.app import app; app()", "fit", *map(str, videos),
                "--model", str(folder / "model.xml"), "--rig", str(folder / "rig.json"), "--out", str(out),
-               "--threshold", threshold]
+               *(["--threshold", threshold] if threshold is not None else [])]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
     if result.returncode:
         raise SystemExit(f"mocap fit failed ({result.returncode}): {result.stderr.strip().splitlines()[-1]}")
@@ -191,7 +191,8 @@ def main() -> None:
     parser.add_argument("--variant", choices=(*VARIANTS, "all"), default="all")
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--threshold", default="100")
+    parser.add_argument("--threshold", default=None, help="a grey level, 'otsu' or 'auto' "
+                        "(default: mocap fit's)")
     args = parser.parse_args()
     for subject in SUBJECTS if args.subject == "all" else (args.subject,):
         folder = SUBJECTS[subject]
@@ -199,7 +200,7 @@ def main() -> None:
         for variant in VARIANTS if args.variant == "all" else (args.variant,):
             rendered = OUT / subject / variant
             videos = render(model, rig, variant, args.frames, args.seed, rendered)
-            fitted = rendered / f"fit-threshold-{args.threshold}"
+            fitted = rendered / f"fit-threshold-{args.threshold or 'default'}"
             fit(videos, folder, fitted, args.threshold)
             print(f"{subject:8s} {variant:15s} {evaluate(rendered / 'truth.csv', fitted, model)}", flush=True)
 
