@@ -189,7 +189,7 @@ def warn_few_detections(report: dict[str, Any], n_markers: int) -> None:
         if counts["mean"] is not None and counts["mean"] < FEW_BLOBS_SHARE * n_markers:
             typer.echo(f"mocap: warning: view {view!r} has {counts['mean']:g} blobs per image on "
                        f"average for the model's {n_markers} markers: check --threshold "
-                       f"({detector['threshold']}; 'auto' reads each view's background) and "
+                       f"({detector['threshold']}; a grey level, 'otsu' or 'auto') and "
                        f"--max-area ({detector['max_area']}) on a few frames with `mocap detect`",
                        err=True)
 

@@ -70,12 +70,13 @@ class DetectorParams:
         Intensity used. Colour frames are BGR (as OpenCV reads them); 'grey'
         converts them with ``cv2.COLOR_BGR2GRAY``; 'red', 'green' and 'blue'
         need colour frames.
-    threshold : float in [0, 255], 'otsu' or 'auto', default 100
+    threshold : float in [0, 255], 'otsu' or 'auto', default 'auto'
         A pixel belongs to a marker if its (blurred) intensity is greater than
         this; 'otsu' picks it per view and image (Otsu's method), which suits
         images that contain markers; 'auto' per view and image from the
-        background's level and noise and the markers' level (:func:`auto_threshold`),
-        for a lit background or markers dimmed by motion blur.
+        background's level and noise and the markers' level (:func:`auto_threshold`):
+        a fixed level sees a lit background as one region and misses markers
+        dimmed by motion blur.
     erode, dilate : int >= 0, default 0
         Iterations of binary erosion, then dilation, with a 3×3 kernel
         (erode then dilate removes speckles smaller than the markers).
@@ -86,7 +87,7 @@ class DetectorParams:
     """
 
     channel: str = option("grey", kind=str, words=CHANNELS, help="intensity used (colour frames: BGR)")
-    threshold: float | str = option(100.0, ge=0, le=255, words=("otsu", "auto"),
+    threshold: float | str = option("auto", ge=0, le=255, words=("otsu", "auto"),
                                     help="a pixel brighter than this grey level is a marker's; 'otsu': "
                                          "picked per view and image; 'auto': per view and image, "
                                          "from its background's level and noise and its markers' level")
@@ -253,9 +254,9 @@ def auto_threshold(image: np.ndarray) -> float:
 
     Why: a fixed level fails both ways. A lit background above it becomes one region,
     larger than any marker, and is dropped; markers that motion blur spreads over a few
-    pixels fall under it. A quarter of the way up keeps bright markers' blobs (and the
-    marker diameter estimated from them) as a fixed level does, where a level just above
-    the noise widened them and cost the spider's clean footage accuracy, and stays under a
+    pixels fall under it. A quarter of the way up keeps bright markers' blobs as narrow as
+    a fixed level does, where a level just above the noise widened them and cost the
+    spider's clean footage accuracy, and stays under a
     blurred marker's level where others are sharp (half way up lost them;
     docs/BENCH_SUBJECTS.md, footage). Read from the image's histogram (OpenCV's: under a
     millisecond on a megapixel view)."""

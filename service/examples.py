@@ -7,7 +7,7 @@ from typing import Any
 
 CREATED = "2026-11-24T09:30:00Z"
 METADATA = {"subject": "locust 7", "condition": "walking", "temperature_c": 24.5}
-DETECTOR = {"threshold": 100.0, "channel": "grey", "blur": 0, "erode": 0, "dilate": 0, "min_area": 2,
+DETECTOR = {"threshold": "auto", "channel": "grey", "blur": 0, "erode": 0, "dilate": 0, "min_area": 2,
             "max_area": 2000}
 FIT_OPTIONS = {"deinterlace": False, "field_order": "even-first", "error_threshold_px": 1.25,
                "max_attempts": 5, "iterations": 35000, "seed": 0, "chunk_size": None,

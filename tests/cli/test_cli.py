@@ -103,28 +103,28 @@ def test_fit_warns_once_about_a_dof_the_markers_cannot_determine_and_goes_on(cli
 
 
 def test_fit_warns_about_a_view_whose_background_is_brighter_than_the_threshold(tmp_path):
-    """The locust filmed on a lit background (grey 150, markers 255): at the default threshold
-    the whole view is one region, larger than the largest marker, and nothing is detected.
+    """The locust filmed on a lit background (grey 150, markers 255): at threshold 100 the
+    whole view is one region, larger than the largest marker, and nothing is detected.
     The fit goes on (every image ``no_detections``) and one line per view names the view and
-    the settings to check; ``--threshold 200`` and ``--threshold auto`` find the markers, and
+    the settings to check; ``--threshold 200`` and the default 'auto' find the markers, and
     no warning is given."""
     model, rig = KinematicModel.from_xml(LOCUST / "model.xml"), Rig.from_json(LOCUST / "rig.json")
     truth = natural_movements(model, rig, 6, rng=np.random.default_rng(0))
     write_video(tmp_path / "lit.avi", render_frames(model, rig, truth, rng=np.random.default_rng(1),
                                                     background=150, marker_level=255), fps=50.0)
     lit = _invoke("fit", tmp_path / "lit.avi", "--model", LOCUST / "model.xml", "--rig", LOCUST / "rig.json",
-                  "--out", tmp_path / "lit", "--marker-diameter-px", "4")
+                  "--out", tmp_path / "lit", "--marker-diameter-px", "4", "--threshold", "100")
     assert lit.exit_code == 0, lit.output
     warnings = [line for line in lit.stderr.splitlines() if "warning" in line]
     assert [w.split(" has ")[0] for w in warnings] == ["mocap: warning: view 'side'",
                                                        "mocap: warning: view 'top'"], lit.stderr
     assert all("--threshold (100.0;" in w and "--max-area (2000)" in w for w in warnings)
-    for threshold in ("200", "auto"):
+    for threshold in (("--threshold", "200"), ()):
+        out = tmp_path / (threshold[-1] if threshold else "default")
         set_right = _invoke("fit", tmp_path / "lit.avi", "--model", LOCUST / "model.xml", "--rig",
-                            LOCUST / "rig.json", "--out", tmp_path / threshold, "--marker-diameter-px", "4",
-                            "--threshold", threshold)
+                            LOCUST / "rig.json", "--out", out, "--marker-diameter-px", "4", *threshold)
         assert set_right.exit_code == 0 and "warning" not in set_right.stderr, set_right.output
-        report = json.loads((tmp_path / threshold / "report.json").read_text())
+        report = json.loads((out / "report.json").read_text())
         assert report["status"]["no_detections"] == 0
 
 

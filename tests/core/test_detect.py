@@ -91,22 +91,23 @@ def test_otsu_and_blur_find_the_markers():
         assert np.all(nearest_errors(det, truth) <= 0.1)
 
 
-@pytest.mark.parametrize(("background", "marker_level", "noise_sigma", "default_finds"),
-                         [(150, 255, 4.0, False),  # a lit background: above the default threshold
+@pytest.mark.parametrize(("background", "marker_level", "noise_sigma", "fixed_finds"),
+                         [(150, 255, 4.0, False),  # a lit background: above a fixed threshold of 100
                           (0, 80, 0.0, False),  # markers dimmed by motion blur: under it
                           (40, 120, 8.0, True),  # a noisy grey background, dim markers
                           (20, 230, 2.0, True)])  # the renderer's default
-def test_auto_threshold_finds_markers_where_the_default_level_does_not(background, marker_level, noise_sigma,
-                                                                        default_finds):
-    """'auto' sets each view's threshold above its background level and noise
-    (core.detect.auto_threshold): it finds the markers where the default 100 sees one region
-    bigger than ``max_area`` (nothing) or no marker at all, and where the default does."""
+def test_auto_threshold_finds_markers_where_a_fixed_level_does_not(background, marker_level, noise_sigma,
+                                                                    fixed_finds):
+    """'auto', the default, sets each view's threshold above its background level and noise
+    (core.detect.auto_threshold): it finds the markers where a fixed 100 sees one region
+    bigger than ``max_area`` (nothing) or no marker at all, and where 100 does."""
     model, rig = dots_model(*SQUARE), pixel_rig(None)
     frame = rendered(model, rig, [30.4, 25.7], background=background, marker_level=marker_level,
                      noise_sigma=noise_sigma, marker_diameter_px=5.0)[0]
     truth = rig.project(model.marker_positions(np.array([30.4, 25.7])))[0]
-    assert (detect([frame], rig=rig).counts.tolist() == [4]) == default_finds
-    det = detect([frame], rig=rig, params=DetectorParams(threshold="auto"))
+    fixed = detect([frame], rig=rig, params=DetectorParams(threshold=100.0))
+    assert (fixed.counts.tolist() == [4]) == fixed_finds
+    det = detect([frame], rig=rig)
     assert det.counts.tolist() == [4]
     assert np.all(nearest_errors(det, truth) <= 0.2)
 
@@ -121,7 +122,7 @@ def test_colour_frame_uses_the_selected_channel():
     assert np.all(nearest_errors(red, truth) <= 0.02)
     assert detect([bgr], rig=rig, params=DetectorParams(channel="blue")).counts.tolist() == [0]
     # Grey conversion weighs red by 0.299: 20 + 0.299·210 < 100, raise nothing at threshold 100.
-    assert detect([bgr], rig=rig).counts.tolist() == [0]
+    assert detect([bgr], rig=rig, params=DetectorParams(threshold=100.0)).counts.tolist() == [0]
     assert detect([bgr], rig=rig, params=DetectorParams(threshold=40)).counts.tolist() == [4]
 
 

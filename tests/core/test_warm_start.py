@@ -15,7 +15,7 @@ from tree_subjects import angle_errors, detections, insect, movement, ring_rig
 from core import treefit
 from core.ambiguity import Candidate
 from core.anneal import search_space
-from core.detect import detect
+from core.detect import DetectorParams, detect
 from core.error import Detections, view_error
 from core.examples import LOCUST
 from core.fit import (
@@ -755,10 +755,13 @@ def test_a_tree_attempt_not_lower_than_the_kept_posture_settles_the_image(slidin
 @pytest.fixture(scope="module")
 def stick_hidden():
     """The benchmark stick insect (top and side views, 2 ghost blobs per view, 10 % of the
-    marker projections hidden in runs, seed 0): the subject and its 300 rendered images."""
+    marker projections hidden in runs, seed 0): the subject and its 300 rendered images,
+    detected at threshold 100, where the cases below were traced (at 'auto' the blobs'
+    centroids move by up to 0.006 px, and images 181 and 276 no longer end in the
+    other minimum these tests need)."""
     subject = load("stick", None)
     data = render_and_detect(subject, 300, soft=False, ghosts=2, rng=np.random.default_rng(0),
-                             occlusion=0.1)
+                             occlusion=0.1, detector=DetectorParams(threshold=100.0))
     return subject, data
 
 
