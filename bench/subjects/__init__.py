@@ -58,15 +58,14 @@ class Subject:
     name: str
     model: KinematicModel
     rig: Rig
-    frame_size: tuple[int, int]
+    frame_sizes: tuple[tuple[int, int], ...]  # (width, height) of each video file, in index order
     fps: float
     movement: Callable[[Subject, int, np.random.Generator], np.ndarray]
     unmodelled: tuple[tuple[str, tuple[float, float, float]], ...]
-    frame_sizes: tuple[tuple[int, int], ...] | None = None  # per video, when they differ
 
     def size_of(self, video: int) -> tuple[int, int]:
         """The frame size of video ``video``."""
-        return self.frame_sizes[video] if self.frame_sizes else self.frame_size
+        return self.frame_sizes[video]
 
     def trajectory(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """(n, D) true postures, model-file DOF order (degrees, model units)."""
@@ -96,26 +95,28 @@ def load(name: str, cameras: int | None = None) -> Subject:
         rig = Rig(tuple(replace(rig.views[v], video=i) for i, v in enumerate(CAMERAS[name][cameras])))
     if name == "spider":  # unmodelled: a marker on the right leg 4 femur, mid-shaft
         sizes = tuple(SPIDER_SIZES[v] for v in SPIDER_CAMERAS[4 if cameras is None else cameras])
-        return Subject(name, model, rig, sizes[0], 100.0, spider_walk,
-                       (("R4_femur", (4.5, 0.4, 0.0)),), frame_sizes=sizes)
+        return Subject(name, model, rig, sizes, 100.0, spider_walk, (("R4_femur", (4.5, 0.4, 0.0)),))
+    every = {"hexapod": (640, 480), "freefly": (640, 480), "fullbody": (1280, 720),
+             "mouse": (960, 512)}.get(name, (720, 576))
+    sizes = (every,) * rig.n_videos
     if name in ("hexapod", "freefly"):
-        return Subject(name, model, rig, (640, 480), 100.0,
+        return Subject(name, model, rig, sizes, 100.0,
                        tripod_walk if name == "hexapod" else free_walk,
                        (("RM_femur_roll", (0.45, 0.03, 0.0)),))
     if name == "biped":
-        return Subject(name, model, rig, (720, 576), 100.0, walkway_gait,
+        return Subject(name, model, rig, sizes, 100.0, walkway_gait,
                        (("R_knee", (200.0, 60.0, 0.0)),))
     if name == "fullbody":  # the unmodelled marker: on the back of the right upper arm
-        return Subject(name, model, rig, (1280, 720), 100.0, fullbody_gait,
+        return Subject(name, model, rig, sizes, 100.0, fullbody_gait,
                        (("R_shoulder", (120.0, -45.0, 30.0)),))
     if name == "rat":  # unmodelled: a lumbar spine marker and one on the right mid-thigh
-        return Subject(name, model, rig, (720, 576), 200.0, treadmill_trot,
+        return Subject(name, model, rig, sizes, 200.0, treadmill_trot,
                        (("pelvis", (40.0, 14.0, 0.0)), ("R_hip", (17.5, 0.0, 5.0))))
     if name == "mouse":  # unmodelled: a mid-back marker and one on the left mid-forearm
-        return Subject(name, model, rig, (960, 512), 250.0, walkway_trot,
+        return Subject(name, model, rig, sizes, 250.0, walkway_trot,
                        (("pelvis", (20.0, 7.0, 0.0)), ("L_elbow", (7.0, 0.0, -2.0))))
     unmodelled = ("femur_tibia", (12.0, 1.0, 0.0)) if name == "stick" else ("femur_tibia", (14.0, 1.5, 0.0))
-    return Subject(name, model, rig, (720, 576), 50.0, _natural, (unmodelled,))
+    return Subject(name, model, rig, sizes, 50.0, _natural, (unmodelled,))
 
 
 def camera_choice(name: str, asked: int | None) -> int | None:
@@ -129,7 +130,7 @@ def camera_choice(name: str, asked: int | None) -> int | None:
 
 def _natural(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
     return natural_movements(subject.model, subject.rig, n, rng=rng, fps=subject.fps,
-                             frame_size=subject.frame_size)
+                             frame_size=subject.size_of(0))
 
 
 # ---- hexapod: tripod walking ---------------------------------------------------------------------

@@ -291,7 +291,7 @@ def _fly_at_50_hz(name: str, n: int, first: int) -> tuple[np.ndarray, list[Image
     subject = replace(load(name, 6), fps=50.0)
     truth = subject.trajectory(n, np.random.default_rng(0))[first:]
     frames = [render_frames(subject.model, subject.rig, truth, rng=np.random.default_rng(k), video=k,
-                            frame_size=subject.frame_size, marker_diameter_px=MARKER_DIAMETER_PX,
+                            frame_size=subject.size_of(k), marker_diameter_px=MARKER_DIAMETER_PX,
                             ghosts_per_view=2) for k in range(subject.rig.n_videos)]
     data = Rendered(truth, [detect(list(image), rig=subject.rig) for image in zip(*frames, strict=True)],
                     0.0)
