@@ -1,7 +1,8 @@
 """Whole-animal accuracy and speed benchmark (issue 13): subjects from published anatomy.
 
     python bench/animals.py [--subject hexapod|freefly|biped|fullbody|stick|locust|rat|mouse|spider|all]
-        [--images N] [--cameras 6|4|3|2] [--soft-tissue] [--ghosts N] [--occlusion F] [--seed S] [--jobs 1]
+        [--images N] [--cameras 6|4|3|2] [--soft-tissue] [--ghosts N] [--occlusion F [--everywhere]]
+        [--seed S] [--jobs 1]
         [--threshold auto|otsu|100]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
@@ -18,10 +19,13 @@ With ``--occlusion F`` every (view, marker) pair, the unmodelled markers include
 Markov chain per pair, hidden a fraction F of the images on average, in runs of
 :data:`OCCLUSION_RUN_S` seconds on average (at least 2 images), started from its stationary
 state and drawn from the run's generator after the images' noise generators are spawned, so
-the images differ from those of F = 0 by the hidden blobs only.
+the images differ from those of F = 0 by the hidden blobs only. With ``--everywhere`` the
+chain is one per marker and hides it from every view at once (a claw tucked under the body,
+a marker that fell off): the DOFs it alone places are then not determined, and the figures
+say whether such images are flagged.
 Prints, per subject, the per-DOF RMSE and the issue's figures next to its targets, and
 writes every image's fit to
-``bench/out/animals-<subject>[-<cameras>cams][-soft][-occ<percent>].csv`` (angles.csv).
+``bench/out/animals-<subject>[-<cameras>cams][-soft][-occ<percent>[all]].csv`` (angles.csv).
 """
 
 from __future__ import annotations
@@ -77,11 +81,12 @@ class Rendered:
 
 
 def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
-                      rng: np.random.Generator, occlusion: float = 0.0,
+                      rng: np.random.Generator, occlusion: float = 0.0, everywhere: bool = False,
                       detector: DetectorParams = DetectorParams()) -> Rendered:
     """Render ``n`` images of the subject's movement in every camera, then detect them (timed).
 
-    ``occlusion``: the fraction of (image, view, marker) hidden (:func:`occlusion_mask`).
+    ``occlusion``: the fraction of (image, view, marker) hidden (:func:`occlusion_mask`), each
+    marker from every view at once with ``everywhere``.
     ``detector``: the detection settings (``mocap fit``'s defaults unless given).
     """
     truth = subject.trajectory(n, rng)
@@ -93,8 +98,10 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
     hidden = None
     if occlusion > 0:
         mean_run = max(2.0, OCCLUSION_RUN_S * subject.fps)
-        hidden = occlusion_mask((n, len(subject.rig.views), len(model.markers)), occlusion,
+        views = len(subject.rig.views)
+        hidden = occlusion_mask((n, 1 if everywhere else views, len(model.markers)), occlusion,
                                 mean_run, rng)
+        hidden = np.repeat(hidden, views, axis=1) if everywhere else hidden
     frames = [
         render_frames(model, subject.rig, truth, rng=r, video=k, frame_size=subject.size_of(k),
                       marker_diameter_px=MARKER_DIAMETER_PX, ghosts_per_view=ghosts,
@@ -304,7 +311,8 @@ def run(name: str, args: argparse.Namespace) -> None:
              + (" + soft tissue" if args.soft_tissue else ""))
     rng = np.random.default_rng(args.seed)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts,
-                             rng=rng, occlusion=args.occlusion, detector=args.detector)
+                             rng=rng, occlusion=args.occlusion, everywhere=args.everywhere,
+                             detector=args.detector)
     if data.hidden is not None:
         h = data.hidden
         print(f"\n{label}: hidden {int(h.sum())} of {h.size} marker projections "
@@ -313,7 +321,8 @@ def run(name: str, args: argparse.Namespace) -> None:
               f"{h.sum() / max(1, _run_starts(h)):.1f} images")
     result, timing = fit(subject, data, seed=args.seed, jobs=args.jobs)
     tag = (name + (f"-{cameras}cams" if cameras else "") + ("-soft" if args.soft_tissue else "")
-           + (f"-occ{round(100 * args.occlusion)}" if args.occlusion else "")
+           + (f"-occ{round(100 * args.occlusion)}" + ("all" if args.everywhere else "") if args.occlusion
+              else "")
            + (f"-{args.fps:g}hz" if args.fps else ""))
     OUT.mkdir(parents=True, exist_ok=True)
     csv_path = OUT / f"animals-{tag}.csv"
@@ -342,6 +351,8 @@ def main() -> None:
     parser.add_argument("--occlusion", type=float, default=0.0, metavar="F",
                         help="fraction of marker projections hidden, in runs of "
                              f"{OCCLUSION_RUN_S:g} s per view and marker (default 0)")
+    parser.add_argument("--everywhere", action="store_true",
+                        help="with --occlusion, hide each marker from every view at once")
     parser.add_argument("--fps", type=float, default=None,
                         help="frame rate of the movement (default: the subject's own, 50-250 Hz)")
     parser.add_argument("--seed", type=int, default=0)
@@ -365,7 +376,9 @@ def main() -> None:
     print(f"bench/animals.py: seed {args.seed}, {args.images} images per subject, "
           f"{MARKER_DIAMETER_PX:g} px markers, {args.ghosts} ghost blobs per view"
           + (f", soft tissue {SOFT_TISSUE_PX:g} px RMS + unmodelled markers" if args.soft_tissue else "")
-          + (f", {100 * args.occlusion:g} % of marker projections hidden" if args.occlusion else "")
+          + (f", {100 * args.occlusion:g} % of marker projections hidden"
+             + (" (each marker from every view at once)" if args.everywhere else "")
+             if args.occlusion else "")
           + f", threshold {args.detector.threshold}")
     for name in names:
         run(name, args)

@@ -182,3 +182,18 @@ def test_occlusion_hides_the_asked_share_in_runs():
     assert not occlusion_mask((50, 2, 4), 0.0, 2.0, np.random.default_rng(0)).any()
     with pytest.raises(ValueError, match="no hidden fraction"):
         occlusion_mask((10, 1, 1), 0.8, 2.0, np.random.default_rng(0))
+
+
+def test_occlusion_everywhere_hides_a_marker_from_every_view_at_once():
+    """``--everywhere``: each marker hidden from all views in the same images, and its blobs
+    gone from every view there (the ghosts drawn still)."""
+    from bench.animals import render_and_detect
+
+    subject = load("locust")
+    data = render_and_detect(subject, 40, soft=False, ghosts=0, rng=np.random.default_rng(1),
+                             occlusion=0.2, everywhere=True)
+    hidden = data.hidden
+    assert hidden.any() and np.array_equal(hidden, np.repeat(hidden[:, :1], hidden.shape[1], axis=1))
+    markers = len(subject.model.markers)
+    for det, h in zip(data.detections, hidden, strict=True):
+        assert det.counts.tolist() == (markers - h.sum(axis=1)).tolist()
