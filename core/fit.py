@@ -32,6 +32,7 @@ from core.error import (
     Detections,
     check_fusion,
     check_views,
+    marker_errors,
     view_offsets,
 )
 from core.histogram import Histograms
@@ -53,6 +54,7 @@ from core.undetermined import (
     scatter_error,
     typical_inflation,
     undetermined_alternative,
+    unseen_markers,
 )
 
 __all__ = [
@@ -439,19 +441,30 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     dropped flip alternatives that the choice by continuity needed (docs/BENCH_SUBJECTS.md).
     The scatter is never above the fit's plain error (it leaves out hidden projections and
     views without detections), so an image whose plain error does not widen the tolerance,
-    most clean ones, is passed over without reading it.
+    most clean ones, is passed over without reading it, unless a marker looks hidden from
+    every camera (``core.undetermined.unseen_markers``): however clean, the image does not
+    place the DOFs only that marker places (a spider's claw hidden from all four cameras
+    left its metatarsus 44° off, ``ok``, with no witness).
     """
-    if _witness_readings(params, det, model, fit.error) is None:
+    off = view_offsets(offsets, rig)
+    penalty = params.empty_view_penalty_px
+    views = int(np.count_nonzero(det.counts))
+    unseen = np.zeros(len(model.markers), dtype=bool)
+    if fit.error > penalty * (views - 1 if views >= 3 else views):  # else no marker can be unseen
+        projected = rig.project(model.marker_positions(fit.dofs)) + off[:, None, :]
+        unseen = unseen_markers(marker_errors(projected, det), penalty)
+    if not unseen.any() and _witness_readings(params, det, model, fit.error) is None:
         return None
-    scatter = scatter_error(fit.dofs, det, model, rig, view_offsets(offsets, rig),
-                            params.empty_view_penalty_px)
+    scatter = scatter_error(fit.dofs, det, model, rig, off, penalty)
     if (readings := _witness_readings(params, det, model, scatter)) is None:
-        return None
+        if not unseen.any():
+            return None
+        readings = witness_tolerance(params, det, model, scatter)
     floor, residual = readings
     return undetermined_alternative(
         fit, det, model=model, rig=rig, tolerance_px=max(floor, residual), residual_px=residual,
-        fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
-        huber_px=params.anneal.huber_px, offsets=offsets,
+        fusion_px=params.fusion_px, empty_view_penalty_px=penalty,
+        huber_px=params.anneal.huber_px, offsets=offsets, unseen=unseen,
     )
 
 

@@ -28,7 +28,7 @@ from core.treefit import MAX_LOST_SHARE, world_frames
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "confidence_chi2",
            "hidden_projections", "interval_chi2", "residual_tolerance", "scatter_error",
-           "shared_scatter_inflation", "typical_inflation", "undetermined_alternative"]
+           "shared_scatter_inflation", "typical_inflation", "undetermined_alternative", "unseen_markers"]
 
 # An image does not determine a DOF when a posture this far from its fit in that DOF (degrees,
 # the issue's "more than 10 degrees off the truth") explains it within its tolerance.
@@ -76,6 +76,25 @@ def hidden_projections(distances: np.ndarray, penalty: float) -> np.ndarray:
     if np.count_nonzero(far) > MAX_LOST_SHARE * np.count_nonzero(np.isfinite(distances)):
         return np.zeros_like(far)
     return far
+
+
+def unseen_markers(distances: np.ndarray, penalty: float) -> np.ndarray:
+    """(M,) bool: the markers that no camera sees in this image, or one alone of three or
+    more: their projection looks hidden (:func:`hidden_projections` of ``distances`` (V, M)
+    px, NaN in a view without blobs) in every view with blobs, or in all but one where three
+    or more have blobs. The image then does not place the DOFs only they place (a claw's
+    tarsus): :func:`undetermined_alternative` leaves them out.
+
+    Why one of three: a marker hidden from every camera is charged its distance to the
+    nearest blob, and a posture that puts it on some other blob in one view (a ghost, 3 px
+    away) scores lower than the truth; seen by one camera of four, a spider's claw that
+    none saw was placed that way, its metatarsus 44° off and ``ok``. A marker that two
+    cameras see is placed by both; with two views, one alone is how the paper's locust is
+    filmed.
+    """
+    views = np.isfinite(distances).any(axis=1)
+    seen = np.count_nonzero(~hidden_projections(distances, penalty)[views], axis=0)
+    return seen < (2 if np.count_nonzero(views) >= 3 else 1) if views.any() else np.zeros(len(seen), bool)
 
 
 def scatter_error(q: np.ndarray, detections: Detections, model: KinematicModel, rig: Rig,
@@ -136,6 +155,7 @@ def undetermined_alternative(
     empty_view_penalty_px: float,
     huber_px: float,
     offsets: np.ndarray | None = None,
+    unseen: np.ndarray | None = None,
 ) -> Candidate | None:
     """A posture at least :data:`UNDETERMINED_DEG` from ``fit`` in some rotational DOF whose
     objective is within ``tolerance_px`` of the fit's, or None: the witness that the image
@@ -160,6 +180,12 @@ def undetermined_alternative(
     ``residual_px`` × :func:`shared_scatter_inflation` [d] where the residual is the
     markers' own 3D scatter (sliding skin, a model's segments off) that every view sees
     alike. 0 keeps ``tolerance_px`` for every DOF.
+
+    ``unseen`` (M,) bool marks markers no camera sees in this image (:func:`unseen_markers`):
+    left out of the profiles and charged the empty-view penalty wherever they project, so
+    that a DOF only they place is found undetermined. Judged on their distance to some other
+    blob, a spider's metatarsus whose claw was hidden from all four cameras stood 44° off,
+    `ok`, with no witness.
     """
     q = fit.dofs
     rot = model.rotational
@@ -168,7 +194,11 @@ def undetermined_alternative(
         return None
     off = view_offsets(offsets, rig)
     kin, views, points, start = model.arrays, rig.arrays, detections.kernel_points, detections.start
-    image = _kernels.Image.of(points, start, off, penalty=empty_view_penalty_px, fuse_px=fusion_px)
+    hidden = np.zeros(len(model.markers), dtype=bool) if unseen is None else np.asarray(unseen, dtype=bool)
+    left_out = (np.ascontiguousarray(np.broadcast_to(hidden, (len(rig.views), len(hidden))))
+                if hidden.any() else _kernels.NO_UNSEEN)
+    image = _kernels.Image.of(points, start, off, penalty=empty_view_penalty_px, fuse_px=fusion_px,
+                              unseen=left_out)
     charged = image._replace(lost_px=image.penalty)  # the objective a fit reports
 
     def objective(p: np.ndarray) -> float:
@@ -185,11 +215,13 @@ def undetermined_alternative(
         lower, upper = model.lower[dofs].copy(), model.upper[dofs].copy()
         lower[dofs == d] = upper[dofs == d] = p[d]
         out = p.copy()
+        posed = image if not hidden.any() or model.tree is None else image._replace(
+            unseen=np.ascontiguousarray(left_out[:, part.markers]))
         out[dofs] = _kernels.refine(p[dofs].copy(), _kernels.Bounds(lower, upper), part_kin, views,
-                                    image, float(huber_px), PROFILE_STEPS, _kernels.NO_TARGETS)
+                                    posed, float(huber_px), PROFILE_STEPS, _kernels.NO_TARGETS)
         return out
 
-    profiles, moves, inflation = _profiles(q, model, rig, detections)
+    profiles, moves, inflation = _profiles(q, model, rig, detections, hidden)
     tolerance = np.maximum(tolerance_px, residual_px * inflation)  # (D,) pixels
     mean = max(fit.error / compared, 1e-12)
     # Linearised rise of Eq. 5 at the first step: a projection moved by m from a residual
@@ -221,42 +253,44 @@ def undetermined_alternative(
                      minimum=False)
 
 
-def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig,
-              detections: Detections) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig, detections: Detections,
+              unseen: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Profile directions (D, D), row d the change of every DOF per unit change of DOF d;
     (D, P) how far each of the P compared marker projections moves along each, pixels per
     unit; and (D,) each DOF's :func:`shared_scatter_inflation`. From the Jacobian J of the
-    projections in the views with detections (forward differences; linearised least
-    squares: column d of (JᵀJ)⁻¹)."""
+    projections in the views with detections, less those of the ``unseen`` (M,) markers
+    (forward differences; linearised least squares: column d of (JᵀJ)⁻¹)."""
     D = len(q)
     h = 1e-3
     postures = np.repeat(q[None], D + 1, axis=0)
     postures[1:] += np.eye(D) * h
     positions = model.marker_positions(postures)  # (D + 1, M, 3)
     proj = rig.project(positions)  # (D + 1, V, M, 2)
-    seen = np.asarray(detections.counts) > 0
-    J = ((proj[1:] - proj[:1])[:, seen] / h).reshape(D, -1).T  # (2P, D)
+    compared = (np.asarray(detections.counts) > 0)[:, None] & ~unseen[None, :]  # (V, M)
+    J = ((proj[1:] - proj[:1])[:, compared] / h).reshape(D, -1).T  # (2P, D)
     A = J.T @ J
     A += np.eye(D) * (1e-9 * max(float(np.trace(A)) / D, 1e-12))  # a DOF no marker moves
     C = np.linalg.inv(A)
     profiles = (C / np.diag(C)[None, :]).T
     moves = np.linalg.norm((J @ profiles.T).T.reshape(D, -1, 2), axis=2)
-    shared = _point_jacobian(positions[0], rig, seen)
+    shared = _point_jacobian(positions[0], rig, compared)
     return profiles, moves, shared_scatter_inflation(J, C, shared)
 
 
-def _point_jacobian(points: np.ndarray, rig: Rig, seen: np.ndarray) -> np.ndarray:
-    """(2P, 3M) derivative of the P = views × M projections in the ``seen`` views, rows
-    ordered as the profiles' Jacobian (view, marker, u/v), by each marker's world position
+def _point_jacobian(points: np.ndarray, rig: Rig, compared: np.ndarray) -> np.ndarray:
+    """(2P, 3M) derivative of the P projections that ``compared`` (V, M) marks, rows ordered
+    as the profiles' Jacobian (view, marker, u/v), by each marker's world position
     ``points`` (M, 3), model units (forward differences)."""
     M = len(points)
     h = 1e-3 * max(float(np.ptp(points, axis=0).max()), 1.0)
     moved = np.repeat(points[None], 4, axis=0)  # unmoved, then each axis
     moved[1:] += np.eye(3)[:, None, :] * h
-    proj = rig.project(moved)[:, seen]  # (4, V', M, 2)
-    G = (proj[1:] - proj[:1]) / h  # (3 axes, V', M, 2)
-    B = np.einsum("avmc,mn->vmcna", G, np.eye(M))  # marker m's rows move with m alone
-    return B.reshape(-1, 3 * M)
+    proj = rig.project(moved)[:, compared]  # (4, P, 2)
+    G = (proj[1:] - proj[:1]) / h  # (3 axes, P, 2)
+    P = G.shape[1]
+    B = np.zeros((P, 2, M, 3))
+    B[np.arange(P), :, np.nonzero(compared)[1], :] = G.transpose(1, 2, 0)  # marker m's rows move with m alone
+    return B.reshape(2 * P, 3 * M)
 
 
 def typical_inflation(compared: int, n_markers: int, n_dofs: int) -> float:

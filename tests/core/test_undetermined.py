@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 import pytest
+from tree_subjects import detections, insect, movement, ring_rig
 
 from bench.animals import angle_errors, fit_params, render_and_detect
 from bench.subjects import load
@@ -18,7 +19,7 @@ from bench.witness import slid_detections, witnesses
 from core.ambiguity import Candidate, angle_gaps, plain_error
 from core.error import Detections, marker_errors, view_error, view_offsets
 from core.examples import EXAMPLES
-from core.fit import FitParams, Status, alternative_tolerance
+from core.fit import FitParams, Status, _undetermined_witness, alternative_tolerance
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.refine import refine
@@ -33,6 +34,7 @@ from core.undetermined import (
     scatter_error,
     shared_scatter_inflation,
     undetermined_alternative,
+    unseen_markers,
 )
 
 # The stick insect with its tibia almost straight (gamma near its 10 deg minimum): psi turns
@@ -288,3 +290,38 @@ def test_a_clean_image_with_a_hidden_marker_is_not_undetermined():
     for fit in result.fits:
         assert angle_gaps(fit.dofs, LOCUST).max() < 0.01
         assert math.isnan(fit.alternative_deg(model.rotational))
+
+
+def test_a_marker_no_camera_sees_or_one_of_three_is_unseen():
+    """Distances (V, M) px to the nearest blob: hidden beyond the 5 px penalty. Marker 1 is
+    hidden from every view; marker 2 from all but one of four; marker 3 from one. With two
+    views, a marker one of them sees is not unseen (the paper's locust is filmed so)."""
+    d = np.full((4, 10), 0.2)  # ten markers: a quarter of the projections far is a wrong fit
+    d[:, 1] = 30.0
+    d[1:, 2] = 30.0
+    d[0, 3] = 30.0
+    assert np.flatnonzero(unseen_markers(d, 5.0)).tolist() == [1, 2]
+    assert np.flatnonzero(unseen_markers(d[:2], 5.0)).tolist() == [1]
+    d[2:] = np.nan  # views without blobs do not count: two views left
+    assert np.flatnonzero(unseen_markers(d, 5.0)).tolist() == [1]
+
+
+def test_a_claw_no_camera_sees_leaves_its_dof_undetermined_in_a_clean_image():
+    """Two legs, three cameras, noise-free; leg 0's claw hidden from every camera. The image
+    is clean everywhere else, so the residual alone would not search for a witness, and the
+    knee (which only the claw places) could stand anywhere, ``ok`` with no alternative. The
+    claw is unseen: left out, the knee is found undetermined, a witness 10 deg or more away."""
+    model, rig = insect(legs=2), ring_rig(3)
+    truth = movement(model, 2, seed=1)[1]
+    leg = model.tree.branches[0]
+    claw = int(leg.markers[-1])
+    proj = rig.project(model.marker_positions(truth)) + 0.05
+    det = Detections.from_views([np.delete(p, claw, axis=0) for p in proj])
+    error = view_error(truth, det, model=model, rig=rig)
+    witness = _undetermined_witness(Candidate(truth, error, error), det, model, rig, FitParams(), None)
+    assert witness is not None
+    gaps = angle_gaps(witness.dofs, truth)
+    assert gaps[model.dof_names.index("leg0_knee")] >= UNDETERMINED_DEG
+    assert np.delete(gaps, leg.dofs).max() < 1e-9  # the other leg stays
+    clean = detections(model, rig, truth[None])[0]
+    assert _undetermined_witness(Candidate(truth, 0.0, 0.0), clean, model, rig, FitParams(), None) is None
