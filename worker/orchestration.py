@@ -413,8 +413,9 @@ def resume(job_id: int) -> None:
 # ---- 5. finish ---------------------------------------------------------------------------------
 def _finish(job_id: int) -> None:
     """Write the results (and the artifacts the options ask for: drawn with no transaction
-    open, they decode the videos again), fold the job into the model's archive, then mark it
-    succeeded."""
+    open, they decode the videos again), fold the job into the model's archive as a new
+    version where an image was within the threshold (none: the archive is unchanged, and a
+    version would repeat the last), then mark it succeeded."""
     storage = get_storage()
     with session_scope() as session:
         loaded = _load(session, job_id)
@@ -439,6 +440,10 @@ def _finish(job_id: int) -> None:
         )
         if not ended:
             session.rollback()
+            return
+        if not result.observed.counts.any():  # no image within the threshold: nothing to fold in
+            logger.info("job %s succeeded; no image within the threshold, model %s archive unchanged",
+                        job_id, model.id)
             return
         latest = histogram_version(session, model, None)
         archive = histstore.load(storage, latest.storage_key, loaded.fit.model)

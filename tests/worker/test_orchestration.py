@@ -7,6 +7,7 @@ replaced by the recorder of ``conftest.py``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from recorded_queue import CHUNK_SIZE, IMAGES, MISFIT, Recorder
@@ -162,6 +163,18 @@ def test_the_reaper_finds_pending_reanalyses_by_the_rule_that_queued_them(
     orchestration.run_attempt(job_id, MISFIT[0], 2, worker=WORKER)  # max_attempts 2: settled
     with session_scope() as session:
         assert orchestration.pending_reanalyses(session, job_id) == [(MISFIT[1], 2)]
+
+
+def test_a_job_with_no_image_within_the_threshold_adds_no_archive_version(
+        queue: Recorder, submit: Callable[..., int]) -> None:
+    """Every image over a threshold no fit meets: the job succeeds, and the model's archive
+    keeps its one version (a second would repeat it)."""
+    job_id = submit(chunk_size=CHUNK_SIZE, marker_diameter_px=4.0, max_attempts=1, error_threshold_px=1e-9)
+    orchestration.plan_job(job_id)
+    _drain(queue)
+    job = _job(job_id)
+    assert job["status"] == JobStatus.SUCCEEDED and job["images_over_threshold"] == IMAGES
+    assert _archive_versions(job_id) == 1
 
 
 def test_a_job_finishes_exactly_once(queue: Recorder, job_id: int) -> None:
