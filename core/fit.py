@@ -441,10 +441,11 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     dropped flip alternatives that the choice by continuity needed (docs/BENCH_SUBJECTS.md).
     The scatter is never above the fit's plain error (it leaves out hidden projections and
     views without detections), so an image whose plain error does not widen the tolerance,
-    most clean ones, is passed over without reading it, unless a marker looks hidden from
-    every camera (``core.undetermined.unseen_markers``): however clean, the image does not
-    place the DOFs only that marker places (a spider's claw hidden from all four cameras
-    left its metatarsus 44° off, ``ok``, with no witness).
+    most clean ones, is passed over without reading it, unless a marker is unseen (hidden
+    from every camera, or from all but one of three or more:
+    ``core.undetermined.unseen_markers``): however clean, the image does not place the DOFs
+    only that marker places (a spider's claw hidden from all four cameras left its
+    metatarsus 44° off, ``ok``, with no witness).
     """
     off = view_offsets(offsets, rig)
     penalty = params.empty_view_penalty_px
