@@ -38,7 +38,7 @@ from core.video import MAX_FRAME_PIXELS
 
 __all__ = [
     "CHANNELS", "DetectorParams", "auto_threshold", "detect", "detect_views", "marker_diameter",
-    "marker_mask", "view_images",
+    "marker_mask", "threshold_level", "view_images",
 ]
 
 # OpenCV's threads per process, set when this module is imported. One: the filters run on
@@ -221,19 +221,31 @@ def marker_mask(image: np.ndarray, params: DetectorParams) -> np.ndarray:
 
     What detection labels, and what ``core.preview`` draws.
     """
-    work = image
-    if params.blur > 1:
-        work = cv2.GaussianBlur(work, (params.blur, params.blur), 0)
-    if params.threshold == "otsu":
-        _, binary = cv2.threshold(work, 0, 1, cv2.THRESH_BINARY | cv2.THRESH_OTSU)
-    else:
-        level = auto_threshold(work) if params.threshold == "auto" else float(params.threshold)
-        _, binary = cv2.threshold(work, level, 1, cv2.THRESH_BINARY)
+    work = _blurred(image, params)
+    _, binary = cv2.threshold(work, _level(work, params), 1, cv2.THRESH_BINARY)
     if params.erode:
         binary = cv2.erode(binary, _KERNEL3, iterations=params.erode)
     if params.dilate:
         binary = cv2.dilate(binary, _KERNEL3, iterations=params.dilate)
     return binary
+
+
+def threshold_level(image: np.ndarray, params: DetectorParams) -> float:
+    """The grey level :func:`marker_mask` thresholds one view's (h, w) uint8 image at: the
+    fixed one, or the one 'otsu' or 'auto' picks for this image (after the blur), so that
+    a lab sees what 'auto' chose (``mocap detect`` prints it)."""
+    return _level(_blurred(image, params), params)
+
+
+def _blurred(image: np.ndarray, params: DetectorParams) -> np.ndarray:
+    return cv2.GaussianBlur(image, (params.blur, params.blur), 0) if params.blur > 1 else image
+
+
+def _level(work: np.ndarray, params: DetectorParams) -> float:
+    """The threshold of the blurred view image ``work``: a pixel above it is a marker's."""
+    if params.threshold == "otsu":
+        return float(cv2.threshold(work, 0, 1, cv2.THRESH_BINARY | cv2.THRESH_OTSU)[0])
+    return auto_threshold(work) if params.threshold == "auto" else float(params.threshold)
 
 
 AUTO_NOISE_SIGMAS = 6.0  # 'auto': the threshold lies this many noise deviations above the background

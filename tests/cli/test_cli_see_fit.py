@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from cli.app import app
-from core.detect import DetectorParams, detect
+from core.detect import DetectorParams, detect, threshold_level, view_images
 from core.examples import LOCUST
 from core.model import KinematicModel
 from core.overlay import MARK_BGR
@@ -124,18 +124,26 @@ def test_overlay_bad_input_exits_2_with_one_line(clip, fitted, tmp_path, case, m
     assert len(lines) == 1 and lines[0].startswith("mocap: error:") and match in lines[0], result.output
 
 
-def test_detect_preview_prints_core_detects_counts(clip, tmp_path):
+@pytest.mark.parametrize("threshold", ["90", "auto"])
+def test_detect_preview_prints_core_detects_counts_and_thresholds(clip, tmp_path, threshold):
+    """Each frame's line gives every view's count and the threshold it was detected at: the
+    fixed level, or the one 'auto' picked for that view (core.detect.threshold_level)."""
     result = _invoke("detect", clip / "video0.avi", "--rig", RIG, "--frames", "6,0,3",
-                     "--out", tmp_path, "--threshold", "90")
+                     "--out", tmp_path, "--threshold", threshold)
     assert result.exit_code == 0, result.output
     rig = Rig.from_json(RIG)
-    counts = json.loads((tmp_path / "counts.json").read_text())["counts"]
+    params = DetectorParams(threshold=threshold if threshold == "auto" else float(threshold))
+    written = json.loads((tmp_path / "counts.json").read_text())
     lines = result.output.splitlines()
     for line, index in zip(lines, (0, 3, 6), strict=False):
         (frames,) = VideoSet([clip / "video0.avi"]).read(index, index + 1)
-        expected = detect(frames, rig=rig, params=DetectorParams(threshold=90)).counts
-        assert line == f"frame {index}: side {expected[0]}, top {expected[1]}"
-        assert counts[str(index)] == {"side": int(expected[0]), "top": int(expected[1])}
+        expected = detect(frames, rig=rig, params=params).counts
+        levels = [threshold_level(v, params) for v in view_images(frames, rig, params)]
+        assert (levels[0] == 90.0) if threshold == "90" else (30.0 < levels[0] < 200.0)
+        assert line == (f"frame {index}: side {expected[0]} (threshold {levels[0]:g}), "
+                        f"top {expected[1]} (threshold {levels[1]:g})")
+        assert written["counts"][str(index)] == {"side": int(expected[0]), "top": int(expected[1])}
+        assert written["thresholds"][str(index)] == {"side": levels[0], "top": levels[1]}
         assert cv2.imread(str(tmp_path / f"frame_{index:06d}_video0.png")) is not None
 
 
