@@ -378,5 +378,7 @@ class DetectPreview(BaseModel):
     rig_id: int
     frame: int
     counts: dict[str, int] = Field(description="detections per view, as core.detect (mocap fit) finds them")
+    thresholds: dict[str, float] = Field(description="the grey level each view was thresholded at: the "
+                                         "detector's, or what 'auto' or 'otsu' picked in this frame")
     centroids: dict[str, list[list[float]]] = Field(description="(u, v) full-frame pixels per view")
     image: str = Field(description="the frame with rois, thresholded mask and centroids: a PNG data URL")

@@ -14,7 +14,7 @@ from svc_helpers import submit, upload_inputs, wait_for
 from typer.testing import CliRunner
 
 from cli.app import app
-from core.detect import DetectorParams, detect
+from core.detect import DetectorParams, detect, threshold_level, view_images
 from core.video import VideoSet
 
 pytestmark = [pytest.mark.service, pytest.mark.slow]
@@ -87,7 +87,14 @@ def test_detect_preview_gives_core_detects_counts_on_one_frame(redis_pg, lab, cl
     (frames,) = VideoSet([clip.video]).read(7, 8)
     expected = detect(frames, rig=clip.rig, params=DetectorParams(threshold=90))
     assert body["counts"] == {"side": int(expected.counts[0]), "top": int(expected.counts[1])}
+    assert body["thresholds"] == {"side": 90.0, "top": 90.0}
     np.testing.assert_allclose(body["centroids"]["side"], expected.view(0), atol=1e-3)
+    picked = client.post(f"/videos/{ids['video_id']}/detect-preview",
+                         json={"rig_id": ids["rig_id"], "frame": 7})  # the default 'auto'
+    assert picked.status_code == 200, picked.text
+    views = view_images(frames, clip.rig, DetectorParams())
+    assert picked.json()["thresholds"] == {"side": threshold_level(views[0], DetectorParams()),
+                                           "top": threshold_level(views[1], DetectorParams())}
     png = base64.b64decode(body["image"].removeprefix("data:image/png;base64,"))
     assert cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR).shape == frames[0].shape
 
