@@ -55,7 +55,7 @@ BATCH = {"id": 3, "name": "day 3", "metadata": {"experimenter": "AB"}, "status":
          "jobs": [{**JOB, "batch_id": 3, "trial": 0, "name": "walk", "metadata": {"speed": "slow"}}]}
 PREVIEW_CREATE = {"rig_id": 1, "frame": 0, "video_index": 0, "detector": DETECTOR}
 PREVIEW = {"video_id": 1, "rig_id": 1, "frame": 0, "counts": {"side": 4, "top": 4},
-           "thresholds": {"side": 73.25, "top": 71.5},
+           "thresholds": {"side": 72.25, "top": 72.0},
            "centroids": {"side": [[240.0, 184.0], [279.0, 184.0], [352.1, 180.3], [420.6, 176.2]],
                          "top": [[240.0, 438.0], [279.0, 438.0], [352.1, 441.5], [420.6, 444.9]]},
            "image": "data:image/png;base64,iVBORw0KGgo..."}
