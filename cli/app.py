@@ -32,7 +32,6 @@ from cli.options import (
 from core.benchmark import FUSION_PX, locust_benchmark
 from core.bounds import bounds_of
 from core.cost import check_fit_cost, estimate_fit_cost
-from core.detect import threshold_level, view_images
 from core.export import EXPORTS, unit_scale
 from core.fit import FitParams, ImageFit, Status
 from core.histogram import HistogramError, Histograms
@@ -394,12 +393,11 @@ def detect(
         names = [v.name for v in camera_rig.views]
         for index in indices:
             (decoded,) = video_set.read(index, index + 1)
-            drawn, found = preview_frame(decoded, rig=camera_rig, params=detector)
+            drawn, found, thresholds = preview_frame(decoded, rig=camera_rig, params=detector)
             for k, image in enumerate(drawn):
                 cv2.imwrite(str(out / f"frame_{index:06d}_video{k}.png"), image)
             counts[index] = dict(zip(names, map(int, found.counts), strict=True))
-            views = view_images(decoded, camera_rig, detector)
-            levels[index] = dict(zip(names, (threshold_level(v, detector) for v in views), strict=True))
+            levels[index] = dict(zip(names, thresholds, strict=True))
             print(f"frame {index}: " + ", ".join(
                 f"{name} {counts[index][name]} (threshold {levels[index][name]:g})" for name in names))
         (out / "counts.json").write_text(json.dumps({"detector": asdict(detector), "counts": counts,

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from core.detect import DetectorParams, detect_views, marker_mask, view_images
+from core.detect import DetectorParams, detect_views, marker_mask, threshold_level, view_images
 from core.error import Detections
 from core.rig import Rig
 
@@ -32,8 +32,9 @@ CROSS_GAP_PX = 3
 
 def preview_frame(
     frames: Sequence[np.ndarray], *, rig: Rig, params: DetectorParams = DetectorParams()
-) -> tuple[list[np.ndarray], Detections]:
-    """One frame per video file with each view's roi, mask and centroids drawn; the detections.
+) -> tuple[list[np.ndarray], Detections, list[float]]:
+    """One frame per video file with each view's roi, mask and centroids drawn; the
+    detections; the threshold of each view.
 
     Parameters
     ----------
@@ -43,6 +44,8 @@ def preview_frame(
     -------
     drawn : one BGR uint8 (H, W, 3) image per video file.
     detections : ``core.detect.detect`` of ``frames``: one group per view.
+    thresholds : the grey level each view was thresholded at (``core.detect.threshold_level``:
+        with 'auto' or 'otsu', the one picked in this frame), in view order.
     """
     images = view_images(frames, rig, params)
     detections = detect_views(images, rig=rig, params=params)
@@ -63,7 +66,7 @@ def preview_frame(
         at = (x + 4, y + 14)
         cv2.putText(canvas, label, at, cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 3, cv2.LINE_AA)
         cv2.putText(canvas, label, at, cv2.FONT_HERSHEY_SIMPLEX, 0.45, ROI_BGR, 1, cv2.LINE_AA)
-    return out, detections
+    return out, detections, [threshold_level(image, params) for image in images]
 
 
 def _cross(image: np.ndarray, u: float, v: float) -> None:

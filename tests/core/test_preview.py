@@ -27,7 +27,7 @@ def frames() -> list[np.ndarray]:
 def test_counts_and_centroids_are_core_detects(frames, params):
     rig = Rig.from_json(LOCUST / "rig.json")
     for frame in frames:
-        drawn, found = preview_frame([frame], rig=rig, params=params)
+        drawn, found, _ = preview_frame([frame], rig=rig, params=params)
         expected = detect([frame], rig=rig, params=params)
         assert found.counts.tolist() == expected.counts.tolist()
         np.testing.assert_array_equal(found.points, expected.points)
@@ -36,7 +36,7 @@ def test_counts_and_centroids_are_core_detects(frames, params):
 
 def test_roi_mask_and_centroids_are_drawn_at_their_pixels(frames):
     rig = Rig.from_json(LOCUST / "rig.json")
-    (drawn,), found = preview_frame([frames[0]], rig=rig)
+    (drawn,), found, _ = preview_frame([frames[0]], rig=rig)
     assert found.counts.min() >= 4
     for u, v in found.points:
         assert drawn[int(v), int(u)].tolist() == list(CENTROID_BGR)
@@ -51,7 +51,7 @@ def test_roi_mask_and_centroids_are_drawn_at_their_pixels(frames):
 
 def test_regions_the_area_limits_refuse_are_tinted_without_centroid(frames):
     rig = Rig.from_json(LOCUST / "rig.json")
-    (drawn,), found = preview_frame([frames[0]], rig=rig, params=DetectorParams(min_area=1000))
+    (drawn,), found, _ = preview_frame([frames[0]], rig=rig, params=DetectorParams(min_area=1000))
     assert found.counts.tolist() == [0, 0]
     real = detect([frames[0]], rig=rig)
     u, v = real.points[0]

@@ -9,7 +9,7 @@ import cv2
 from fastapi import APIRouter, Request, Response
 from fastapi.concurrency import run_in_threadpool
 
-from core.detect import DetectorParams, threshold_level, view_images
+from core.detect import DetectorParams
 from core.preview import preview_frame
 from core.rig import Rig, RigError
 from core.video import VideoError, VideoSet
@@ -123,9 +123,8 @@ def detect_preview(video_id: PathId, session: SessionDep, storage: StorageDep, l
         raise InvalidError(f"rig {body.rig_id} and {name}: {exc}") from None
     except VideoError:  # its message names the server's path: not shown
         raise InvalidError(f"frame {body.frame} of {name} does not decode") from None
-    drawn, found = preview_frame(frames, rig=Rig(views), params=params)
+    drawn, found, levels = preview_frame(frames, rig=Rig(views), params=params)
     png = cv2.imencode(".png", drawn[0])[1].tobytes()
-    levels = [threshold_level(image, params) for image in view_images(frames, Rig(views), params)]
     return DetectPreview(
         video_id=video_id, rig_id=body.rig_id, frame=body.frame,
         counts={v.name: int(n) for v, n in zip(views, found.counts, strict=True)},
