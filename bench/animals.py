@@ -3,7 +3,7 @@
     python bench/animals.py [--subject hexapod|freefly|biped|fullbody|stick|locust|rat|mouse|spider|all]
         [--images N] [--cameras 6|4|3|2] [--soft-tissue] [--ghosts N] [--occlusion F [--everywhere]]
         [--seed S] [--jobs 1]
-        [--threshold auto|otsu|100]
+        [--threshold auto|otsu|100] [--model-error F] [--rig-error PX]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
 is rendered by ``core.synth`` (5 px markers, ``--ghosts`` ghost blobs per view and image:
@@ -23,6 +23,10 @@ the images differ from those of F = 0 by the hidden blobs only. With ``--everywh
 chain is one per marker and hides it from every view at once (a claw tucked under the body,
 a marker that fell off): the DOFs it alone places are then not determined, and the figures
 say whether such images are flagged.
+With ``--model-error F`` the fit is given the subject's model with every segment length and
+marker placement off by a relative N(0, F) (a model measured by hand), and with
+``--rig-error PX`` its rig with every view's image shifted by PX pixels (a calibration's
+error); the images are rendered with the true ones (``bench/imperfect.py``).
 Prints, per subject, the per-DOF RMSE and the issue's figures next to its targets, and
 writes every image's fit to
 ``bench/out/animals-<subject>[-<cameras>cams][-soft][-occ<percent>[all]].csv`` (angles.csv).
@@ -45,6 +49,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.imperfect import calibrated_rig, measured_model
 from bench.subjects import NAMES, Subject, camera_choice, load
 from core.detect import DetectorParams, detect, marker_diameter
 from core.error import Detections, fusion_distance
@@ -308,7 +313,9 @@ def run(name: str, args: argparse.Namespace) -> None:
         subject = replace(subject, fps=args.fps)
     label = (name + (f" ({cameras} cameras)" if cameras else "")
              + (f" at {args.fps:g} Hz" if args.fps else "")
-             + (" + soft tissue" if args.soft_tissue else ""))
+             + (" + soft tissue" if args.soft_tissue else "")
+             + (f" + model off {100 * args.model_error:g} %" if args.model_error else "")
+             + (f" + rig off {args.rig_error:g} px" if args.rig_error else ""))
     rng = np.random.default_rng(args.seed)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts,
                              rng=rng, occlusion=args.occlusion, everywhere=args.everywhere,
@@ -319,15 +326,27 @@ def run(name: str, args: argparse.Namespace) -> None:
               f"({100 * h.mean():.1f} %); images with a marker hidden in some view: "
               f"{int(h.any(axis=(1, 2)).sum())} of {len(h)}; mean hidden run "
               f"{h.sum() / max(1, _run_starts(h)):.1f} images")
-    result, timing = fit(subject, data, seed=args.seed, jobs=args.jobs)
+    result, timing = fit(as_measured(subject, args), data, seed=args.seed, jobs=args.jobs)
     tag = (name + (f"-{cameras}cams" if cameras else "") + ("-soft" if args.soft_tissue else "")
            + (f"-occ{round(100 * args.occlusion)}" + ("all" if args.everywhere else "") if args.occlusion
               else "")
-           + (f"-{args.fps:g}hz" if args.fps else ""))
+           + (f"-{args.fps:g}hz" if args.fps else "")
+           + (f"-model{100 * args.model_error:g}" if args.model_error else "")
+           + (f"-rig{args.rig_error:g}" if args.rig_error else ""))
     OUT.mkdir(parents=True, exist_ok=True)
     csv_path = OUT / f"animals-{tag}.csv"
     write_angles_csv(csv_path, subject.model, result.fits, SampleClock(subject.fps))
     report(subject, label, data, result, timing, csv_path, soft=args.soft_tissue)
+
+
+def as_measured(subject: Subject, args: argparse.Namespace) -> Subject:
+    """The subject as the lab that fits it knows it: its model and rig off by
+    ``--model-error`` and ``--rig-error`` (drawn from their own generator, so that the images
+    are those of a run without them)."""
+    rng = np.random.default_rng([args.seed, 1])
+    model = measured_model(subject.model, args.model_error, rng) if args.model_error else subject.model
+    rig = calibrated_rig(subject.rig, args.rig_error, rng) if args.rig_error else subject.rig
+    return replace(subject, model=model, rig=rig)
 
 
 def _run_starts(hidden: np.ndarray) -> int:
@@ -357,6 +376,11 @@ def main() -> None:
                         help="frame rate of the movement (default: the subject's own, 50-250 Hz)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=1, help="processes fitting chunks")
+    parser.add_argument("--model-error", type=float, default=0.0, metavar="F",
+                        help="fit with segment lengths and marker placements off by a relative "
+                             "N(0, F), e.g. 0.05 (default 0)")
+    parser.add_argument("--rig-error", type=float, default=0.0, metavar="PX",
+                        help="fit with every view's image shifted by PX pixels (default 0)")
     parser.add_argument("--threshold", default=None,
                         help="detection threshold: a grey level, 'otsu' or 'auto' (default: mocap fit's)")
     args = parser.parse_args()
@@ -369,9 +393,10 @@ def main() -> None:
     if args.ghosts is None:
         args.ghosts = 0 if args.soft_tissue else 2
     if (args.images < 1 or args.jobs < 1 or args.ghosts < 0 or not 0 <= args.occlusion <= 0.5
-            or (args.fps is not None and args.fps <= 0)):
+            or (args.fps is not None and args.fps <= 0)
+            or not (0 <= args.model_error <= 0.5 and 0 <= args.rig_error <= 50)):
         parser.error("--images and --jobs must be >= 1, --ghosts >= 0, --occlusion in [0, 0.5], "
-                     "--fps > 0")
+                     "--fps > 0, --model-error in [0, 0.5], --rig-error in [0, 50]")
     names = NAMES if args.subject == "all" else (args.subject,)
     print(f"bench/animals.py: seed {args.seed}, {args.images} images per subject, "
           f"{MARKER_DIAMETER_PX:g} px markers, {args.ghosts} ghost blobs per view"
@@ -379,6 +404,8 @@ def main() -> None:
           + (f", {100 * args.occlusion:g} % of marker projections hidden"
              + (" (each marker from every view at once)" if args.everywhere else "")
              if args.occlusion else "")
+          + (f", model off {100 * args.model_error:g} %" if args.model_error else "")
+          + (f", rig off {args.rig_error:g} px" if args.rig_error else "")
           + f", threshold {args.detector.threshold}")
     for name in names:
         run(name, args)

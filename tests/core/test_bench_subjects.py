@@ -197,3 +197,39 @@ def test_occlusion_everywhere_hides_a_marker_from_every_view_at_once():
     markers = len(subject.model.markers)
     for det, h in zip(data.detections, hidden, strict=True):
         assert det.counts.tolist() == (markers - h.sum(axis=1)).tolist()
+
+
+@pytest.mark.parametrize("subject", ["locust", "hexapod", "spider"])
+def test_a_calibrated_rig_moves_every_projection_by_the_asked_shift(subject):
+    """bench/imperfect.py's rig error: every view's image (affine, pinhole with distortion)
+    lands exactly ``shift_px`` away, each view in its own direction."""
+    from bench.imperfect import calibrated_rig
+
+    rig = load(subject).rig
+    points = np.random.default_rng(0).normal(0.0, 2.0, (20, 3))
+    shifted = calibrated_rig(rig, 1.5, np.random.default_rng(4))
+    moved = shifted.project(points) - rig.project(points)  # (V, N, 2)
+    assert np.allclose(np.linalg.norm(moved, axis=-1), 1.5)
+    assert np.allclose(moved, moved[:, :1])  # one shift per view
+    assert len({tuple(np.round(m[0], 6)) for m in moved}) == len(rig.views)
+
+
+def test_a_measured_model_scales_each_length_by_its_own_factor():
+    """bench/imperfect.py's model error: joint offsets (not the root's position) and marker
+    positions scaled, each vector by one factor; DOFs unchanged; no error, no change."""
+    from bench.imperfect import measured_model
+
+    model = load("rat").model
+    assert measured_model(model, 0.0, np.random.default_rng(0)) == model
+    measured = measured_model(model, 0.05, np.random.default_rng(0))
+    assert measured.dofs == model.dofs and measured.joints[0] == model.joints[0]
+    pairs = [(a.offset, b.offset) for a, b in zip(model.joints[1:], measured.joints[1:])]
+    pairs += [(a.position, b.position) for a, b in zip(model.markers, measured.markers)]
+    factors = []
+    for true, off in pairs:
+        true, off = np.array(true), np.array(off)
+        if np.linalg.norm(true) > 0:
+            factor = np.linalg.norm(off) / np.linalg.norm(true)
+            assert np.allclose(off, factor * true)
+            factors.append(factor)
+    assert 0.02 < np.std(factors) < 0.08 and not np.allclose(factors, 1.0)
