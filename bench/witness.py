@@ -64,12 +64,13 @@ def witnesses(subject: Subject, det: Detections, q: np.ndarray,
     off = view_offsets(None, rig)
     fit, error, objective = refine_whole(q.copy(), det, model, rig, params, off, steps=REFINE_STEPS)
     scatter = scatter_error(fit, det, model, rig, off, params.empty_view_penalty_px)
-    floor, residual = witness_tolerance(params, det, model, scatter)
+    _, residual = witness_tolerance(params, det, model, scatter)
     found = tuple(undetermined_alternative(
         Candidate(fit, error, objective), det, model=model, rig=rig,
-        tolerance_px=max(floor, residual), residual_px=widen, fusion_px=params.fusion_px,
-        empty_view_penalty_px=params.empty_view_penalty_px, huber_px=params.anneal.huber_px,
-    ) is not None for widen in (residual, 0.0))
+        floor_px=params.alternative_tolerance_px, residual_px=residual, inflate=inflate,
+        fusion_px=params.fusion_px, empty_view_penalty_px=params.empty_view_penalty_px,
+        huber_px=params.anneal.huber_px,
+    ) is not None for inflate in (True, False))
     return fit, (found[0], found[1])
 
 

@@ -9,7 +9,8 @@ own residual cannot tell apart; :func:`undetermined_alternative` finds a posture
 its alternative (``alternative_deg``, ``core.ambiguity`` for the other alternatives).
 Skin markers slide in 3D, and every view sees a marker's slide alike, so the residual of a
 multi-camera image hides more than independent scatter would: each DOF's interval is the
-wider of the two readings (:func:`shared_scatter_inflation`).
+wider of the two readings (:func:`shared_scatter_inflation`), the second for the share of
+the residual that is 3D scatter (:func:`scatter_share`; a calibration's error is not).
 """
 
 from __future__ import annotations
@@ -21,14 +22,14 @@ import numpy as np
 
 from core import _kernels
 from core.ambiguity import Candidate, angle_gaps, plain_error
-from core.error import Detections, marker_errors, view_offsets
+from core.error import Detections, marker_errors, nearest_detection, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
 from core.treefit import MAX_LOST_SHARE, world_frames
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "confidence_chi2",
            "hidden_projections", "interval_chi2", "residual_tolerance", "scatter_error",
-           "shared_scatter_inflation", "typical_inflation", "undetermined_alternative", "unseen_markers"]
+           "moved_projections", "scatter_share", "shared_scatter_inflation", "typical_inflation", "undetermined_alternative", "unseen_markers"]
 
 # An image does not determine a DOF when a posture this far from its fit in that DOF (degrees,
 # the issue's "more than 10 degrees off the truth") explains it within its tolerance.
@@ -149,8 +150,9 @@ def undetermined_alternative(
     *,
     model: KinematicModel,
     rig: Rig,
-    tolerance_px: float,
+    floor_px: float,
     residual_px: float = 0.0,
+    inflate: bool = True,
     fusion_px: float,
     empty_view_penalty_px: float,
     huber_px: float,
@@ -174,12 +176,18 @@ def undetermined_alternative(
     not tried (most DOFs of a clean image: the search costs a Jacobian and a few errors).
     Of the postures within the tolerance, the one farthest from the fit.
 
-    ``tolerance_px`` is the image's one-DOF tolerance (``core.fit.alternative_tolerance``);
-    ``residual_px`` the part of it read from the image's residual as scatter independent in
-    every projection (:func:`residual_tolerance`), which DOF d widens to
-    ``residual_px`` × :func:`shared_scatter_inflation` [d] where the residual is the
-    markers' own 3D scatter (sliding skin, a model's segments off) that every view sees
-    alike. 0 keeps ``tolerance_px`` for every DOF.
+    DOF d's tolerance is the larger of two readings (``core.fit.tolerance_readings``):
+    ``floor_px`` per 8 of the projections d moves (:func:`moved_projections`, never less than
+    ``floor_px``: a claw's DOF is not given the allowance of a whole hexapod's projections),
+    or per 8 of all compared projections where a marker is ``unseen`` (a hidden marker
+    may sit on another blob, which no linear profile foresees: with a DOF's floor alone, a
+    hexapod image with markers no camera saw was left more than 10° off, ``ok``, without a
+    witness),
+    and ``residual_px``, the image's one-DOF tolerance read from its residual as scatter
+    independent in every projection (:func:`residual_tolerance`), widened to ``residual_px``
+    × :func:`shared_scatter_inflation` [d] by the share of the residual that is the markers'
+    own 3D scatter (sliding skin, a model's segments off), which every view sees alike
+    (not with ``inflate`` False).
 
     ``unseen`` (M,) bool marks markers no camera sees in this image (:func:`unseen_markers`):
     left out of the profiles and charged the empty-view penalty wherever they project, so
@@ -190,7 +198,7 @@ def undetermined_alternative(
     q = fit.dofs
     rot = model.rotational
     compared = int(np.count_nonzero(detections.counts)) * len(model.markers)
-    if not rot.any() or not math.isfinite(fit.error) or tolerance_px <= 0 or compared == 0:
+    if not rot.any() or not math.isfinite(fit.error) or max(floor_px, residual_px) <= 0 or compared == 0:
         return None
     off = view_offsets(offsets, rig)
     kin, views, points, start = model.arrays, rig.arrays, detections.kernel_points, detections.start
@@ -221,8 +229,10 @@ def undetermined_alternative(
                                     posed, float(huber_px), PROFILE_STEPS, _kernels.NO_TARGETS)
         return out
 
-    profiles, moves, inflation = _profiles(q, model, rig, detections, hidden)
-    tolerance = np.maximum(tolerance_px, residual_px * inflation)  # (D,) pixels
+    profiles, moves, inflation = _profiles(q, model, rig, detections, hidden, off, empty_view_penalty_px)
+    counted = np.full(len(q), float(compared)) if hidden.any() else moved_projections(moves)
+    floor = floor_px * np.maximum(1.0, counted / 8.0)
+    tolerance = np.maximum(floor, residual_px * (inflation if inflate else 1.0))  # (D,) pixels
     mean = max(fit.error / compared, 1e-12)
     # Linearised rise of Eq. 5 at the first step: a projection moved by m from a residual
     # of about ē rises by ~m²/(2ē) while m << ē, by ~m when m >> ē.
@@ -254,12 +264,15 @@ def undetermined_alternative(
 
 
 def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig, detections: Detections,
-              unseen: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              unseen: np.ndarray, offsets: np.ndarray,
+              penalty: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Profile directions (D, D), row d the change of every DOF per unit change of DOF d;
     (D, P) how far each of the P compared marker projections moves along each, pixels per
-    unit; and (D,) each DOF's :func:`shared_scatter_inflation`. From the Jacobian J of the
-    projections in the views with detections, less those of the ``unseen`` (M,) markers
-    (forward differences; linearised least squares: column d of (JᵀJ)⁻¹)."""
+    unit; and (D,) each DOF's :func:`shared_scatter_inflation`, of the image's own residual
+    (views shifted by ``offsets`` (V, 2); projections farther than ``penalty`` from every
+    blob, hidden, read as no residual). From the Jacobian J of the projections in the views
+    with detections, less those of the ``unseen`` (M,) markers (forward differences;
+    linearised least squares: column d of (JᵀJ)⁻¹)."""
     D = len(q)
     h = 1e-3
     postures = np.repeat(q[None], D + 1, axis=0)
@@ -274,7 +287,33 @@ def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig, detections: Detect
     profiles = (C / np.diag(C)[None, :]).T
     moves = np.linalg.norm((J @ profiles.T).T.reshape(D, -1, 2), axis=2)
     shared = _point_jacobian(positions[0], rig, compared)
-    return profiles, moves, shared_scatter_inflation(J, C, shared)
+    residual = _residual_vectors(proj[0] + offsets[:, None, :], detections, compared, penalty)
+    return profiles, moves, shared_scatter_inflation(J, C, shared, residual)
+
+
+def moved_projections(moves: np.ndarray) -> np.ndarray:
+    """(D,) how many projections each profile moves: the participation ratio
+    (Σ m)² / Σ m² of its moves ``moves`` (D, P), k where it moves k projections alike, 0
+    where it moves none.
+
+    >>> moved_projections(np.array([[1.0, 1.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0]])).tolist()
+    [3.0, 0.0]
+    """
+    square = np.sum(moves * moves, axis=1)
+    return np.divide(np.sum(moves, axis=1) ** 2, square, out=np.zeros(len(moves)), where=square > 0)
+
+
+def _residual_vectors(projected: np.ndarray, detections: Detections, compared: np.ndarray,
+                      penalty: float) -> np.ndarray:
+    """(2P,) each compared projection's offset (u, v) from its nearest blob, pixels, rows
+    ordered as the profiles' Jacobian; 0 for a projection farther than ``penalty`` (a
+    hidden marker is not scatter). ``projected`` (V, M, 2), ``compared`` (V, M) bool."""
+    out = np.zeros(projected.shape)
+    for v in np.flatnonzero(compared.any(axis=1)):
+        points = detections.view(v)
+        nearest, d2 = nearest_detection(projected[v], points)
+        out[v] = np.where((d2 <= penalty * penalty)[:, None], projected[v] - points[nearest, :2], 0.0)
+    return out[compared].reshape(-1)
 
 
 def _point_jacobian(points: np.ndarray, rig: Rig, compared: np.ndarray) -> np.ndarray:
@@ -306,7 +345,8 @@ def typical_inflation(compared: int, n_markers: int, n_dofs: int) -> float:
     return max(1.0, (2 * compared - n_dofs) / max(3 * n_markers - n_dofs, 1))
 
 
-def shared_scatter_inflation(J: np.ndarray, C: np.ndarray, B: np.ndarray) -> np.ndarray:
+def shared_scatter_inflation(J: np.ndarray, C: np.ndarray, B: np.ndarray,
+                             residual: np.ndarray | None = None) -> np.ndarray:
     """(D,) how much wider each DOF's confidence interval is when the residual is each
     marker's own 3D scatter (a skin marker sliding, a model's segment off) seen alike by
     every view, than when it is scatter independent in each projection, as
@@ -321,6 +361,10 @@ def shared_scatter_inflation(J: np.ndarray, C: np.ndarray, B: np.ndarray) -> np.
     (2P − D) / (3M − D) for views around the animal (3 for three cameras around a rat),
     since a marker slid in 3D moves alike in every view and more views do not average it
     out; 1 for a single orthographic view, which cannot see the slide in depth.
+
+    Given the image's ``residual`` (2P,) px, only the share of it that is 3D scatter is
+    read so (:func:`scatter_share`): a calibration's error or detection noise is
+    independent in each view, and more views do average it out.
     """
     P2, D = J.shape
     JB = J.T @ B  # (D, 3M)
@@ -329,4 +373,31 @@ def shared_scatter_inflation(J: np.ndarray, C: np.ndarray, B: np.ndarray) -> np.
         return np.ones(D)
     CJB = C @ JB
     shared = np.sum(CJB * CJB, axis=1) / np.diag(C)
-    return np.maximum(1.0, (P2 - D) / unexplained * shared)
+    share = 1.0 if residual is None else scatter_share(J, C, B, residual)
+    return np.maximum(1.0, (1.0 - share) + share * (P2 - D) / unexplained * shared)
+
+
+def scatter_share(J: np.ndarray, C: np.ndarray, B: np.ndarray, residual: np.ndarray) -> float:
+    """The share of ``residual``'s (2P,) energy that is the markers' own 3D scatter, in
+    [0, 1]; the rest is scatter independent in every projection (noise, a calibration's
+    error). 1 where the two cannot be told apart.
+
+    The fit leaves the residual r in the range of R = I − J C Jᵀ (``J`` (2P, D), ``C`` its
+    (JᵀJ)⁻¹). 3D scatter (``B`` (2P, 3M), the projections by the markers' positions) lies in
+    the range of RB, of rank k; independent scatter of variance σ² fills all 2P − D
+    directions alike. The part of r outside RB's range, n = 2P − D − k directions (views
+    that disagree about where a marker is), is independent scatter alone and measures σ².
+    """
+    P2, D = J.shape
+    R = np.eye(P2) - J @ C @ J.T
+    r = R @ residual
+    total = float(r @ r)
+    U, s, _ = np.linalg.svd(R @ B, full_matrices=False)
+    k = int(np.count_nonzero(s > 1e-9 * max(float(s[0]) if len(s) else 0.0, 1e-300)))
+    n = P2 - D - k
+    if n <= 0 or total <= 0:
+        return 1.0
+    basis = U[:, :k]
+    outside = r - basis @ (basis.T @ r)
+    independent = float(outside @ outside) / n * (P2 - D)
+    return min(1.0, max(0.0, 1.0 - independent / total))
