@@ -223,8 +223,8 @@ def test_a_measured_model_scales_each_length_by_its_own_factor():
     assert measured_model(model, 0.0, np.random.default_rng(0)) == model
     measured = measured_model(model, 0.05, np.random.default_rng(0))
     assert measured.dofs == model.dofs and measured.joints[0] == model.joints[0]
-    pairs = [(a.offset, b.offset) for a, b in zip(model.joints[1:], measured.joints[1:])]
-    pairs += [(a.position, b.position) for a, b in zip(model.markers, measured.markers)]
+    pairs = [(a.offset, b.offset) for a, b in zip(model.joints[1:], measured.joints[1:], strict=True)]
+    pairs += [(a.position, b.position) for a, b in zip(model.markers, measured.markers, strict=True)]
     factors = []
     for true, off in pairs:
         true, off = np.array(true), np.array(off)
