@@ -10,7 +10,8 @@ its alternative (``alternative_deg``, ``core.ambiguity`` for the other alternati
 Skin markers slide in 3D, and every view sees a marker's slide alike, so the residual of a
 multi-camera image hides more than independent scatter would: each DOF's interval is the
 wider of the two readings (:func:`shared_scatter_inflation`), the second for the share of
-the residual that is 3D scatter (:func:`scatter_share`; a calibration's error is not).
+the residual that is 3D scatter; the share that is each view's image shifted as a whole (a
+calibration's error) is read by its own, narrower, covariance (:func:`residual_shares`).
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ from core.rig import Rig
 from core.treefit import MAX_LOST_SHARE, world_frames
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "confidence_chi2",
-           "hidden_projections", "interval_chi2", "residual_tolerance", "scatter_error",
-           "moved_projections", "scatter_share", "shared_scatter_inflation", "typical_inflation", "undetermined_alternative", "unseen_markers"]
+           "hidden_projections", "interval_chi2", "moved_projections", "residual_shares",
+           "residual_tolerance", "scatter_error", "shared_scatter_inflation", "typical_inflation",
+           "undetermined_alternative", "unseen_markers"]
 
 # An image does not determine a DOF when a posture this far from its fit in that DOF (degrees,
 # the issue's "more than 10 degrees off the truth") explains it within its tolerance.
@@ -288,7 +290,18 @@ def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig, detections: Detect
     moves = np.linalg.norm((J @ profiles.T).T.reshape(D, -1, 2), axis=2)
     shared = _point_jacobian(positions[0], rig, compared)
     residual = _residual_vectors(proj[0] + offsets[:, None, :], detections, compared, penalty)
-    return profiles, moves, shared_scatter_inflation(J, C, shared, residual)
+    return profiles, moves, shared_scatter_inflation(J, C, shared, residual, _view_shifts(compared))
+
+
+def _view_shifts(compared: np.ndarray) -> np.ndarray:
+    """(2P, 2V) the compared projections (``compared`` (V, M) bool, rows as the profiles'
+    Jacobian) moved by each view's image shifted one pixel in u or v."""
+    views = np.nonzero(compared)[0]
+    T = np.zeros((2 * len(views), 2 * compared.shape[0]))
+    rows = np.arange(len(views))
+    T[2 * rows, 2 * views] = 1.0
+    T[2 * rows + 1, 2 * views + 1] = 1.0
+    return T
 
 
 def moved_projections(moves: np.ndarray) -> np.ndarray:
@@ -346,58 +359,99 @@ def typical_inflation(compared: int, n_markers: int, n_dofs: int) -> float:
 
 
 def shared_scatter_inflation(J: np.ndarray, C: np.ndarray, B: np.ndarray,
-                             residual: np.ndarray | None = None) -> np.ndarray:
-    """(D,) how much wider each DOF's confidence interval is when the residual is each
-    marker's own 3D scatter (a skin marker sliding, a model's segment off) seen alike by
-    every view, than when it is scatter independent in each projection, as
-    :func:`residual_tolerance` reads it; at least 1 (the wider of the two readings).
+                             residual: np.ndarray | None = None,
+                             shifts: np.ndarray | None = None) -> np.ndarray:
+    """(D,) how much wider each DOF's confidence interval is than :func:`residual_tolerance`
+    reads it (scatter independent in each projection), given what the residual is.
 
     ``J`` (2P, D) is the projections' Jacobian by the DOFs, ``C`` (D, D) its (JᵀJ)⁻¹ and
     ``B`` (2P, 3M) the projections' Jacobian by the markers' world positions. With marker
-    scatter Σ = σ₃² BBᵀ the residual's expected square is σ₃² tr((I − J C Jᵀ) BBᵀ) and the
-    fit's covariance σ₃² C JᵀBBᵀJ C; read as independent scatter, the same residual gives
-    the covariance σ² C with σ² = residual² / (2P − D). The ratio of the two, per DOF, is
-    the factor by which the tolerance of a one-DOF interval grows: about
-    (2P − D) / (3M − D) for views around the animal (3 for three cameras around a rat),
-    since a marker slid in 3D moves alike in every view and more views do not average it
-    out; 1 for a single orthographic view, which cannot see the slide in depth.
+    scatter Σ = σ₃² BBᵀ (a skin marker sliding, a model's segment off, seen alike by every
+    view) the residual's expected square is σ₃² tr((I − J C Jᵀ) BBᵀ) and the fit's
+    covariance σ₃² C JᵀBBᵀJ C; read as independent scatter, the same residual gives the
+    covariance σ² C with σ² = residual² / (2P − D). The ratio of the two, per DOF, is the
+    factor by which the tolerance of a one-DOF interval grows: about (2P − D) / (3M − D)
+    for views around the animal (3 for three cameras around a rat), since a marker slid in
+    3D moves alike in every view and more views do not average it out; 1 for a single
+    orthographic view, which cannot see the slide in depth. Without ``residual``, all of
+    it is read as 3D scatter: at least 1, the wider of the two readings.
 
-    Given the image's ``residual`` (2P,) px, only the share of it that is 3D scatter is
-    read so (:func:`scatter_share`): a calibration's error or detection noise is
-    independent in each view, and more views do average it out.
+    Given the image's ``residual`` (2P,) px, each share of it (:func:`residual_shares`) is
+    read as what it is: independent scatter as such, 3D scatter as above (the wider of the
+    two readings for those two shares together), and a shift of each view's image as a
+    whole (``shifts`` (2P, 2V), column (v, u/v) 1 on view v's u or v rows: a calibration's
+    error) by its own covariance C JᵀTTᵀJ C, which moves a posture far less than scatter
+    of that size in every projection would: the factor may then be below 1.
     """
     P2, D = J.shape
     JB = J.T @ B  # (D, 3M)
     unexplained = float(np.sum(B * B) - np.sum(JB * (C @ JB)))
     if unexplained <= 0 or P2 <= D:
         return np.ones(D)
-    CJB = C @ JB
-    shared = np.sum(CJB * CJB, axis=1) / np.diag(C)
-    share = 1.0 if residual is None else scatter_share(J, C, B, residual)
-    return np.maximum(1.0, (1.0 - share) + share * (P2 - D) / unexplained * shared)
+    read_3d = (P2 - D) / unexplained * _variance_ratio(C, JB)
+    if residual is None:
+        return np.maximum(1.0, read_3d)
+    independent, scattered, shifted = residual_shares(J, C, B, shifts, residual)
+    inflation = np.maximum(independent + scattered, independent + scattered * read_3d)
+    if shifted > 0 and shifts is not None:
+        JT = J.T @ shifts  # (D, 2V)
+        moved = float(np.sum(shifts * shifts) - np.sum(JT * (C @ JT)))  # tr(R TTᵀ)
+        inflation = inflation + shifted * (P2 - D) / moved * _variance_ratio(C, JT)
+    return inflation
 
 
-def scatter_share(J: np.ndarray, C: np.ndarray, B: np.ndarray, residual: np.ndarray) -> float:
-    """The share of ``residual``'s (2P,) energy that is the markers' own 3D scatter, in
-    [0, 1]; the rest is scatter independent in every projection (noise, a calibration's
-    error). 1 where the two cannot be told apart.
+def _variance_ratio(C: np.ndarray, JX: np.ndarray) -> np.ndarray:
+    """(D,) diag(C JX JXᵀ C) / diag(C): a DOF's variance under unit noise along X (``JX`` =
+    JᵀX) against under unit noise in every projection."""
+    CJX = C @ JX
+    return np.sum(CJX * CJX, axis=1) / np.diag(C)
+
+
+def residual_shares(J: np.ndarray, C: np.ndarray, B: np.ndarray, shifts: np.ndarray | None,
+                    residual: np.ndarray) -> tuple[float, float, float]:
+    """The shares of ``residual``'s (2P,) energy that are scatter independent in every
+    projection (noise), the markers' own 3D scatter, and a shift of each view's image
+    (``shifts`` (2P, 2V), or None: none); they sum to 1. All 3D scatter where they cannot
+    be told apart.
 
     The fit leaves the residual r in the range of R = I − J C Jᵀ (``J`` (2P, D), ``C`` its
     (JᵀJ)⁻¹). 3D scatter (``B`` (2P, 3M), the projections by the markers' positions) lies in
-    the range of RB, of rank k; independent scatter of variance σ² fills all 2P − D
-    directions alike. The part of r outside RB's range, n = 2P − D − k directions (views
-    that disagree about where a marker is), is independent scatter alone and measures σ².
+    the range of RB, of rank k₁; shifts beyond it in that of RT, k₂ more directions;
+    independent scatter of variance σ² fills all 2P − D directions alike. The
+    k₃ = 2P − D − k₁ − k₂ directions left hold independent scatter alone and measure σ²;
+    then RT's own directions measure the shifts, and RB's the 3D scatter (moments, each
+    variance at least 0). Where k₃ is 0 the shifts are not told from noise.
     """
     P2, D = J.shape
     R = np.eye(P2) - J @ C @ J.T
     r = R @ residual
     total = float(r @ r)
-    U, s, _ = np.linalg.svd(R @ B, full_matrices=False)
-    k = int(np.count_nonzero(s > 1e-9 * max(float(s[0]) if len(s) else 0.0, 1e-300)))
-    n = P2 - D - k
-    if n <= 0 or total <= 0:
-        return 1.0
-    basis = U[:, :k]
-    outside = r - basis @ (basis.T @ r)
-    independent = float(outside @ outside) / n * (P2 - D)
-    return min(1.0, max(0.0, 1.0 - independent / total))
+    RB = R @ B
+    S1 = _basis(RB)
+    RT = np.zeros((P2, 0)) if shifts is None else R @ shifts
+    RT_beyond = RT - S1 @ (S1.T @ RT)
+    S2 = _basis(RT_beyond)
+    k1, k2 = S1.shape[1], S2.shape[1]
+    k3 = P2 - D - k1 - k2
+    if total <= 0 or P2 - D - k1 <= 0:
+        return 0.0, 1.0, 0.0
+    o1, o2 = float(np.sum((S1.T @ r) ** 2)), float(np.sum((S2.T @ r) ** 2))
+    if k3 > 0:
+        noise = (total - o1 - o2) / k3
+        shift = max(0.0, o2 - noise * k2) / float(np.sum(RT_beyond * RT_beyond)) if k2 else 0.0
+    else:
+        noise, shift = (total - o1) / (k2 + k3), 0.0
+    shared = max(0.0, o1 - noise * k1 - shift * float(np.sum(RT * RT) - np.sum(RT_beyond * RT_beyond)))
+    energies = np.array([noise * (P2 - D), shared, shift * float(np.sum(RT * RT))])
+    if energies.sum() <= 0:
+        return 0.0, 1.0, 0.0
+    independent, scattered, shifted = energies / energies.sum()
+    return float(independent), float(scattered), float(shifted)
+
+
+def _basis(A: np.ndarray) -> np.ndarray:
+    """An orthonormal basis (n, k) of the range of ``A`` (n, m)."""
+    if A.shape[1] == 0:
+        return np.zeros((A.shape[0], 0))
+    U, s, _ = np.linalg.svd(A, full_matrices=False)
+    return U[:, : int(np.count_nonzero(s > 1e-9 * max(float(s[0]), 1e-300)))]

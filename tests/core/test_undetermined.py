@@ -31,9 +31,9 @@ from core.undetermined import (
     confidence_chi2,
     hidden_projections,
     interval_chi2,
+    residual_shares,
     residual_tolerance,
     scatter_error,
-    scatter_share,
     shared_scatter_inflation,
     undetermined_alternative,
     unseen_markers,
@@ -179,7 +179,7 @@ def test_the_residual_tells_3d_scatter_from_scatter_independent_in_each_view():
     C = np.linalg.inv(J.T @ J)
     shared = B @ rng.normal(size=(200, 3 * markers)).T  # (2P, draws)
     independent = rng.normal(size=shared.shape) * np.sqrt(np.sum(B * B) / B.shape[0])
-    share = {name: np.array([scatter_share(J, C, B, y) for y in draws.T])
+    share = {name: np.array([residual_shares(J, C, B, None, y)[1] for y in draws.T])
              for name, draws in (("3d", shared), ("independent", independent),
                                  ("mix", shared + independent))}
     assert share["3d"] == pytest.approx(1.0)
@@ -189,6 +189,34 @@ def test_the_residual_tells_3d_scatter_from_scatter_independent_in_each_view():
     assert full.min() > 3
     assert shared_scatter_inflation(J, C, B, shared[:, 0]) == pytest.approx(full)
     assert np.median([shared_scatter_inflation(J, C, B, y).max() for y in independent.T]) < 1.5
+
+
+def test_views_shifted_as_a_whole_are_read_by_their_own_covariance():
+    """Six orthographic views whose images are each shifted as a whole (a calibration's
+    error) by normal draws: the residual is read as shifts, and each DOF's inflation
+    follows its variance under such shifts against what the residual read as independent
+    scatter predicts (Monte Carlo): never much below it (a share of the shifts read as 3D
+    scatter errs wide), far below reading it all as 3D scatter, under 1 for some DOF.
+    With noise added, the shares split."""
+    rng = np.random.default_rng(6)
+    markers, D, V = 8, 6, 6
+    B = _orthographic_rows([np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(V)], markers)
+    J = B @ rng.normal(size=(3 * markers, D))
+    C = np.linalg.inv(J.T @ J)
+    T = np.kron(np.eye(V), np.kron(np.ones((markers, 1)), np.eye(2)))  # (2P, 2V), rows (view, marker, u/v)
+    y = rng.normal(size=(20000, 2 * V)) @ T.T  # (draws, 2P)
+    theta = y @ J @ C
+    residual = y - theta @ J.T
+    read = np.mean(np.sum(residual**2, axis=1)) / (J.shape[0] - D) * np.diag(C)
+    measured = theta.var(axis=0) / read
+    shares = np.array([residual_shares(J, C, B, T, r) for r in y[:200]])
+    assert np.mean(shares[:, 2]) > 0.9
+    inflation = np.mean([shared_scatter_inflation(J, C, B, r, T) for r in y[:200]], axis=0)
+    assert np.all(inflation > 0.9 * measured)
+    assert np.all(inflation < 0.5 * shared_scatter_inflation(J, C, B))
+    assert measured.min() < 1 and inflation.min() < 1
+    noisy = [residual_shares(J, C, B, T, r + rng.normal(size=r.shape)) for r in y[:200]]
+    assert 0.2 < np.mean([n[0] for n in noisy]) < 0.9 and np.mean([n[2] for n in noisy]) > 0.1
 
 
 def test_one_orthographic_view_reads_shared_scatter_as_independent():
