@@ -423,12 +423,14 @@ def residual_shares(J: np.ndarray, C: np.ndarray, B: np.ndarray, shifts: np.ndar
     variance at least 0). Where k₃ is 0 the shifts are not told from noise.
     """
     P2, D = J.shape
-    R = np.eye(P2) - J @ C @ J.T
-    r = R @ residual
+
+    def R(X: np.ndarray) -> np.ndarray:  # (I − J C Jᵀ) X without the (2P, 2P) matrix
+        return X - J @ (C @ (J.T @ X))
+
+    r = R(residual)
     total = float(r @ r)
-    RB = R @ B
-    S1 = _basis(RB)
-    RT = np.zeros((P2, 0)) if shifts is None else R @ shifts
+    S1 = _basis(R(B))
+    RT = np.zeros((P2, 0)) if shifts is None else R(shifts)
     RT_beyond = RT - S1 @ (S1.T @ RT)
     S2 = _basis(RT_beyond)
     k1, k2 = S1.shape[1], S2.shape[1]
