@@ -2,7 +2,7 @@
 
     python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|freefly|rat|mouse [--images N]
         [--soft-tissue] [--cameras 6|3|2] [--occlusion F] [--off DEG] [--fps HZ] [--seed S]
-        [--huber PX]
+        [--huber PX] [--model-error F] [--rig-error PX]
 
 Renders and fits a subject as ``bench/animals.py`` does (same seed, same images), then
 refines the *true* posture on every image (``core.treefit.refine_whole``, as a fit's last
@@ -21,6 +21,8 @@ step): the minimum nearest the truth. Prints
 
 ``--huber`` refines the truth with another least-squares radius than the fit's (1 px): how
 much a loss closer to least squares would move the minimum nearest the truth.
+``--model-error`` and ``--rig-error`` fit (and refine the truth) with the model and rig off
+as ``bench/animals.py`` does: is a lab's imperfect model the images' limit, or the search's?
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.animals import fit, fit_params, render_and_detect
+from bench.animals import as_measured, fit, fit_params, render_and_detect
 from bench.subjects import NAMES, camera_choice, load
 from core.ambiguity import angle_gaps
 from core.error import view_error, view_offsets
@@ -61,14 +63,19 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=None, help="the movement's frame rate")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--huber", type=float, default=None, help="px, for the truth's refinement")
+    parser.add_argument("--model-error", type=float, default=0.0, metavar="F",
+                        help="fit with segment lengths and marker placements off by N(0, F)")
+    parser.add_argument("--rig-error", type=float, default=0.0, metavar="PX",
+                        help="fit with every view's image shifted by PX pixels")
     args = parser.parse_args()
     subject = load(args.subject, camera_choice(args.subject, args.cameras))
     if args.fps:
         subject = replace(subject, fps=args.fps)
-    model, rig, rot = subject.model, subject.rig, subject.model.rotational
     data = render_and_detect(subject, args.images, soft=args.soft_tissue,
                              ghosts=0 if args.soft_tissue else 2,
                              rng=np.random.default_rng(args.seed), occlusion=args.occlusion)
+    subject = as_measured(subject, args)
+    model, rig, rot = subject.model, subject.rig, subject.model.rotational
     result, _ = fit(subject, data, seed=args.seed, jobs=1)
     params = fit_params(data)[0]
     truth_params = params if args.huber is None else replace(
