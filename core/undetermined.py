@@ -320,12 +320,16 @@ def _residual_vectors(projected: np.ndarray, detections: Detections, compared: n
                       penalty: float) -> np.ndarray:
     """(2P,) each compared projection's offset (u, v) from its nearest blob, pixels, rows
     ordered as the profiles' Jacobian; 0 for a projection farther than ``penalty`` (a
-    hidden marker is not scatter). ``projected`` (V, M, 2), ``compared`` (V, M) bool."""
+    hidden marker is not scatter) and for projections sharing their nearest blob (a fused
+    blob lies between its markers, half their separation from each: read as scatter, the
+    mouse's fused toes made a calibration's shift of its views look like noise).
+    ``projected`` (V, M, 2), ``compared`` (V, M) bool."""
     out = np.zeros(projected.shape)
     for v in np.flatnonzero(compared.any(axis=1)):
         points = detections.view(v)
         nearest, d2 = nearest_detection(projected[v], points)
-        out[v] = np.where((d2 <= penalty * penalty)[:, None], projected[v] - points[nearest, :2], 0.0)
+        kept = (d2 <= penalty * penalty) & (np.bincount(nearest, minlength=len(points))[nearest] == 1)
+        out[v] = np.where(kept[:, None], projected[v] - points[nearest, :2], 0.0)
     return out[compared].reshape(-1)
 
 
@@ -418,7 +422,8 @@ def residual_shares(J: np.ndarray, C: np.ndarray, B: np.ndarray, shifts: np.ndar
     (JᵀJ)⁻¹). 3D scatter (``B`` (2P, 3M), the projections by the markers' positions) lies in
     the range of RB, of rank k₁; shifts beyond it in that of RT, k₂ more directions;
     independent scatter of variance σ² fills all 2P − D directions alike. The
-    k₃ = 2P − D − k₁ − k₂ directions left hold independent scatter alone and measure σ²;
+    k₃ = 2P − D − k₁ − k₂ directions left hold independent scatter alone and measure σ²,
+    pooled with the others where they hold less per direction (:func:`_pooled_noise`);
     then RT's own directions measure the shifts, and RB's the 3D scatter (moments, each
     variance at least 0). Where k₃ is 0 the shifts are not told from noise.
     """
@@ -438,17 +443,46 @@ def residual_shares(J: np.ndarray, C: np.ndarray, B: np.ndarray, shifts: np.ndar
     if total <= 0 or P2 - D - k1 <= 0:
         return 0.0, 1.0, 0.0
     o1, o2 = float(np.sum((S1.T @ r) ** 2)), float(np.sum((S2.T @ r) ** 2))
-    if k3 > 0:
-        noise = (total - o1 - o2) / k3
-        shift = max(0.0, o2 - noise * k2) / float(np.sum(RT_beyond * RT_beyond)) if k2 else 0.0
-    else:
-        noise, shift = (total - o1) / (k2 + k3), 0.0
-    shared = max(0.0, o1 - noise * k1 - shift * float(np.sum(RT * RT) - np.sum(RT_beyond * RT_beyond)))
+    noise, pooled = _pooled_noise(total - o1 - o2, k3, {"3d": (o1, k1), "shifts": (o2, k2)})
+    shift = 0.0 if "shifts" in pooled or not k2 else (
+        max(0.0, o2 - noise * k2) / float(np.sum(RT_beyond * RT_beyond)))
+    shared = 0.0 if "3d" in pooled else max(
+        0.0, o1 - noise * k1 - shift * float(np.sum(RT * RT) - np.sum(RT_beyond * RT_beyond)))
     energies = np.array([noise * (P2 - D), shared, shift * float(np.sum(RT * RT))])
     if energies.sum() <= 0:
         return 0.0, 1.0, 0.0
     independent, scattered, shifted = energies / energies.sum()
     return float(independent), float(scattered), float(shifted)
+
+
+def _pooled_noise(alone: float, dims: int, others: dict[str, tuple[float, int]]) -> tuple[float, set[str]]:
+    """The independent scatter's variance per direction, and which of ``others`` hold
+    nothing more. ``alone`` is the residual's energy in the ``dims`` directions only noise
+    reaches; ``others`` the (energy, directions) of subspaces where noise adds to another
+    kind of scatter, so that noise can only be less per direction there. A subspace whose
+    energy per direction is below the pooled estimate is pooled into it (its other kind
+    read as none): a few noise-only directions alone would give a wild estimate (the
+    mouse's two views leave one). Without such directions, the shifts are pooled (not told
+    from noise).
+
+    >>> noise, pooled = _pooled_noise(1.77, 1, {"3d": (1.22, 68), "shifts": (25.5, 1)})
+    >>> round(noise, 4), sorted(pooled)
+    (0.0433, ['3d'])
+    >>> _pooled_noise(7.0, 7, {"3d": (60.0, 68), "shifts": (0.5, 1)})[1] == {"3d", "shifts"}
+    True
+    """
+    pooled: set[str] = set()
+    if dims <= 0 and others["shifts"][1] > 0:
+        alone, dims = alone + others["shifts"][0], dims + others["shifts"][1]
+        pooled.add("shifts")
+    while True:
+        below = [name for name, (energy, k) in others.items()
+                 if name not in pooled and k > 0 and (dims <= 0 or energy / k < alone / dims)]
+        if not below:
+            return (alone / dims if dims > 0 else 0.0), pooled
+        name = min(below, key=lambda n: others[n][0] / others[n][1])
+        alone, dims = alone + others[name][0], dims + others[name][1]
+        pooled.add(name)
 
 
 def _basis(A: np.ndarray) -> np.ndarray:

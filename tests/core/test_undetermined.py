@@ -396,3 +396,15 @@ def test_a_claw_no_camera_sees_leaves_its_dof_undetermined_in_a_clean_image():
     assert np.delete(gaps, leg.dofs).max() < 1e-9  # the other leg stays
     clean = detections(model, rig, truth[None])[0]
     assert _undetermined_witness(Candidate(truth, 0.0, 0.0), clean, model, rig, FitParams(), None) is None
+
+
+def test_a_fused_blob_and_a_hidden_marker_are_no_residual():
+    """The residual the shares are read from: each projection's offset from its nearest
+    blob, none for two markers sharing one blob (fused: its centroid lies between them) or
+    for a marker farther than the penalty from every blob (hidden)."""
+    from core.undetermined import _residual_vectors
+
+    projected = np.array([[[10.0, 10.0], [14.0, 10.0], [50.0, 50.0], [90.0, 90.0]]])
+    det = Detections.from_views([[[12.0, 10.0], [50.5, 49.0], [70.0, 90.0]]])
+    residual = _residual_vectors(projected, det, np.ones((1, 4), dtype=bool), 5.0)
+    assert residual.tolist() == [0.0, 0.0, 0.0, 0.0, -0.5, 1.0, 0.0, 0.0]
