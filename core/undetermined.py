@@ -271,8 +271,8 @@ def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig, detections: Detect
     """Profile directions (D, D), row d the change of every DOF per unit change of DOF d;
     (D, P) how far each of the P compared marker projections moves along each, pixels per
     unit; and (D,) each DOF's :func:`shared_scatter_inflation`, of the image's own residual
-    (views shifted by ``offsets`` (V, 2); projections farther than ``penalty`` from every
-    blob, hidden, read as no residual). From the Jacobian J of the projections in the views
+    (views shifted by ``offsets`` (V, 2); hidden and fused projections read as no residual,
+    :func:`_residual_vectors`). From the Jacobian J of the projections in the views
     with detections, less those of the ``unseen`` (M,) markers (forward differences;
     linearised least squares: column d of (JᵀJ)⁻¹)."""
     D = len(q)
