@@ -425,7 +425,7 @@ def residual_shares(J: np.ndarray, C: np.ndarray, B: np.ndarray, shifts: np.ndar
     k₃ = 2P − D − k₁ − k₂ directions left hold independent scatter alone and measure σ²,
     pooled with the others where they hold less per direction (:func:`_pooled_noise`);
     then RT's own directions measure the shifts, and RB's the 3D scatter (moments, each
-    variance at least 0). Where k₃ is 0 the shifts are not told from noise.
+    variance at least 0).
     """
     P2, D = J.shape
 
@@ -462,19 +462,20 @@ def _pooled_noise(alone: float, dims: int, others: dict[str, tuple[float, int]])
     kind of scatter, so that noise can only be less per direction there. A subspace whose
     energy per direction is below the pooled estimate is pooled into it (its other kind
     read as none): a few noise-only directions alone would give a wild estimate (the
-    mouse's two views leave one). Without such directions, the shifts are pooled (not told
-    from noise).
+    mouse's two views leave one). Without such directions (the locust's chain in two
+    views), the pool starts from the subspace holding least per direction: noise holds no
+    more than that anywhere.
 
     >>> noise, pooled = _pooled_noise(1.77, 1, {"3d": (1.22, 68), "shifts": (25.5, 1)})
     >>> round(noise, 4), sorted(pooled)
     (0.0433, ['3d'])
     >>> _pooled_noise(7.0, 7, {"3d": (60.0, 68), "shifts": (0.5, 1)})[1] == {"3d", "shifts"}
     True
+    >>> noise, pooled = _pooled_noise(0.0, 0, {"3d": (0.61, 10), "shifts": (5.85, 1)})
+    >>> round(noise, 3), sorted(pooled)
+    (0.061, ['3d'])
     """
     pooled: set[str] = set()
-    if dims <= 0 and others["shifts"][1] > 0:
-        alone, dims = alone + others["shifts"][0], dims + others["shifts"][1]
-        pooled.add("shifts")
     while True:
         below = [name for name, (energy, k) in others.items()
                  if name not in pooled and k > 0 and (dims <= 0 or energy / k < alone / dims)]
