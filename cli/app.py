@@ -160,6 +160,7 @@ def fit(
           f"status {report['status']}; mean error {report['error_px']['mean']} px; "
           f"wrote {out}/angles.csv, histograms.xml, report.json{exported}")
     warn_few_detections(report, len(kinematic.markers))
+    warn_mostly_over_threshold(report)
     with user_errors():
         if overlay:
             _draw_overlay(job, out, OVERLAY_WORST)
@@ -168,6 +169,7 @@ def fit(
 
 
 FEW_BLOBS_SHARE = 0.25  # of the model's markers: fewer blobs per image in a view earn a warning
+MOSTLY_OVER_SHARE = 0.5  # of the fitted images: more over the threshold earn a warning
 
 
 def warn_undetermined(path: Path, model: KinematicModel) -> None:
@@ -192,6 +194,23 @@ def warn_few_detections(report: dict[str, Any], n_markers: int) -> None:
                        f"({detector['threshold']}; a grey level, 'otsu' or 'auto') and "
                        f"--max-area ({detector['max_area']}) on a few frames with `mocap detect`",
                        err=True)
+
+
+def warn_mostly_over_threshold(report: dict[str, Any]) -> None:
+    """One line on stderr when more than :data:`MOSTLY_OVER_SHARE` of the fitted images are
+    over the threshold (``report``: ``report.json``'s content). Markers off the model in
+    most images are not single bad images that re-analysis mends: a model whose lengths or
+    marker positions are off, or a rig off its calibration, leaves every image a pixel or
+    more off (docs/BENCH_SUBJECTS.md: a model 3 % off put every multi-camera image over)."""
+    status = report["status"]
+    fitted = report["images"] - status["no_detections"]
+    over = status["over_threshold"]
+    if fitted and over > MOSTLY_OVER_SHARE * fitted:
+        typer.echo(f"mocap: warning: {over} of {fitted} images are over the threshold (median "
+                   f"{report['error_per_marker_px']['median']:g} px per marker projection, "
+                   f"threshold {report['error_threshold_per_marker_px']:g}): check the model's "
+                   "segment lengths and marker positions and the rig's calibration; --overlay "
+                   "draws the worst images (docs/SEEING_THE_FIT.md)", err=True)
 
 
 @contextmanager

@@ -128,6 +128,25 @@ def test_fit_warns_about_a_view_whose_background_is_brighter_than_the_threshold(
         assert report["status"]["no_detections"] == 0
 
 
+def test_fit_warns_when_most_images_are_over_the_threshold(clip, tmp_path):
+    """A rig whose top view is 8 px off (SEEING_THE_FIT's calibration mistake): every image
+    over the threshold, and one line says so and what to check; the right rig, none."""
+    data = json.loads((LOCUST / "rig.json").read_text())
+    data["views"][1]["projection"]["matrix"][0][3] += 8
+    shifted = tmp_path / "rig_shifted.json"
+    shifted.write_text(json.dumps(data))
+    result = _invoke("fit", clip / "video0.avi", "--model", LOCUST / "model.xml", "--rig", shifted,
+                     "--out", tmp_path / "shifted", "--marker-diameter-px", "4")
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.stderr.splitlines() if "warning" in line]
+    assert len(warnings) == 1 and warnings[0].startswith(
+        "mocap: warning: 40 of 40 images are over the threshold (median "), result.stderr
+    assert "threshold 1.25): check the model's segment lengths" in warnings[0]
+    right = _invoke("fit", clip / "video0.avi", "--model", LOCUST / "model.xml", "--rig",
+                    LOCUST / "rig.json", "--out", tmp_path / "right", "--marker-diameter-px", "4")
+    assert right.exit_code == 0 and "warning" not in right.stderr, right.output
+
+
 def test_two_jobs_give_the_same_result_as_one_with_the_same_chunks(clip, tmp_path):
     one = _fit(clip, tmp_path / "one", "--chunk-size", "20", "--jobs", "1")
     two = _fit(clip, tmp_path / "two", "--chunk-size", "20", "--jobs", "2")
