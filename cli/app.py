@@ -169,7 +169,6 @@ def fit(
 
 
 FEW_BLOBS_SHARE = 0.25  # of the model's markers: fewer blobs per image in a view earn a warning
-MOSTLY_OVER_SHARE = 0.5  # of the fitted images: more over the threshold earn a warning
 
 
 def warn_undetermined(path: Path, model: KinematicModel) -> None:
@@ -197,20 +196,10 @@ def warn_few_detections(report: dict[str, Any], n_markers: int) -> None:
 
 
 def warn_mostly_over_threshold(report: dict[str, Any]) -> None:
-    """One line on stderr when more than :data:`MOSTLY_OVER_SHARE` of the fitted images are
-    over the threshold (``report``: ``report.json``'s content). Markers off the model in
-    most images are not single bad images that re-analysis mends: a model whose lengths or
-    marker positions are off, or a rig off its calibration, leaves every image a pixel or
-    more off (docs/BENCH_SUBJECTS.md: a model 3 % off put every multi-camera image over)."""
-    status = report["status"]
-    fitted = report["images"] - status["no_detections"]
-    over = status["over_threshold"]
-    if fitted and over > MOSTLY_OVER_SHARE * fitted:
-        typer.echo(f"mocap: warning: {over} of {fitted} images are over the threshold (median "
-                   f"{report['error_per_marker_px']['median']:g} px per marker projection, "
-                   f"threshold {report['error_threshold_per_marker_px']:g}): check the model's "
-                   "segment lengths and marker positions and the rig's calibration; --overlay "
-                   "draws the worst images (docs/SEEING_THE_FIT.md)", err=True)
+    """``report.json``'s ``advice`` (``core.pipeline.over_threshold_advice``: most images over
+    the threshold), a line each on stderr, with where to see it."""
+    for line in report["advice"]:
+        typer.echo(f"mocap: warning: {line} (--overlay; docs/SEEING_THE_FIT.md)", err=True)
 
 
 @contextmanager

@@ -47,7 +47,8 @@ from core.video import VideoSet
 
 __all__ = [
     "OUTPUT_FILES", "FitJob", "FitOutcome", "Outputs", "Plan", "VideoSource", "build_report",
-    "estimate_marker_diameter", "outputs", "plan", "run_fit", "write_outputs",
+    "estimate_marker_diameter", "outputs", "over_threshold_advice", "plan", "run_fit",
+    "write_outputs",
 ]
 
 
@@ -306,6 +307,7 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
         "ambiguous": len(ambiguous),
         "ambiguous_images": ambiguous,
         "undetermined_dofs": _undetermined(job.model),
+        "advice": over_threshold_advice(fits, job.params.error_threshold_px, n_markers),
         "detections_per_view": {
             name: {"mean": round(float(counts[:, v].mean()), 3) if len(fits) else None,
                    "min": int(counts[:, v].min()) if len(fits) else None,
@@ -322,6 +324,26 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
             "detector": asdict(job.source.detector),
         },
     }
+
+
+MOSTLY_OVER_SHARE = 0.5  # of the fitted images: more over the threshold earn advice
+
+
+def over_threshold_advice(fits: Sequence[ImageFit], threshold_px: float, n_markers: int) -> list[str]:
+    """One line of advice when more than :data:`MOSTLY_OVER_SHARE` of the fitted images are
+    over the threshold, else none. Markers off the model in most images are not single bad
+    images that re-analysis mends: a model whose lengths or marker positions are off, or a
+    rig off its calibration, leaves every image a pixel or more off (docs/BENCH_SUBJECTS.md:
+    a model 3 % off put every multi-camera image over)."""
+    fitted = [f for f in fits if f.status is not Status.NO_DETECTIONS]
+    over = sum(f.status is Status.OVER_THRESHOLD for f in fitted)
+    if not fitted or over <= MOSTLY_OVER_SHARE * len(fitted):
+        return []
+    median = float(np.median([f.error_per_marker(n_markers) for f in fitted]))
+    return [f"{over} of {len(fitted)} images are over the threshold (median {median:.3g} px per "
+            f"marker projection, threshold {threshold_px:g}): check the model's segment lengths "
+            "and marker positions and the rig's calibration; an overlay of the worst images "
+            "shows which markers miss"]
 
 
 def _undetermined(model: KinematicModel) -> list[str] | None:

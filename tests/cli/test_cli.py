@@ -142,9 +142,13 @@ def test_fit_warns_when_most_images_are_over_the_threshold(clip, tmp_path):
     assert len(warnings) == 1 and warnings[0].startswith(
         "mocap: warning: 40 of 40 images are over the threshold (median "), result.stderr
     assert "threshold 1.25): check the model's segment lengths" in warnings[0]
+    assert warnings[0].endswith("(--overlay; docs/SEEING_THE_FIT.md)")
+    report = json.loads((tmp_path / "shifted" / "report.json").read_text())
+    assert len(report["advice"]) == 1 and report["advice"][0] in warnings[0]
     right = _invoke("fit", clip / "video0.avi", "--model", LOCUST / "model.xml", "--rig",
                     LOCUST / "rig.json", "--out", tmp_path / "right", "--marker-diameter-px", "4")
     assert right.exit_code == 0 and "warning" not in right.stderr, right.output
+    assert json.loads((tmp_path / "right" / "report.json").read_text())["advice"] == []
 
 
 def test_two_jobs_give_the_same_result_as_one_with_the_same_chunks(clip, tmp_path):
