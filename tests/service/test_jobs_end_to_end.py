@@ -70,7 +70,7 @@ def test_clip_fitted_by_workers_matches_truth_and_mocap_fit(deployment, clip, lo
     assert histograms == (local_fit / "histograms.xml").read_text()
     report = client.get(f"/jobs/{job['id']}/report.json").json()
     local_report = json.loads((local_fit / "report.json").read_text())
-    for key in ("images", "status", "error_px", "reanalysed", "over_threshold_images"):
+    for key in ("images", "status", "error_px", "reanalysed", "over_threshold_images", "advice"):
         assert report[key] == local_report[key], key
 
     # The archive: version 1 the uniform prior, version 2 that prior with this job folded in.
