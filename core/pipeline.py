@@ -333,8 +333,7 @@ def over_threshold_advice(fits: Sequence[ImageFit], threshold_px: float, n_marke
     """One line of advice when more than :data:`MOSTLY_OVER_SHARE` of the fitted images are
     over the threshold, else none. Markers off the model in most images are not single bad
     images that re-analysis mends: a model whose lengths or marker positions are off, or a
-    rig off its calibration, leaves every image a pixel or more off (docs/BENCH_SUBJECTS.md:
-    a model 3 % off put every multi-camera image over)."""
+    rig off its calibration, leaves every image a pixel or more off (docs/BENCH_SUBJECTS.md)."""
     fitted = [f for f in fits if f.status is not Status.NO_DETECTIONS]
     over = sum(f.status is Status.OVER_THRESHOLD for f in fitted)
     if not fitted or over <= MOSTLY_OVER_SHARE * len(fitted):
