@@ -287,6 +287,8 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
     fitted = [f for f in fits if f.status is not Status.NO_DETECTIONS]
     errors = np.array([f.error for f in fitted])
     n_markers, rotational = len(job.model.markers), job.model.rotational
+    per_marker = np.array([f.error_per_marker(n_markers) for f in fitted])
+    over = [f.sample for f in fits if f.status is Status.OVER_THRESHOLD]
     ambiguous = [f.sample for f in fitted if math.isfinite(f.alternative_deg(rotational))]
     counts = np.array([f.detections for f in fits]).reshape(len(fits), -1)
     views = [v.name for v in job.source.rig.views]
@@ -300,14 +302,14 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
         "jobs": outcome.jobs,
         "status": {s.value: sum(f.status is s for f in fits) for s in Status},
         "error_px": _stats(errors),
-        "error_per_marker_px": _stats(np.array([f.error_per_marker(n_markers) for f in fitted])),
+        "error_per_marker_px": _stats(per_marker),
         "error_threshold_per_marker_px": job.params.error_threshold_px,
         "reanalysed": sum(f.attempts > 1 for f in fits),
-        "over_threshold_images": [f.sample for f in fits if f.status is Status.OVER_THRESHOLD],
+        "over_threshold_images": over,
         "ambiguous": len(ambiguous),
         "ambiguous_images": ambiguous,
         "undetermined_dofs": _undetermined(job.model),
-        "advice": over_threshold_advice(fits, job.params.error_threshold_px, n_markers),
+        "advice": over_threshold_advice(len(over), per_marker, job.params.error_threshold_px),
         "detections_per_view": {
             name: {"mean": round(float(counts[:, v].mean()), 3) if len(fits) else None,
                    "min": int(counts[:, v].min()) if len(fits) else None,
@@ -329,17 +331,16 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
 MOSTLY_OVER_SHARE = 0.5  # of the fitted images: more over the threshold earn advice
 
 
-def over_threshold_advice(fits: Sequence[ImageFit], threshold_px: float, n_markers: int) -> list[str]:
-    """One line of advice when more than :data:`MOSTLY_OVER_SHARE` of the fitted images are
-    over the threshold, else none. Markers off the model in most images are not single bad
-    images that re-analysis mends: a model whose lengths or marker positions are off, or a
-    rig off its calibration, leaves every image a pixel or more off (docs/BENCH_SUBJECTS.md)."""
-    fitted = [f for f in fits if f.status is not Status.NO_DETECTIONS]
-    over = sum(f.status is Status.OVER_THRESHOLD for f in fitted)
-    if not fitted or over <= MOSTLY_OVER_SHARE * len(fitted):
+def over_threshold_advice(over: int, per_marker: np.ndarray, threshold_px: float) -> list[str]:
+    """One line of advice when more than :data:`MOSTLY_OVER_SHARE` of the fitted images
+    (``per_marker`` (n,), their ``error_per_marker_px``) are over the threshold (``over`` of
+    them), else none. Markers off the model in most images are not single bad images that
+    re-analysis mends: a model whose lengths or marker positions are off, or a rig off its
+    calibration, leaves every image a pixel or more off (docs/BENCH_SUBJECTS.md)."""
+    if not len(per_marker) or over <= MOSTLY_OVER_SHARE * len(per_marker):
         return []
-    median = float(np.median([f.error_per_marker(n_markers) for f in fitted]))
-    return [f"{over} of {len(fitted)} images are over the threshold (median {median:.3g} px per "
+    median = float(np.median(per_marker))
+    return [f"{over} of {len(per_marker)} images are over the threshold (median {median:.3g} px per "
             f"marker projection, threshold {threshold_px:g}): check the model's segment lengths "
             "and marker positions and the rig's calibration; an overlay of the worst images "
             "shows which markers miss"]
