@@ -457,9 +457,10 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     if not unseen.any() and _witness_readings(params, det, model, fit.error) is None:
         return None
     scatter = scatter_error(fit.dofs, det, model, rig, off, penalty)
-    if _witness_readings(params, det, model, scatter) is None and not unseen.any():
+    readings = _witness_readings(params, det, model, scatter)
+    if readings is None and not unseen.any():
         return None
-    _, residual = witness_tolerance(params, det, model, scatter)
+    _, residual = readings or witness_tolerance(params, det, model, scatter)
     return undetermined_alternative(
         fit, det, model=model, rig=rig, floor_px=params.alternative_tolerance_px,
         residual_px=residual, fusion_px=params.fusion_px, empty_view_penalty_px=penalty,

@@ -443,12 +443,11 @@ def residual_shares(J: np.ndarray, C: np.ndarray, B: np.ndarray, shifts: np.ndar
     if total <= 0 or P2 - D - k1 <= 0:
         return 0.0, 1.0, 0.0
     o1, o2 = float(np.sum((S1.T @ r) ** 2)), float(np.sum((S2.T @ r) ** 2))
+    shifts_all, shifts_beyond = float(np.sum(RT * RT)), float(np.sum(RT_beyond * RT_beyond))
     noise, pooled = _pooled_noise(total - o1 - o2, k3, {"3d": (o1, k1), "shifts": (o2, k2)})
-    shift = 0.0 if "shifts" in pooled or not k2 else (
-        max(0.0, o2 - noise * k2) / float(np.sum(RT_beyond * RT_beyond)))
-    shared = 0.0 if "3d" in pooled else max(
-        0.0, o1 - noise * k1 - shift * float(np.sum(RT * RT) - np.sum(RT_beyond * RT_beyond)))
-    energies = np.array([noise * (P2 - D), shared, shift * float(np.sum(RT * RT))])
+    shift = 0.0 if "shifts" in pooled or not k2 else max(0.0, o2 - noise * k2) / shifts_beyond
+    shared = 0.0 if "3d" in pooled else max(0.0, o1 - noise * k1 - shift * (shifts_all - shifts_beyond))
+    energies = np.array([noise * (P2 - D), shared, shift * shifts_all])
     if energies.sum() <= 0:
         return 0.0, 1.0, 0.0
     independent, scattered, shifted = energies / energies.sum()
