@@ -38,6 +38,7 @@ from core.error import (
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
+from core.threads import one_blas_thread
 from core.treefit import (
     TreeFlips,
     attempt_kernel,
@@ -631,6 +632,7 @@ def _seen_objective(q: np.ndarray, lost: np.ndarray, det: Detections, model: Kin
     return part_objective(q, model.arrays, det.kernel_points, det.start, lost, rig, params, off)
 
 
+@one_blas_thread
 def reanalyse_image(
     detections: Detections,
     previous: ImageFit,

@@ -51,6 +51,7 @@ from core.fit import (
 from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
+from core.threads import one_blas_thread
 from core.treefit import warm_ceilings
 
 __all__ = [
@@ -124,6 +125,7 @@ def plan_chunks(n_images: int, chunk_size: int | None) -> list[tuple[int, int]]:
     return list(pairwise(bounds))
 
 
+@one_blas_thread
 def fit_chunk(
     images: Iterable[Detections],
     *,

@@ -249,3 +249,25 @@ def test_the_reanalysis_plan_merges_by_counts_and_picks_each_image_with_its_next
     assert plan.images == [(2, 2), (3, 3)]  # an outlier, and an image over the threshold
     np.testing.assert_allclose(plan.histograms.counts, prior.counts + 2)
     np.testing.assert_allclose(plan.histograms.probs, prior.merge(chunk_a, chunk_b).probs, atol=1e-12)
+
+
+def test_fits_run_blas_on_one_thread_and_restore_its_limit(locust):
+    """``core.threads``: the fit's small matrices on one BLAS thread, whatever the machine."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads() -> set[int]:
+        return {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+
+    model, rig = locust
+    dets = detections(model, rig, postures(model, 2))
+    seen: list[set[int]] = []
+    with threadpool_limits(limits=2, user_api="blas"):
+        outside = blas_threads()
+        fit = fit_chunk(dets, model=model, rig=rig, histograms=Histograms.uniform(model),
+                        params=FitParams(anneal=FAST), seed=0,
+                        progress=lambda _: seen.append(blas_threads())).fits[0]
+        reanalyse_image(dets[0], fit, model=model, rig=rig, histograms=Histograms.uniform(model),
+                        params=FitParams(anneal=FAST), seed=0)
+        assert blas_threads() == outside
+    assert seen == [{1}, {1}]
+    assert max(outside) == 2  # NumPy's; OpenCV's own OpenBLAS may keep its one thread
