@@ -128,7 +128,10 @@ def wait(
                        description=f"{kind.value} {ident} {state['status']} (images)")
 
         state = api.wait(kind.value, ident, timeout=timeout, max_interval=interval, on_poll=show)
+        advice = _advice(api, state)
     print(_summary(kind, state))
+    for line in advice:
+        typer.echo(line, err=True)
     if state["status"] != "succeeded":
         for job in state.get("jobs", [state]):
             if job["status"] != "succeeded":
@@ -259,6 +262,18 @@ def _ids(text: str) -> list[int]:
         return [int(part) for part in text.split(",")]
     except ValueError:
         raise ValueError(f"--trial {text!r} is not video ids separated by commas, e.g. 4,5") from None
+
+
+def _advice(api: Client, state: dict[str, Any]) -> list[str]:
+    """Each succeeded job's ``report.json`` advice (``core.pipeline.over_threshold_advice``: most
+    images over the threshold), as warning lines naming the job and where to see its worst images."""
+    lines = []
+    for job in state.get("jobs", [state]):
+        if job["status"] == "succeeded":
+            report = json.loads(api.result(job["id"], "report.json"))
+            lines += [f"mocap: warning: job {job['id']}: {line} (the job option \"overlay\": true draws "
+                      f"the worst images; docs/SEEING_THE_FIT.md)" for line in report["advice"]]
+    return lines
 
 
 def _summary(kind: Kind, state: dict[str, Any]) -> str:

@@ -199,6 +199,25 @@ def test_no_remote_command_takes_the_key_itself():
         assert not any(p.envvar and "KEY" in str(p.envvar) for p in command.params), name
 
 
+def test_wait_warns_when_most_of_a_jobs_images_are_over_the_threshold(embedded, key, clip):
+    """report.json's advice (``core.pipeline.over_threshold_advice``) reaches a remote user: a threshold
+    no fit meets puts every image over it; the clip's own job (its threshold the default) has none."""
+    with Client(embedded.url, key) as api:
+        video = api.upload_video(clip.video)
+        model, rig = api.upload_model(LOCUST / "model.xml"), api.upload_rig(LOCUST / "rig.json")
+        options = {"marker_diameter_px": 4, "max_attempts": 1}
+        strict, default = (api.submit_job(model["id"], rig["id"], [video["id"]], {**options, **extra})["id"]
+                           for extra in ({"error_threshold_px": 0.001}, {}))
+    warned = remote("wait", "job", str(strict), "--interval", "0.5", key=key, url=embedded.url)
+    assert warned.returncode == 0, warned.stdout + warned.stderr
+    line = (rf"mocap: warning: job {strict}: 40 of 40 images are over the threshold \(median [0-9.]+ px per "
+            r"marker projection, threshold 0.001\): check [^\n]+ \(the job option \"overlay\": true draws "
+            r"the worst images; docs/SEEING_THE_FIT.md\)\n")
+    assert re.fullmatch(line, warned.stderr), warned.stderr
+    quiet = remote("wait", "job", str(default), "--interval", "0.5", key=key, url=embedded.url)
+    assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
+
+
 def test_a_canceled_job_is_exit_1_from_wait_and_download(embedded, key, clip, tmp_path):
     with Client(embedded.url, key) as api:
         video = api.upload_video(clip.video)

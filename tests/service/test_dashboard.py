@@ -154,6 +154,7 @@ def test_a_finished_job_shows_its_plot_counts_artifacts_and_downloads(page, lab)
     shown = dict(page.locator("#job-counts tbody tr").evaluate_all(
         "rows => rows.map(r => [r.cells[0].textContent, Number(r.cells[1].textContent)])"))
     assert shown == {**report["status"], "re-analysed": report["reanalysed"]}
+    assert report["advice"] == [] and page.locator("#job-advice:visible").count() == 0
 
     # Artifact images (angle plots, the overlay's contact sheet) load when the job has them.
     listed = client.get(f"/jobs/{job_id}/artifacts")
@@ -174,6 +175,22 @@ def test_a_finished_job_shows_its_plot_counts_artifacts_and_downloads(page, lab)
         page.get_by_role("link", name="angles.csv").click()
     assert download.value.suggested_filename == f"job-{job_id}-angles.csv"
     assert Path(download.value.path()).read_bytes() == client.get(f"/jobs/{job_id}/angles.csv").content
+
+
+def test_a_job_mostly_over_the_threshold_shows_its_advice(page, lab):
+    """report.json's advice (``core.pipeline.over_threshold_advice``) above the job's counts: a
+    threshold no fit meets puts every image over it."""
+    client, ids = lab
+    job = wait_for(client, submit(client, ids, marker_diameter_px=4.0, chunk_size=20, max_attempts=1,
+                                  error_threshold_px=0.001)["id"])
+    advice = client.get(f"/jobs/{job['id']}/report.json").json()["advice"]
+    assert len(advice) == 1 and advice[0].startswith("40 of 40 images are over the threshold")
+    _sign_in(page, _key(client))
+    page.get_by_role("link", name=f"Job {job['id']}", exact=True).click()
+    page.get_by_role("heading", name=f"Job {job['id']}: succeeded").wait_for()
+    shown = page.get_by_role("list", name="Advice on this job's fit")
+    shown.wait_for(state="visible")
+    assert shown.locator("li").all_text_contents() == advice
 
 
 def test_batches_are_listed_with_their_jobs(page, lab):

@@ -330,7 +330,7 @@
   async function results(job) {
     const downloads = $("job-downloads");
     const overlay = $("job-overlay");
-    overlay.hidden = $("job-plots").hidden = true;
+    overlay.hidden = $("job-plots").hidden = $("job-advice").hidden = true;
     state.images.splice(0).forEach(URL.revokeObjectURL);  // the images of the job shown before
     if (job.status !== "succeeded") {
       downloads.replaceChildren(el("li", { text: "Results can be downloaded once the job has succeeded." }));
@@ -346,6 +346,9 @@
       ...extra.map((name) => el("li", {}, downloadLink(`/jobs/${job.id}/artifacts/${name}`,
                                                        `job-${job.id}-${name.replaceAll("/", "-")}`, name))));
     counts([...Object.entries(report.status), ["re-analysed", report.reanalysed]]);
+    // report.json's advice: most images over the threshold, and what to check
+    $("job-advice").replaceChildren(...report.advice.map((line) => el("li", { text: line })));
+    $("job-advice").hidden = report.advice.length === 0;
     const plot = errorPlot(parseAngles(angles), job.options.error_threshold_px);
     $("job-plot-body").replaceChildren(plot.svg);
     $("job-plot-caption").textContent = plot.summary;
