@@ -13,6 +13,10 @@ machine's second core shortens a first run (``bench/speed.py`` measures it).
 The warm-up goes through the same public functions as a real fit (detection,
 a single chain, a tree with a free root, fusion on), so the signatures match. It needs no
 file: the models and the rig are written here.
+
+It compiles at LLVM's optimisation level :data:`OPT_LEVEL` rather than numba's default 3
+(unless ``NUMBA_OPT`` is set: the user's choice stands): the first run's compile is 10 %
+shorter, and the kernels run as fast (``bench/speed.py``; figures in docs/ENGINE_NOTES.md).
 """
 
 from __future__ import annotations
@@ -22,10 +26,12 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+from numba.core import config
 from numba.core.registry import CPUDispatcher as Dispatcher
 
 from core import _detect_kernels, _kernels
@@ -44,6 +50,7 @@ from core.treefit import world_frames
 __all__ = ["compile_kernels", "compile_kernels_saying_so"]
 
 _ROOT = Path(__file__).resolve().parents[1]  # holds the package core
+OPT_LEVEL = 1  # LLVM optimisation level of the kernels compiled here (numba's NUMBA_OPT)
 
 FIRST_RUN = ("compiling the fitting kernels, once (half a minute to a minute and a half on a 2-core "
              "machine, more if it is busy; later runs load them from numba's cache in about a second)")
@@ -88,25 +95,47 @@ def compile_kernels() -> float:
     t0 = time.perf_counter()
     aside = None if _cache_filled() else subprocess.Popen(
         [sys.executable, "-c", "from core.warmup import _compile_aside; _compile_aside()"],
-        env=os.environ | {"PYTHONPATH": os.pathsep.join([str(_ROOT), os.environ.get("PYTHONPATH", "")])},
+        env={"NUMBA_OPT": str(OPT_LEVEL)} | os.environ
+        | {"PYTHONPATH": os.pathsep.join([str(_ROOT), os.environ.get("PYTHONPATH", "")])},
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        rig, chain = _rig(), KinematicModel.from_xml(_CHAIN)
-        fits = [(m, _images(m, rig)) for m in (chain, KinematicModel.from_xml(_TREE))]
-        refine(_posture(chain), _blobs(), model=chain, rig=rig, fusion_px=8.0)
-        if aside is not None:
-            _wait_for_cache(aside, (_kernels.posture_error, _kernels._lost_markers))
-        for m, images in fits:
-            params = FitParams(anneal=FitParams().anneal.with_iterations(300), fusion_px=8.0, max_attempts=2)
-            fit_sequence(images, model=m, rig=rig, histograms=Histograms.uniform(m), params=params, seed=0)
-        if aside is not None:  # its last kernels: waiting costs less than compiling them again
-            _wait_for_cache(aside, (_detect_kernels.fit_field_discs,))
-        _detect(rig)
-        _detect_fields(rig)
+        with _optimisation_level():
+            _warm_up(aside)
     finally:
         if aside is not None:
             aside.wait()  # it only adds to the cache: its outcome changes nothing here
     return time.perf_counter() - t0
+
+
+def _warm_up(aside: subprocess.Popen[bytes] | None) -> None:
+    """:func:`compile_kernels`' fits and detections in this process, waiting for the kernels
+    ``aside`` (None: the cache is filled) compiles where it reaches them."""
+    rig, chain = _rig(), KinematicModel.from_xml(_CHAIN)
+    fits = [(m, _images(m, rig)) for m in (chain, KinematicModel.from_xml(_TREE))]
+    refine(_posture(chain), _blobs(), model=chain, rig=rig, fusion_px=8.0)
+    if aside is not None:
+        _wait_for_cache(aside, (_kernels.posture_error, _kernels._lost_markers))
+    for m, images in fits:
+        params = FitParams(anneal=FitParams().anneal.with_iterations(300), fusion_px=8.0, max_attempts=2)
+        fit_sequence(images, model=m, rig=rig, histograms=Histograms.uniform(m), params=params, seed=0)
+    if aside is not None:  # its last kernels: waiting costs less than compiling them again
+        _wait_for_cache(aside, (_detect_kernels.fit_field_discs,))
+    _detect(rig)
+    _detect_fields(rig)
+
+
+@contextmanager
+def _optimisation_level() -> Iterator[None]:
+    """numba compiles at LLVM level :data:`OPT_LEVEL` inside, unless ``NUMBA_OPT`` is set; its
+    level before is restored after. numba reads ``config.OPT`` at every compile and keeps a
+    value set in its config module (its ``reload_config`` rereads only a changed environment)."""
+    saved = config.OPT
+    if "NUMBA_OPT" not in os.environ:
+        config.OPT = type(saved)(OPT_LEVEL)
+    try:
+        yield
+    finally:
+        config.OPT = saved
 
 
 def _compile_aside() -> None:

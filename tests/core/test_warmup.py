@@ -52,3 +52,20 @@ def test_a_kernel_whose_cache_numba_keeps_elsewhere_counts_as_not_cached():
     from core.warmup import _cached
 
     assert _cached(SimpleNamespace(_cache=object(), stats=None)) is False
+
+
+def test_the_warm_up_compiles_at_its_own_level_unless_numba_opt_is_set(monkeypatch):
+    """``core.warmup.OPT_LEVEL`` inside the warm-up, numba's own level restored after it; a level
+    the user set in ``NUMBA_OPT`` stands."""
+    from numba.core import config
+
+    from core.warmup import OPT_LEVEL, _optimisation_level
+
+    before = config.OPT
+    monkeypatch.delenv("NUMBA_OPT", raising=False)
+    with _optimisation_level():
+        assert config.OPT == OPT_LEVEL != 0  # at 0 numba cannot cache the kernels
+    assert config.OPT is before
+    monkeypatch.setenv("NUMBA_OPT", "2")
+    with _optimisation_level():
+        assert config.OPT is before
