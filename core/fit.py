@@ -217,10 +217,29 @@ class ImageFit:
         >>> fit.alternative_deg(np.array([True, True]))
         20.0
         """
+        gaps = self._alternative_gaps(rotational)
+        return math.nan if gaps is None else float(gaps.max())
+
+    def alternative_dof(self, rotational: np.ndarray) -> int | None:
+        """Index (model-file order) of the rotational DOF in which the best alternative is
+        farthest from the posture, the one :meth:`alternative_deg` measures; None when the
+        image has no alternative.
+
+        >>> alt = Candidate(np.array([10.0, 350.0]), 0.1, 0.1)
+        >>> fit = ImageFit(0, np.array([30.0, 5.0]), 0.1, 0.1, 1, Status.OK, 1, (4,), (alt,))
+        >>> fit.alternative_dof(np.array([True, True])), fit.alternative_dof(np.array([False, True]))
+        (0, 1)
+        """
+        gaps = self._alternative_gaps(rotational)
+        return None if gaps is None else int(np.flatnonzero(rotational)[np.argmax(gaps)])
+
+    def _alternative_gaps(self, rotational: np.ndarray) -> np.ndarray | None:
+        """Absolute differences (degrees) of the rotational DOFs between the posture and its
+        best alternative (least objective), or None without one."""
         if not self.alternatives or not rotational.any():
-            return math.nan
+            return None
         best = min(self.alternatives, key=lambda c: c.objective)
-        return float(angle_gaps(best.dofs, self.dofs)[rotational].max())
+        return angle_gaps(best.dofs, self.dofs)[rotational]
 
     def to_record(self) -> dict:
         """The fit as JSON-safe values (None for NaN), for a database row or a message.

@@ -24,7 +24,8 @@ import io
 import json
 import math
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
@@ -46,7 +47,8 @@ from core.track import RootTracking, root_reference, track_root
 from core.video import VideoSet
 
 __all__ = [
-    "OUTPUT_FILES", "FitJob", "FitOutcome", "Outputs", "Plan", "VideoSource", "build_report",
+    "OUTPUT_FILES", "FitJob", "FitOutcome", "Outputs", "Plan", "VideoSource", "ambiguous_advice",
+    "ambiguous_dofs", "build_report",
     "estimate_marker_diameter", "outputs", "over_threshold_advice", "plan", "run_fit",
     "write_outputs",
 ]
@@ -290,6 +292,7 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
     per_marker = np.array([f.error_per_marker(n_markers) for f in fitted])
     over = [f.sample for f in fits if f.status is Status.OVER_THRESHOLD]
     ambiguous = [f.sample for f in fitted if math.isfinite(f.alternative_deg(rotational))]
+    by_dof = ambiguous_dofs(fitted, job.model)
     counts = np.array([f.detections for f in fits]).reshape(len(fits), -1)
     views = [v.name for v in job.source.rig.views]
     return {
@@ -308,8 +311,10 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
         "over_threshold_images": over,
         "ambiguous": len(ambiguous),
         "ambiguous_images": ambiguous,
+        "ambiguous_dofs": by_dof,
         "undetermined_dofs": _undetermined(job.model),
-        "advice": over_threshold_advice(len(over), per_marker, job.params.error_threshold_px),
+        "advice": (over_threshold_advice(len(over), per_marker, job.params.error_threshold_px)
+                   or ambiguous_advice(len(ambiguous), len(fitted), by_dof)),
         "detections_per_view": {
             name: {"mean": round(float(counts[:, v].mean()), 3) if len(fits) else None,
                    "min": int(counts[:, v].min()) if len(fits) else None,
@@ -328,22 +333,50 @@ def build_report(job: FitJob, outcome: FitOutcome) -> dict[str, Any]:
     }
 
 
-MOSTLY_OVER_SHARE = 0.5  # of the fitted images: more over the threshold earn advice
+MOST_IMAGES_SHARE = 0.5  # of the fitted images: more over the threshold, or ambiguous, earn advice
+ADVISED_DOFS = 3  # the DOFs named in the advice on ambiguous images, most often ambiguous first
 
 
 def over_threshold_advice(over: int, per_marker: np.ndarray, threshold_px: float) -> list[str]:
-    """One line of advice when more than :data:`MOSTLY_OVER_SHARE` of the fitted images
+    """One line of advice when more than :data:`MOST_IMAGES_SHARE` of the fitted images
     (``per_marker`` (n,), their ``error_per_marker_px``) are over the threshold (``over`` of
     them), else none. Markers off the model in most images are not single bad images that
     re-analysis mends: a model whose lengths or marker positions are off, or a rig off its
     calibration, leaves every image a pixel or more off (docs/BENCH_SUBJECTS.md)."""
-    if not len(per_marker) or over <= MOSTLY_OVER_SHARE * len(per_marker):
+    if not len(per_marker) or over <= MOST_IMAGES_SHARE * len(per_marker):
         return []
     median = float(np.median(per_marker))
     return [f"{over} of {len(per_marker)} images are over the threshold (median {median:.3g} px per "
             f"marker projection, threshold {threshold_px:g}): check the model's segment lengths "
             "and marker positions and the rig's calibration; an overlay of the worst images "
             "shows which markers miss"]
+
+
+def ambiguous_dofs(fits: Iterable[ImageFit], model: KinematicModel) -> dict[str, int]:
+    """Per rotational DOF of ``model`` (by name, model-file order), how many of ``fits`` have
+    their best alternative farthest from the posture in it (``ImageFit.alternative_dof``: the
+    DOF ``alternative_deg`` measures); DOFs in which no image is ambiguous are left out."""
+    counts = Counter(f.alternative_dof(model.rotational) for f in fits)
+    return {name: counts[d] for d, name in enumerate(model.dof_names) if counts[d]}
+
+
+def ambiguous_advice(ambiguous: int, fitted: int, by_dof: Mapping[str, int]) -> list[str]:
+    """One line of advice when more than :data:`MOST_IMAGES_SHARE` of the ``fitted`` images
+    are ambiguous (``ambiguous`` of them), naming the :data:`ADVISED_DOFS` DOFs most often
+    ambiguous (``by_dof``, :func:`ambiguous_dofs`), else none. Where most images do not
+    determine a DOF, the markers and views do not: the images' residual (sliding skin, a
+    model or calibration a little off) leaves it free within the tolerance, and another
+    marker on its segment, or a view from another side, pins it (docs/BENCH_SUBJECTS.md).
+    ``build_report`` gives it only without :func:`over_threshold_advice`: images most of which
+    miss the threshold are ambiguous because of that residual (a rig 8 px off left 40 of 40
+    locust images ambiguous), and the line to act on is the one about the model and rig."""
+    if not fitted or ambiguous <= MOST_IMAGES_SHARE * fitted:
+        return []
+    named = sorted(by_dof.items(), key=lambda item: -item[1])[:ADVISED_DOFS]
+    return [f"{ambiguous} of {fitted} images are ambiguous (another posture fits about as well: "
+            f"alternative_deg), most often in {', '.join(f'{d} ({n})' for d, n in named)}: a marker "
+            "on their segments, or a camera that sees them from another side, would determine "
+            "them; an overlay marks the ambiguous images"]
 
 
 def _undetermined(model: KinematicModel) -> list[str] | None:

@@ -271,8 +271,8 @@ def _advice(api: Client, state: dict[str, Any]) -> list[str]:
     for job in state.get("jobs", [state]):
         if job["status"] == "succeeded":
             report = json.loads(api.result(job["id"], "report.json"))
-            lines += [f"mocap: warning: job {job['id']}: {line} (the job option \"overlay\": true draws "
-                      f"the worst images; docs/SEEING_THE_FIT.md)" for line in report["advice"]]
+            lines += [f"mocap: warning: job {job['id']}: {line} (the job option \"overlay\": true; "
+                      f"docs/SEEING_THE_FIT.md)" for line in report["advice"]]
     return lines
 
 

@@ -85,7 +85,8 @@ def test_fit_writes_formats_files_and_matches_the_truth(clip, tmp_path):
 
 def test_fit_warns_once_about_a_dof_the_markers_cannot_determine_and_goes_on(clip, tmp_path):
     """The locust leg with a claw joint that turns and carries no marker: one warning line
-    naming the file, the DOF and the fix, a normal fit, and report.json listing the DOF."""
+    naming the file, the DOF and the fix, a normal fit, and report.json listing the DOF; once
+    fitted, the advice on ambiguous images names it too (every image, claw_z the farthest)."""
     xml = (LOCUST / "model.xml").read_text().replace(
         "  <marker", '  <joint name="claw" parent="tarsus"><offset x="3"/>'
         '<dof axis="z" name="claw_z" min="-30" max="30"/></joint>\n  <marker', 1)
@@ -95,11 +96,16 @@ def test_fit_warns_once_about_a_dof_the_markers_cannot_determine_and_goes_on(cli
                      "--out", tmp_path / "out", "--marker-diameter-px", "4")
     assert result.exit_code == 0, result.output
     warnings = [line for line in result.stderr.splitlines() if "warning" in line]
-    assert warnings == [f"mocap: warning: {model}: claw_z moves no marker: add a marker to "
-                        "segment claw"], result.stderr
+    assert warnings[0] == f"mocap: warning: {model}: claw_z moves no marker: add a marker to segment claw"
+    assert warnings[1:] == ["mocap: warning: 40 of 40 images are ambiguous (another posture fits about "
+                            "as well: alternative_deg), most often in claw_z (40): a marker on their "
+                            "segments, or a camera that sees them from another side, would determine "
+                            "them; an overlay marks the ambiguous images (--overlay; "
+                            "docs/SEEING_THE_FIT.md)"], result.stderr
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["undetermined_dofs"] == ["claw_z"]
     assert report["ambiguous"] == report["images"] == 40  # claw_z can be anything: every image
+    assert report["ambiguous_dofs"] == {"claw_z": 40}
 
 
 def test_fit_warns_about_a_view_whose_background_is_brighter_than_the_threshold(tmp_path):

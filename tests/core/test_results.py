@@ -134,3 +134,33 @@ def test_read_truth_csv_rejects_another_header(tmp_path):
     path.write_text("frame,phi\n0,1\n")
     with pytest.raises(ValueError, match="header"):
         read_truth_csv(path)
+
+
+def test_ambiguous_dofs_count_the_dof_each_alternative_is_farthest_in_and_advise_past_half(locust):
+    """report.json's ``ambiguous_dofs`` and its advice (``core.pipeline``): per DOF, the images
+    whose best alternative is farthest from the posture in it; a line only when more than half
+    of the fitted images are ambiguous, naming the three DOFs most often so, most often first."""
+    from core.ambiguity import Candidate
+    from core.pipeline import ambiguous_advice, ambiguous_dofs
+
+    model, _ = locust
+    q = (model.lower + model.upper) / 2
+
+    def fit(moved: int | None) -> ImageFit:
+        alternatives = ()
+        if moved is not None:
+            other = q.copy()
+            other[moved] += 12.0
+            other[(moved + 1) % len(q)] += 3.0  # a DOF moved less does not count
+            alternatives = (Candidate(other, 0.2, 0.2),)
+        return ImageFit(0, q, 0.1, 0.1, 1, Status.OK, 1, (4, 4), alternatives)
+
+    names = model.dof_names
+    fits = [fit(m) for m in (0, 2, 2, 3, 1, 2, 3, None)]
+    by_dof = ambiguous_dofs(fits, model)
+    assert by_dof == {names[0]: 1, names[1]: 1, names[2]: 3, names[3]: 2}
+    assert ambiguous_advice(4, 8, by_dof) == []  # half: no line
+    (line,) = ambiguous_advice(7, 8, by_dof)
+    first = f"most often in {names[2]} (3), {names[3]} (2), {names[0]} (1): "
+    assert line.startswith("7 of 8 images are ambiguous (another posture fits about as well: "
+                           f"alternative_deg), {first}")

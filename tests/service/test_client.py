@@ -211,8 +211,8 @@ def test_wait_warns_when_most_of_a_jobs_images_are_over_the_threshold(embedded, 
     warned = remote("wait", "job", str(strict), "--interval", "0.5", key=key, url=embedded.url)
     assert warned.returncode == 0, warned.stdout + warned.stderr
     line = (rf"mocap: warning: job {strict}: 40 of 40 images are over the threshold \(median [0-9.]+ px per "
-            r"marker projection, threshold 0.001\): check [^\n]+ \(the job option \"overlay\": true draws "
-            r"the worst images; docs/SEEING_THE_FIT.md\)\n")
+            r"marker projection, threshold 0.001\): check [^\n]+ \(the job option \"overlay\": true; "
+            r"docs/SEEING_THE_FIT.md\)\n")
     assert re.fullmatch(line, warned.stderr), warned.stderr
     quiet = remote("wait", "job", str(default), "--interval", "0.5", key=key, url=embedded.url)
     assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
