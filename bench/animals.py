@@ -87,12 +87,14 @@ class Rendered:
 
 def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
                       rng: np.random.Generator, occlusion: float = 0.0, everywhere: bool = False,
-                      detector: DetectorParams = DetectorParams()) -> Rendered:
+                      detector: DetectorParams = DetectorParams(),
+                      marker_px: float = MARKER_DIAMETER_PX) -> Rendered:
     """Render ``n`` images of the subject's movement in every camera, then detect them (timed).
 
     ``occlusion``: the fraction of (image, view, marker) hidden (:func:`occlusion_mask`), each
     marker from every view at once with ``everywhere``.
     ``detector``: the detection settings (``mocap fit``'s defaults unless given).
+    ``marker_px``: the markers' imaged diameter, pixels.
     """
     truth = subject.trajectory(n, rng)
     model, offsets = subject.model, None
@@ -109,7 +111,7 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
         hidden = np.repeat(hidden, views, axis=1) if everywhere else hidden
     frames = [
         render_frames(model, subject.rig, truth, rng=r, video=k, frame_size=subject.size_of(k),
-                      marker_diameter_px=MARKER_DIAMETER_PX, ghosts_per_view=ghosts,
+                      marker_diameter_px=marker_px, ghosts_per_view=ghosts,
                       drop=hidden, marker_offsets_px=offsets)
         for k, r in enumerate(noise)
     ]
@@ -319,7 +321,7 @@ def run(name: str, args: argparse.Namespace) -> None:
     rng = np.random.default_rng(args.seed)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts,
                              rng=rng, occlusion=args.occlusion, everywhere=args.everywhere,
-                             detector=args.detector)
+                             detector=args.detector, marker_px=args.marker_px)
     if data.hidden is not None:
         h = data.hidden
         print(f"\n{label}: hidden {int(h.sum())} of {h.size} marker projections "
@@ -332,7 +334,8 @@ def run(name: str, args: argparse.Namespace) -> None:
               else "")
            + (f"-{args.fps:g}hz" if args.fps else "")
            + (f"-model{100 * args.model_error:g}" if args.model_error else "")
-           + (f"-rig{args.rig_error:g}" if args.rig_error else ""))
+           + (f"-rig{args.rig_error:g}" if args.rig_error else "")
+           + (f"-marker{args.marker_px:g}" if args.marker_px != MARKER_DIAMETER_PX else ""))
     OUT.mkdir(parents=True, exist_ok=True)
     csv_path = OUT / f"animals-{tag}.csv"
     write_angles_csv(csv_path, subject.model, result.fits, SampleClock(subject.fps))
@@ -381,6 +384,9 @@ def main() -> None:
                              "N(0, F), e.g. 0.05 (default 0)")
     parser.add_argument("--rig-error", type=float, default=0.0, metavar="PX",
                         help="fit with every view's image shifted by PX pixels (default 0)")
+    parser.add_argument("--marker-px", type=float, default=MARKER_DIAMETER_PX, metavar="D",
+                        help=f"markers' imaged diameter, pixels (default {MARKER_DIAMETER_PX:g}, the "
+                        "issue's; bigger markers fuse more often)")
     parser.add_argument("--threshold", default=None,
                         help="detection threshold: a grey level, 'otsu' or 'auto' (default: mocap fit's)")
     args = parser.parse_args()
@@ -399,7 +405,7 @@ def main() -> None:
                      "--fps > 0, --model-error in [0, 0.5], --rig-error in [0, 50]")
     names = NAMES if args.subject == "all" else (args.subject,)
     print(f"bench/animals.py: seed {args.seed}, {args.images} images per subject, "
-          f"{MARKER_DIAMETER_PX:g} px markers, {args.ghosts} ghost blobs per view"
+          f"{args.marker_px:g} px markers, {args.ghosts} ghost blobs per view"
           + (f", soft tissue {SOFT_TISSUE_PX:g} px RMS + unmodelled markers" if args.soft_tissue else "")
           + (f", {100 * args.occlusion:g} % of marker projections hidden"
              + (" (each marker from every view at once)" if args.everywhere else "")
