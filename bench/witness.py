@@ -63,7 +63,7 @@ def witnesses(subject: Subject, det: Detections, q: np.ndarray,
     model, rig = subject.model, subject.rig
     off = view_offsets(None, rig)
     fit, error, objective = refine_whole(q.copy(), det, model, rig, params, off, steps=REFINE_STEPS)
-    scatter = scatter_error(fit, det, model, rig, off, params.empty_view_penalty_px)
+    scatter = scatter_error(fit, det, model, rig, off, params.empty_view_penalty_px, params.fusion_px)
     _, residual = witness_tolerance(params, det, model, scatter)
     found = tuple(undetermined_alternative(
         Candidate(fit, error, objective), det, model=model, rig=rig,

@@ -476,7 +476,7 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
         unseen = unseen_markers(marker_errors(projected, det), penalty)
     if not unseen.any() and _witness_readings(params, det, model, fit.error) is None:
         return None
-    scatter = scatter_error(fit.dofs, det, model, rig, off, penalty)
+    scatter = scatter_error(fit.dofs, det, model, rig, off, penalty, params.fusion_px)
     readings = _witness_readings(params, det, model, scatter)
     if readings is None and not unseen.any():
         return None

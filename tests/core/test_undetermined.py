@@ -280,7 +280,7 @@ def test_the_scatter_is_never_above_the_plain_error():
     for det, q in zip(dets, truths, strict=True):
         for spread in (0.0, 2.0, 20.0):  # at the truth, near it, far from it (markers off their blobs)
             p = np.clip(q + rng.normal(0, spread, q.shape), model.lower, model.upper)
-            scatter = scatter_error(p, det, model, rig, off, 5.0)
+            scatter = scatter_error(p, det, model, rig, off, 5.0, 8.0)
             assert scatter <= plain_error(p, det, model, rig, off, 5.0) * (1 + 1e-12)
             compared += 1
     assert compared == 39 and data.hidden is not None and data.hidden.any()
@@ -342,12 +342,28 @@ def test_a_hidden_marker_is_not_read_as_scatter():
     projections = rig.project(model.marker_positions(LOCUST))
     assert np.argwhere(hidden_projections(marker_errors(projections, det), 5.0)).tolist() == [[1, 2]]
     assert view_error(LOCUST, det, model=model, rig=rig) > 10.0  # charged its nearest other blob
-    assert scatter_error(LOCUST, det, model, rig, off, 5.0) == pytest.approx(0.0, abs=1e-9)
+    assert scatter_error(LOCUST, det, model, rig, off, 5.0, 8.0) == pytest.approx(0.0, abs=1e-9)
     # More than a quarter of the projections that far is a wrong fit, not hidden markers.
     many = _hidden(model, rig, LOCUST, {0: [2, 3], 1: [2]})
     assert not hidden_projections(marker_errors(projections, many), 5.0).any()
-    assert scatter_error(LOCUST, many, model, rig, off, 5.0) == pytest.approx(
+    assert scatter_error(LOCUST, many, model, rig, off, 5.0, 8.0) == pytest.approx(
         view_error(LOCUST, many, model=model, rig=rig))
+
+
+def test_a_fused_blob_is_not_read_as_scatter():
+    """Two markers imaged as one blob between them: each lies half their separation from it,
+    which is no scatter about the model where the objective fuses them (closer than
+    fusion_px), and is where it does not."""
+    model, rig = _subject("locust_hind_leg")
+    off = view_offsets(None, rig)
+    proj = rig.project(model.marker_positions(LOCUST))
+    gap = np.linalg.norm(proj[0][:, None] - proj[0][None], axis=2) + np.eye(4) * 1e9
+    i, j = np.unravel_index(np.argmin(gap), gap.shape)
+    merged = np.vstack([np.delete(proj[0], [i, j], axis=0), (proj[0][i] + proj[0][j]) / 2])
+    det = Detections.from_views([merged, proj[1]])
+    assert scatter_error(LOCUST, det, model, rig, off, 100.0, gap[i, j] + 1.0) == pytest.approx(0.0, abs=1e-9)
+    assert scatter_error(LOCUST, det, model, rig, off, 100.0, 0.0) == pytest.approx(
+        view_error(LOCUST, det, model=model, rig=rig)) and gap[i, j] > 1.0
 
 
 def test_a_clean_image_with_a_hidden_marker_is_not_undetermined():
@@ -406,5 +422,5 @@ def test_a_fused_blob_and_a_hidden_marker_are_no_residual():
 
     projected = np.array([[[10.0, 10.0], [14.0, 10.0], [50.0, 50.0], [90.0, 90.0]]])
     det = Detections.from_views([[[12.0, 10.0], [50.5, 49.0], [70.0, 90.0]]])
-    residual = _residual_vectors(projected, det, np.ones((1, 4), dtype=bool), 5.0)
+    residual = _residual_vectors(projected, det, np.ones((1, 4), dtype=bool), 5.0, 8.0)
     assert residual.tolist() == [0.0, 0.0, 0.0, 0.0, -0.5, 1.0, 0.0, 0.0]
