@@ -271,3 +271,18 @@ def test_fits_run_blas_on_one_thread_and_restore_its_limit(locust):
         assert blas_threads() == outside
     assert seen == [{1}, {1}]
     assert max(outside) == 2  # NumPy's; OpenCV's own OpenBLAS may keep its one thread
+
+
+
+def test_an_alternative_within_distinct_deg_makes_no_image_ambiguous():
+    """alternative_deg reads the best *distinct* alternative (FORMATS section 3): more than
+    DISTINCT_DEG from the posture in some angle; a translation is no angle."""
+    from core.ambiguity import Candidate
+
+    rot = np.array([True, True, False])
+    near = Candidate(np.array([3.0, 0.0, 10.0]), 1.1, 1.1)  # the best, but not another posture
+    far = Candidate(np.array([0.0, 12.0, 0.0]), 1.2, 1.2)
+    fit = ImageFit(0, np.zeros(3), 1.0, 1.0, 1, Status.OK, 1, (4,), (near, far))
+    assert (fit.alternative_deg(rot), fit.alternative_dof(rot)) == (12.0, 1)
+    alone = replace(fit, alternatives=(near,))
+    assert math.isnan(alone.alternative_deg(rot)) and alone.alternative_dof(rot) is None
