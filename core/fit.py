@@ -221,9 +221,9 @@ class ImageFit:
         return math.nan if gaps is None else float(gaps.max())
 
     def alternative_dof(self, rotational: np.ndarray) -> int | None:
-        """Index (model-file order) of the rotational DOF in which the best alternative is
-        farthest from the posture, the one :meth:`alternative_deg` measures; None when the
-        image has no alternative.
+        """Index (model-file order) of the rotational DOF in which the best distinct
+        alternative is farthest from the posture, the one :meth:`alternative_deg` measures;
+        None when the image has none.
 
         >>> alt = Candidate(np.array([10.0, 350.0]), 0.1, 0.1)
         >>> fit = ImageFit(0, np.array([30.0, 5.0]), 0.1, 0.1, 1, Status.OK, 1, (4,), (alt,))
