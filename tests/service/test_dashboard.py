@@ -21,6 +21,8 @@ import httpx
 import pytest
 from svc_helpers import repeated, slow_rig, submit, upload_inputs, wait_for
 
+from core.examples import LOCUST
+
 pytestmark = [pytest.mark.service, pytest.mark.browser, pytest.mark.slow]
 
 CHROMIUM = "/usr/bin/chromium"
@@ -153,8 +155,10 @@ def test_a_finished_job_shows_its_plot_counts_artifacts_and_downloads(page, lab)
     report = client.get(f"/jobs/{job_id}/report.json").json()
     shown = dict(page.locator("#job-counts tbody tr").evaluate_all(
         "rows => rows.map(r => [r.cells[0].textContent, Number(r.cells[1].textContent)])"))
-    assert shown == {**report["status"], "re-analysed": report["reanalysed"]}
+    assert shown == {**report["status"], "re-analysed": report["reanalysed"],
+                     "ambiguous": report["ambiguous"]}
     assert report["advice"] == [] and page.locator("#job-advice:visible").count() == 0
+    assert report["ambiguous_dofs"] == {} and page.locator("#job-ambiguous:visible").count() == 0
 
     # Artifact images (angle plots, the overlay's contact sheet) load when the job has them.
     listed = client.get(f"/jobs/{job_id}/artifacts")
@@ -177,20 +181,30 @@ def test_a_finished_job_shows_its_plot_counts_artifacts_and_downloads(page, lab)
     assert Path(download.value.path()).read_bytes() == client.get(f"/jobs/{job_id}/angles.csv").content
 
 
-def test_a_job_mostly_over_the_threshold_shows_its_advice(page, lab):
-    """report.json's advice (``core.pipeline.over_threshold_advice``) above the job's counts: a
-    threshold no fit meets puts every image over it."""
+def test_a_job_mostly_over_the_threshold_shows_its_advice_and_ambiguous_dofs(page, lab):
+    """report.json's advice (``core.pipeline.over_threshold_advice``) above the job's counts, and
+    its ambiguous_dofs below them: a threshold no fit meets puts every image over it, and a
+    claw joint that carries no marker leaves every image ambiguous in it."""
     client, ids = lab
-    job = wait_for(client, submit(client, ids, marker_diameter_px=4.0, chunk_size=20, max_attempts=1,
-                                  error_threshold_px=0.001)["id"])
-    advice = client.get(f"/jobs/{job['id']}/report.json").json()["advice"]
-    assert len(advice) == 1 and advice[0].startswith("40 of 40 images are over the threshold")
+    xml = (LOCUST / "model.xml").read_text().replace(
+        "  <marker", '  <joint name="claw" parent="tarsus"><offset x="3"/>'
+        '<dof axis="z" name="claw_z" min="-30" max="30"/></joint>\n  <marker', 1)
+    model = client.post("/models", content=xml.encode(), headers={"Content-Type": "application/xml"})
+    assert model.status_code == 201, model.text
+    job = wait_for(client, submit(client, {**ids, "model_id": model.json()["id"]}, marker_diameter_px=4.0,
+                                  chunk_size=20, max_attempts=1, error_threshold_px=0.001)["id"])
+    report = client.get(f"/jobs/{job['id']}/report.json").json()
+    (line,) = report["advice"]
+    assert line.startswith("40 of 40 images are over the threshold")
+    assert report["ambiguous_dofs"] == {"claw_z": 40}
     _sign_in(page, _key(client))
     page.get_by_role("link", name=f"Job {job['id']}", exact=True).click()
     page.get_by_role("heading", name=f"Job {job['id']}: succeeded").wait_for()
     shown = page.get_by_role("list", name="Advice on this job's fit")
     shown.wait_for(state="visible")
-    assert shown.locator("li").all_text_contents() == advice
+    assert shown.locator("li").all_text_contents() == report["advice"]
+    assert page.locator("#job-ambiguous").text_content() == (
+        "Ambiguous images by the DOF their alternative differs most in: claw_z 40.")
 
 
 def test_batches_are_listed_with_their_jobs(page, lab):

@@ -330,7 +330,7 @@
   async function results(job) {
     const downloads = $("job-downloads");
     const overlay = $("job-overlay");
-    overlay.hidden = $("job-plots").hidden = $("job-advice").hidden = true;
+    overlay.hidden = $("job-plots").hidden = $("job-advice").hidden = $("job-ambiguous").hidden = true;
     state.images.splice(0).forEach(URL.revokeObjectURL);  // the images of the job shown before
     if (job.status !== "succeeded") {
       downloads.replaceChildren(el("li", { text: "Results can be downloaded once the job has succeeded." }));
@@ -345,7 +345,13 @@
       ...RESULTS.map((name) => el("li", {}, downloadLink(`/jobs/${job.id}/${name}`, `job-${job.id}-${name}`, name))),
       ...extra.map((name) => el("li", {}, downloadLink(`/jobs/${job.id}/artifacts/${name}`,
                                                        `job-${job.id}-${name.replaceAll("/", "-")}`, name))));
-    counts([...Object.entries(report.status), ["re-analysed", report.reanalysed]]);
+    counts([...Object.entries(report.status), ["re-analysed", report.reanalysed],
+      ["ambiguous", report.ambiguous]]);
+    // report.json's ambiguous_dofs: which DOF each ambiguous image's alternative differs most in
+    const dofs = Object.entries(report.ambiguous_dofs).sort((a, b) => b[1] - a[1]);
+    $("job-ambiguous").textContent = "Ambiguous images by the DOF their alternative differs most in: "
+      + dofs.map(([dof, n]) => `${dof} ${n}`).join(", ") + ".";
+    $("job-ambiguous").hidden = dofs.length === 0;
     // report.json's advice: most images over the threshold, and what to check
     $("job-advice").replaceChildren(...report.advice.map((line) => el("li", { text: line })));
     $("job-advice").hidden = report.advice.length === 0;
