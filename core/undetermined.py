@@ -424,7 +424,7 @@ def shared_scatter_inflation(J: np.ndarray, C: np.ndarray, B: np.ndarray,
     """
     P2, D = J.shape
     JB = J.T @ B  # (D, 3M)
-    unexplained = float(np.sum(B * B) - np.sum(JB * (C @ JB)))
+    unexplained = _left_by_fit(B, JB, C)
     if unexplained <= 0 or P2 <= D:
         return np.ones(D)
     read_3d = (P2 - D) / unexplained * _variance_ratio(C, JB)
@@ -434,9 +434,14 @@ def shared_scatter_inflation(J: np.ndarray, C: np.ndarray, B: np.ndarray,
     inflation = np.maximum(independent + scattered, independent + scattered * read_3d)
     if shifted > 0 and shifts is not None:
         JT = J.T @ shifts  # (D, 2V)
-        moved = float(np.sum(shifts * shifts) - np.sum(JT * (C @ JT)))  # tr(R TTᵀ)
-        inflation = inflation + shifted * (P2 - D) / moved * _variance_ratio(C, JT)
+        inflation = inflation + shifted * (P2 - D) / _left_by_fit(shifts, JT, C) * _variance_ratio(C, JT)
     return inflation
+
+
+def _left_by_fit(X: np.ndarray, JX: np.ndarray, C: np.ndarray) -> float:
+    """tr(Xᵀ R X), R = I − J C Jᵀ: how much of unit scatter along the columns of ``X`` (2P, k)
+    the fit leaves in the residual, from ``JX`` = JᵀX (D, k) and ``C`` = (JᵀJ)⁻¹ (D, D)."""
+    return float(np.sum(X * X) - np.sum(JX * (C @ JX)))
 
 
 def _variance_ratio(C: np.ndarray, JX: np.ndarray) -> np.ndarray:
