@@ -160,7 +160,7 @@ def fit(
           f"status {report['status']}; mean error {report['error_px']['mean']} px; "
           f"wrote {out}/angles.csv, histograms.xml, report.json{exported}")
     warn_few_detections(report, len(kinematic.markers))
-    warn_mostly_over_threshold(report)
+    warn_advice(report)
     with user_errors():
         if overlay:
             _draw_overlay(job, out, OVERLAY_WORST)
@@ -195,9 +195,9 @@ def warn_few_detections(report: dict[str, Any], n_markers: int) -> None:
                        err=True)
 
 
-def warn_mostly_over_threshold(report: dict[str, Any]) -> None:
-    """``report.json``'s ``advice`` (``core.pipeline.over_threshold_advice``: most images over
-    the threshold), a line each on stderr, with where to see it."""
+def warn_advice(report: dict[str, Any]) -> None:
+    """``report.json``'s ``advice`` (``core.pipeline``: most images over the threshold, or
+    else ambiguous), a line each on stderr, with where to see the images."""
     for line in report["advice"]:
         typer.echo(f"mocap: warning: {line} (--overlay; docs/SEEING_THE_FIT.md)", err=True)
 

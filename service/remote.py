@@ -265,8 +265,8 @@ def _ids(text: str) -> list[int]:
 
 
 def _advice(api: Client, state: dict[str, Any]) -> list[str]:
-    """Each succeeded job's ``report.json`` advice (``core.pipeline.over_threshold_advice``: most
-    images over the threshold), as warning lines naming the job and where to see its worst images."""
+    """Each succeeded job's ``report.json`` advice (``core.pipeline``: most images over the
+    threshold, or else ambiguous), as warning lines naming the job and where to see the images."""
     lines = []
     for job in state.get("jobs", [state]):
         if job["status"] == "succeeded":

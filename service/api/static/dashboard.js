@@ -352,7 +352,7 @@
     $("job-ambiguous").textContent = "Ambiguous images by the DOF their alternative differs most in: "
       + dofs.map(([dof, n]) => `${dof} ${n}`).join(", ") + ".";
     $("job-ambiguous").hidden = dofs.length === 0;
-    // report.json's advice: most images over the threshold, and what to check
+    // report.json's advice: most images over the threshold, or else ambiguous, and what to do
     $("job-advice").replaceChildren(...report.advice.map((line) => el("li", { text: line })));
     $("job-advice").hidden = report.advice.length === 0;
     const plot = errorPlot(parseAngles(angles), job.options.error_threshold_px);
