@@ -77,7 +77,9 @@ class Image(NamedTuple):
     """One image's detections and how the objective (:func:`blob_error`) charges them.
 
     det : (N, 3) float64, detections of all views (u, v px, merged flag), view v in
-        ``det[start[v]:start[v + 1]]`` (``core.error.Detections.kernel_points``).
+        ``det[start[v]:start[v + 1]]`` (``core.error.Detections.kernel_points``); or (N, 4),
+        the fourth column 1.0 where another part of the model explains the detection (a
+        part's objective, ``core.treefit``): :func:`_unexplained` never charges it.
     start : (V + 1,) int64.  offset : (V, 2) float64, pixels added to each view's projections.
     penalty : float, px a marker of a view without detections costs (and an unseen one).
     fuse_px : float, markers projecting closer are one blob; 0: plain Eq. 5.
@@ -527,7 +529,8 @@ def _unexplained(raw, proj, v, det, a, b, index, claims, reach2) -> float:
     blob): such a detection, within ``sqrt(reach2)`` (``fuse_px``) of where a
     marker sharing a blob projects itself (``raw``), is charged its distance to
     the nearest marker of the reading (``proj``). Other unclaimed detections
-    (ghosts) cost nothing, as in Eq. 5.
+    (ghosts) cost nothing, as in Eq. 5, nor do those another part explains (``det``'s
+    fourth column, where it has one: :class:`Image`).
     """
     for c in range(a, b):
         claims[c] = 0
@@ -535,8 +538,9 @@ def _unexplained(raw, proj, v, det, a, b, index, claims, reach2) -> float:
         if index[m] >= 0:
             claims[index[m]] += 1
     total = 0.0
+    elsewhere = det.shape[1] > 3
     for c in range(a, b):
-        if claims[c] > 0:
+        if claims[c] > 0 or (elsewhere and det[c, 3] > 0.0):
             continue
         for m in range(raw.shape[1]):
             if index[m] < 0 or claims[index[m]] < 2:
