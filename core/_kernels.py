@@ -530,7 +530,11 @@ def _unexplained(raw, proj, v, det, a, b, index, claims, reach2) -> float:
     marker sharing a blob projects itself (``raw``), is charged its distance to
     the nearest marker of the reading (``proj``). Other unclaimed detections
     (ghosts) cost nothing, as in Eq. 5, nor do those another part explains (``det``'s
-    fourth column, where it has one: :class:`Image`).
+    fourth column, where it has one: :class:`Image`). Two markers sharing a blob whose
+    area says it may be two merged markers (``det[:, 2]``; any blob where areas are
+    unknown) are what the detector saw, not a squeeze: a detection next to them is a ghost
+    and costs nothing, where charged it would make the true posture of a fused pair lose to
+    a wrong one. A third marker on such a blob is a squeeze again.
     """
     for c in range(a, b):
         claims[c] = 0
@@ -543,7 +547,8 @@ def _unexplained(raw, proj, v, det, a, b, index, claims, reach2) -> float:
         if claims[c] > 0 or (elsewhere and det[c, 3] > 0.0):
             continue
         for m in range(raw.shape[1]):
-            if index[m] < 0 or claims[index[m]] < 2:
+            shared = claims[index[m]] if index[m] >= 0 else 0
+            if shared < 2 or (shared == 2 and det[index[m], 2] > 0.0):
                 continue
             du, dv = det[c, 0] - raw[v, m, 0], det[c, 1] - raw[v, m, 1]
             if du * du + dv * dv < reach2:

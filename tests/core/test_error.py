@@ -110,14 +110,38 @@ def _eq5_at(side, top, det, fusion_px=0.0):
                                index, dist, claims, _kernels.NO_UNSEEN)
 
 
-def test_a_blob_left_unexplained_beside_two_markers_on_one_blob_is_charged(locust):
-    """Two markers put on one blob 6 px from another that nobody claims: the blob reading
-    charges the lone blob its distance (6 px); plain Eq. 5 charges nothing."""
+def _sized(views: list[np.ndarray], large: tuple[int, int] | None = None) -> Detections:
+    """Detections of these views, each a marker's area (20 px) but detection ``large``
+    ((view, index)), which has the area of two merged markers."""
+    areas = [np.full(len(v), 20.0) for v in views]
+    if large is not None:
+        areas[large[0]][large[1]] = 36.0
+    return Detections.from_views(views, areas)
+
+
+@pytest.mark.parametrize("merged_area", [False, True])
+def test_a_blob_left_unexplained_beside_two_markers_on_one_blob_is_charged(locust, merged_area):
+    """Two markers put on one blob no larger than one marker, 6 px from another that nobody
+    claims: the blob reading charges the lone blob its distance (6 px); plain Eq. 5 charges
+    nothing. Where the shared blob has the area of two merged markers, the two markers are
+    what the detector saw, and the lone blob is a ghost: charged nothing."""
     model, rig = locust
     side = rig.project(model.marker_positions(np.array([170.0, 0.0, 0.0, 10.0, 90.0])))[0]
     top = np.array([[240.0, 438.0], [227.0, 438.0], [160.0, 440.0], [160.0, 440.5]])
     blobs = np.array([[240.0, 438.0], [227.0, 438.0], [160.0, 440.25], [160.0, 446.25]])
-    det = Detections.from_views([side, blobs])
+    det = _sized([side, blobs], (1, 2) if merged_area else None)
     assert _eq5_at(side, top, det) == pytest.approx(0.5)
+    assert _eq5_at(side, top, det, fusion_px=8.0) == pytest.approx(0.0 if merged_area else 6.0, abs=0.3)
+
+
+def test_a_third_marker_on_a_merged_blob_leaves_its_neighbour_charged(locust):
+    """Three markers on a blob with the area of two, and a blob 6 px away that nobody
+    claims: two merged markers explain that area, the third does not, and the lone blob is
+    charged as a squeeze left it."""
+    model, rig = locust
+    side = rig.project(model.marker_positions(np.array([170.0, 0.0, 0.0, 10.0, 90.0])))[0]
+    top = np.array([[240.0, 438.0], [160.0, 439.5], [160.0, 440.0], [160.0, 440.5]])
+    blobs = np.array([[240.0, 438.0], [160.0, 440.0], [160.0, 446.0], [300.0, 300.0]])
+    det = _sized([side, blobs], (1, 1))
     assert _eq5_at(side, top, det, fusion_px=8.0) == pytest.approx(6.0, abs=0.3)
 
