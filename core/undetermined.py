@@ -281,7 +281,7 @@ def undetermined_alternative(
     for d in np.flatnonzero(rot & screened):
         limit = fitted + tolerance[d]
         for sign in (1.0, -1.0):
-            for k in range(WITNESS_DOUBLINGS + 1):
+            for k in range(_first_doubling(best_gap), WITNESS_DOUBLINGS + 1):
                 step = sign * UNDETERMINED_DEG * 2**k
                 p = np.clip(q + step * profiles[d], model.lower, model.upper)
                 value = objective(p)
@@ -297,6 +297,20 @@ def undetermined_alternative(
         return None
     return Candidate(best, plain_error(best, detections, model, rig, off, image.penalty), objective(best),
                      minimum=False)
+
+
+def _first_doubling(gap: float) -> int:
+    """The first doubling k whose step (``UNDETERMINED_DEG`` × 2^k) reaches ``gap`` (degrees), the
+    farthest witness found so far: a nearer step cannot replace it, and whether the profile
+    stays within the tolerance up to there does not matter to a posture that is within it.
+
+    >>> [_first_doubling(g) for g in (10.0, 10.5, 40.0, 500.0)]
+    [0, 1, 2, 3]
+    """
+    k = 0
+    while k < WITNESS_DOUBLINGS and UNDETERMINED_DEG * 2**k < gap:
+        k += 1
+    return k
 
 
 def _profiles(q: np.ndarray, model: KinematicModel, rig: Rig, detections: Detections,
