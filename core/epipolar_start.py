@@ -27,6 +27,7 @@ candidates, and its Eq. 5 error says whether it explains the images.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from weakref import WeakKeyDictionary
 
 import numpy as np
 
@@ -66,12 +67,14 @@ class BranchStart:
 @dataclass(frozen=True)
 class _Beam:
     """A partial assignment: ``targets`` (M,) candidate index per marker, -1 unassigned or
-    not yet reached; posture ``q`` (d,) solved onto it; ``residual``: squared distances of the
-    assigned markers to their targets, and ``skips``: the charge of the markers left out and
-    the doubts about the candidates assigned (:func:`_doubt`), model units²."""
+    not yet reached; posture ``q`` (d,) solved onto it, ``places`` its markers; ``residual``:
+    squared distances of the assigned markers to their targets, and ``skips``: the charge of
+    the markers left out and the doubts about the candidates assigned (:func:`_doubt`),
+    model units²."""
 
     targets: np.ndarray
     q: np.ndarray
+    places: np.ndarray  # (M, 3) the markers' world positions at ``q``
     residual: float
     skips: float
 
@@ -116,19 +119,21 @@ def branch_start(candidates: Candidates, *, part: Part, rotation: np.ndarray, or
     order = np.argsort(np.linalg.norm(_markers(q, kin) - origin, axis=1), kind="stable")
     skip = (SKIP_FRACTION * part.reach) ** 2
     doubt = skip * _doubt(candidates.n_views[near])
-    low, high = _distance_bounds(kin, lower, upper, SLACK_FRACTION * part.reach)
+    low, high = _part_bounds(part, lower, upper)
     from_base = np.linalg.norm(targets - origin, axis=1)
-    beams = [_Beam(np.full(len(order), -1, dtype=np.int64), q, 0.0, 0.0)]
+    apart = np.linalg.norm(targets[:, None] - targets[None], axis=2)  # (K, K)
+    beams = [_Beam(np.full(len(order), -1, dtype=np.int64), q, _markers(q, kin), 0.0, 0.0)]
     bounds = _kernels.Bounds(lower, upper)
     image = _kernels.Image.of(points, start, offsets, penalty=0.0, fuse_px=0.0)  # refine's, not read
+    subsets: dict[bytes, KinematicArrays] = {}  # the part with only the assigned markers, by mask
     for m in order:
         grown = []
         for beam in beams:
-            grown.append(_Beam(beam.targets, beam.q, beam.residual, beam.skips + skip))
-            for k in _allowed(m, beam, targets, doubt, from_base, low, high, kin):
+            grown.append(_Beam(beam.targets, beam.q, beam.places, beam.residual, beam.skips + skip))
+            for k in _allowed(m, beam, targets, apart, doubt, from_base, low, high):
                 assigned = beam.targets.copy()
                 assigned[m] = k
-                grown.append(_solve(assigned, beam.q, kin, targets, bounds, rig.arrays, image,
+                grown.append(_solve(assigned, beam.q, kin, subsets, targets, bounds, rig.arrays, image,
                                     beam.skips + doubt[k]))
         beams = sorted(grown, key=lambda b: b.cost)[:BEAM]
     found = []
@@ -160,6 +165,22 @@ def _doubt(n_views: np.ndarray) -> np.ndarray:
     return 1.0 - n_views / n_views.max()
 
 
+_BOUNDS: WeakKeyDictionary[Part, dict[tuple[bytes, bytes], tuple[np.ndarray, np.ndarray]]] = (
+    WeakKeyDictionary())
+
+
+def _part_bounds(part: Part, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_distance_bounds` of ``part`` within the DOF ranges ``lower``, ``upper`` (d,), widened
+    by :data:`SLACK_FRACTION` of its reach, computed once per part and ranges: distances
+    between its markers and its base origin do not depend on where the base is, and the
+    512 sampled postures cost a twelfth of a two-camera hexapod image's triangulated starts."""
+    per_part = _BOUNDS.setdefault(part, {})
+    key = (lower.tobytes(), upper.tobytes())
+    if key not in per_part:
+        per_part[key] = _distance_bounds(part.kin, lower, upper, SLACK_FRACTION * part.reach)
+    return per_part[key]
+
+
 def _distance_bounds(kin: KinematicArrays, lower: np.ndarray, upper: np.ndarray,
                      slack: float) -> tuple[np.ndarray, np.ndarray]:
     """(M + 1, M + 1) least and greatest distance (model units) between markers, the base
@@ -178,31 +199,35 @@ def _distance_bounds(kin: KinematicArrays, lower: np.ndarray, upper: np.ndarray,
     return dist.min(axis=0) - slack, dist.max(axis=0) + slack
 
 
-def _allowed(m: int, beam: _Beam, targets: np.ndarray, doubt: np.ndarray, from_base: np.ndarray,
-             low: np.ndarray, high: np.ndarray, kin: KinematicArrays) -> np.ndarray:
+def _allowed(m: int, beam: _Beam, targets: np.ndarray, apart: np.ndarray, doubt: np.ndarray,
+             from_base: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """Candidates (indices) marker ``m`` may take in ``beam``: free, at distances from the base
-    and from the beam's assigned candidates within the sampled intervals; the :data:`TRIES`
-    best supported (least ``doubt``), nearest the marker's place at the beam's posture first."""
+    and (``apart`` (K, K), between candidates) from the beam's assigned candidates within the
+    sampled intervals; the :data:`TRIES` best supported (least ``doubt``), nearest the
+    marker's place at the beam's posture first."""
     ok = (from_base >= low[m, -1]) & (from_base <= high[m, -1])
     ok[beam.targets[beam.targets >= 0]] = False
     for j in np.flatnonzero(beam.targets >= 0):
-        d = np.linalg.norm(targets - targets[beam.targets[j]], axis=1)
+        d = apart[beam.targets[j]]
         ok &= (d >= low[m, j]) & (d <= high[m, j])
     index = np.flatnonzero(ok)
-    place = _markers(beam.q, kin)[m]
-    rank = np.lexsort((np.linalg.norm(targets[index] - place, axis=1), doubt[index]))
+    rank = np.lexsort((np.linalg.norm(targets[index] - beam.places[m], axis=1), doubt[index]))
     return index[rank[:TRIES]]
 
 
-def _solve(assigned: np.ndarray, q: np.ndarray, kin: KinematicArrays, targets: np.ndarray,
-           bounds: _kernels.Bounds, views: RigArrays, image: _kernels.Image, skips: float) -> _Beam:
+def _solve(assigned: np.ndarray, q: np.ndarray, kin: KinematicArrays, subsets: dict[bytes, KinematicArrays],
+           targets: np.ndarray, bounds: _kernels.Bounds, views: RigArrays, image: _kernels.Image,
+           skips: float) -> _Beam:
     """Inverse kinematics from ``q`` within ``bounds`` of the markers ``assigned`` (M,) onto
     their targets (``_kernels.refine`` in target mode, which takes but does not read
-    ``image``)."""
+    ``image``); ``subsets`` caches the part with only the assigned markers, by mask."""
     posed = assigned >= 0
-    sub = kin._replace(marker_joint=kin.marker_joint[posed],
-                       marker_pos=np.ascontiguousarray(kin.marker_pos[posed]))
+    key = posed.tobytes()
+    if (sub := subsets.get(key)) is None:
+        sub = subsets[key] = kin._replace(marker_joint=kin.marker_joint[posed],
+                                          marker_pos=np.ascontiguousarray(kin.marker_pos[posed]))
     solved = _kernels.refine(q, bounds, sub, views, image, np.inf, IK_STEPS,
                              np.ascontiguousarray(targets[assigned[posed]]))
-    d = _markers(solved, kin)[posed] - targets[assigned[posed]]
-    return _Beam(assigned, solved, float(np.sum(d * d)), skips)
+    places = _markers(solved, kin)
+    d = places[posed] - targets[assigned[posed]]
+    return _Beam(assigned, solved, places, float(np.sum(d * d)), skips)

@@ -58,7 +58,7 @@ _SPHERE /= np.linalg.norm(_SPHERE, axis=1, keepdims=True)
 _AROUND = np.vstack([np.zeros(3), _SPHERE])  # the centre first
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # compared and hashed by identity: a key of per-part caches
 class Part:
     """A part of the tree fitted on its own.
 
