@@ -277,9 +277,10 @@ def _ceilings(fit: ImageFit, det: Detections, model: KinematicModel, rig: Rig, p
 
 
 def typical_objective(fits: Iterable[ImageFit]) -> float:
-    """The median objective of a sequence's fitted images (NaN without any): what a good fit
-    of this footage scores, for ``core.fit.needs_reanalysis``."""
-    values = [f.objective for f in fits if f.status is not Status.NO_DETECTIONS]
+    """The median objective of a sequence's fitted images (NaN without any), each without
+    what markers its image does not show cost (``ImageFit.charged``): what a good fit of this
+    footage scores, for ``core.fit.needs_reanalysis``."""
+    values = [f.objective - f.charged for f in fits if f.status is not Status.NO_DETECTIONS]
     return float(np.median(values)) if values else math.nan
 
 

@@ -81,7 +81,8 @@ if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
-__all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "part_objective", "refine_whole",
+__all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "hidden_charge", "part_objective",
+           "refine_whole",
            "refine_without_lost", "refit_tree", "search_floor", "shared_projections",
            "tree_flip_alternatives", "two_sided_error", "warm_ceilings", "warm_start", "world_frames"]
 
@@ -343,6 +344,18 @@ def _ceiling_level(q: np.ndarray, kin, rig: Rig, image: _kernels.Image, params: 
         return part_objective(q, kin, image.det, image.start, image.unseen, rig, params, image.offset), True
     return (part_objective(q, kin, image.det, image.start, without, rig, params, image.offset)
             + image.penalty * np.count_nonzero(lost)), False
+
+
+def hidden_charge(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
+                  off: np.ndarray) -> float:
+    """Pixels of the whole objective of posture ``q`` (D,) on ``det`` (view offsets ``off``
+    (V, 2)) that what the image does not show costs: the empty-view penalty for each
+    projection that looks hidden (:func:`_lost`: farther than the penalty from every blob of
+    its view) and for each marker of a view without detections. The objective charges each
+    at least that, whatever the posture."""
+    lost = np.count_nonzero(_lost(q, model.arrays, rig, _whole_image(det, params, off)))
+    empty = np.count_nonzero(~_seen_views(det.start)) * len(model.markers)
+    return float(params.empty_view_penalty_px) * (lost + empty)
 
 
 def _lost(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) -> np.ndarray:
