@@ -745,9 +745,9 @@ def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
     ``core.sequence.typical_objective``) and above the level where ``model``'s search stops
     in the image's views (``core.treefit.search_floor``: ε for a chain, the smallest of
     its parts' ε for a tree), both without what markers the image does not show cost
-    (``fit.charged``): with 10 % of a two-view stick insect's projections hidden, most
-    images paid the empty-view penalty for one, the typical objective was 4 px, and an
-    image 12° off in a minimum at 2.9 px, whose truth scores 0.07, was no outlier.
+    (``fit.charged``): a hidden marker costs the empty-view penalty in every minimum, so
+    where most images hide one, the median is that penalty, and a wrong minimum a few
+    pixels above the right one hides under ten times it.
 
     The paper's 10 px threshold was "clearly larger than the expected analysis
     result" (2.9 px); clean footage now fits at ~0.1 px, so a local minimum at

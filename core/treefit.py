@@ -351,8 +351,8 @@ def hidden_charge(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
     """Pixels of the whole objective of posture ``q`` (D,) on ``det`` (view offsets ``off``
     (V, 2)) that what the image does not show costs: the empty-view penalty for each
     projection that looks hidden (:func:`_lost`: farther than the penalty from every blob of
-    its view) and for each marker of a view without detections. The objective charges each
-    at least that, whatever the posture."""
+    its view) and for each marker of a view without detections, the least the objective
+    charges each of those."""
     lost = np.count_nonzero(_lost(q, model.arrays, rig, _whole_image(det, params, off)))
     empty = np.count_nonzero(~_seen_views(det.start)) * len(model.markers)
     return float(params.empty_view_penalty_px) * (lost + empty)
