@@ -40,7 +40,7 @@ from core.triangulate import Candidates
 __all__ = ["BranchStart", "branch_start"]
 
 BEAM = 8  # partial assignments kept after each marker
-IK_STEPS = 5  # LM steps per assignment: a feasible one is within 1e-9 of its start cost by step 3-4
+IK_STEPS = 10
 MIN_ASSIGNED = 2  # fewer assigned markers cannot fix a branch's posture
 TIE_PX = 0.01  # final postures within this Eq. 5 error are told apart by their residual
 SKIP_FRACTION = 0.05  # leaving a marker unassigned costs (this × the branch's reach)², model units²
