@@ -173,8 +173,8 @@ class ImageFit:
         (:func:`reanalyse_image`), so :func:`needs_reanalysis` asks for no more attempts.
     charged : pixels of ``objective`` that markers the image does not show cost at the
         empty-view penalty (``core.treefit.hidden_charge``), at the posture the attempts
-        kept (before the choice by continuity): left out where ``objective`` is compared
-        with the sequence's (:func:`needs_reanalysis`).
+        kept (before the choice by continuity): left out of the sequence's typical objective
+        (``core.sequence.typical_objective``).
     """
 
     sample: int
@@ -744,10 +744,12 @@ def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
     ``params.outlier_factor`` times ``typical`` (the sequence's
     ``core.sequence.typical_objective``) and above the level where ``model``'s search stops
     in the image's views (``core.treefit.search_floor``: ε for a chain, the smallest of
-    its parts' ε for a tree), both without what markers the image does not show cost
-    (``fit.charged``): a hidden marker costs the empty-view penalty in every minimum, so
-    where most images hide one, the median is that penalty, and a wrong minimum a few
-    pixels above the right one hides under ten times it.
+    its parts' ε for a tree). The typical objective leaves out what markers the images do
+    not show cost (``ImageFit.charged``): a hidden marker costs the empty-view penalty in
+    every minimum, so where most images hide one, the median is that penalty, and a wrong
+    minimum a few pixels above the right one hides under ten times it. The image's own
+    objective is compared whole: a wrong posture that leaves a marker off every blob looks
+    just like a hidden one.
 
     The paper's 10 px threshold was "clearly larger than the expected analysis
     result" (2.9 px); clean footage now fits at ~0.1 px, so a local minimum at
@@ -763,7 +765,7 @@ def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
         return True
     views_seen = sum(1 for c in fit.detections if c > 0)
     limit = max(search_floor(model, params, views_seen), params.outlier_factor * typical)
-    return params.outlier_factor > 0 and math.isfinite(limit) and fit.objective - fit.charged > limit
+    return params.outlier_factor > 0 and math.isfinite(limit) and fit.objective > limit
 
 
 def _json_float(value: float) -> float | None:
