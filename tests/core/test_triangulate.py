@@ -16,7 +16,7 @@ from core.rig import Rig
 from core.sequence import fit_sequence
 from core.tree import decompose
 from core.triangulate import MAX_BLOBS_PER_VIEW, MAX_CANDIDATES, Candidates, triangulate
-from tests.core.tree_subjects import insect, movement, ring_rig
+from tests.core.tree_subjects import FREE_ROOT, insect, movement, ring_rig
 
 DISTORTION = [-0.12, 0.05, 0.001, -0.002, 0.01]
 
@@ -171,6 +171,28 @@ def test_branch_start_from_exact_candidates_lands_on_the_true_posture(sample):
         assert start is not None
         assert np.abs(start.dofs - q[part.dofs]).max() < 0.1
         assert start.error < 1e-3 and start.assigned == len(part.markers)
+
+
+def test_a_branchs_distance_bounds_are_the_same_wherever_its_base_is():
+    """branch_start caches each part's marker distance bounds (``_part_bounds``, from the part
+    at its own base frame): the bounds of the part posed anywhere are the same, and a second
+    call returns the cached arrays."""
+    from core.epipolar_start import SLACK_FRACTION, _distance_bounds, _part_bounds
+
+    model = insect(legs=2, root_dofs=FREE_ROOT)
+    part = decompose(model).branches[1]
+    lower, upper = model.lower[part.dofs], model.upper[part.dofs]
+    cached = _part_bounds(part, lower, upper)
+    origins = []
+    for q in movement(model, 3, seed=1):
+        rotation, origin = _base(model, q, part)
+        origins.append(origin)
+        posed = part.at(rotation, origin)
+        low, high = _distance_bounds(posed, lower, upper, SLACK_FRACTION * part.reach)
+        np.testing.assert_allclose(cached[0], low, atol=1e-9)
+        np.testing.assert_allclose(cached[1], high, atol=1e-9)
+    assert np.ptp(np.array(origins), axis=0).max() > 0.1  # the base did move
+    assert _part_bounds(part, lower, upper)[0] is cached[0]
 
 
 def test_branch_start_without_candidates_in_reach_is_none():
