@@ -523,9 +523,11 @@ def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spa
     (:func:`_reanalysis_stop`): a drawn-start search that gets as low as the kept part has
     found its minimum or one as low, and running on to its patience and restarting rarely
     finds a lower one. Under sliding skin markers no part reaches its ε, so with ε alone
-    every part's search would run to its patience and restart in every re-analysis. Only
-    SA's stop changes: whether the part gains, its triangulated start (where it ends at or
-    above its ε) and settled judge by its ε, as in :func:`fit_tree`.
+    every part's search would run to its patience and restart in every re-analysis. The
+    triangulated start is tried only where SA ends at or above that stop: a search that got
+    below the kept part's level has not failed (under sliding skin, where SA ends above ε in
+    every re-analysis, the start was rarely kept and cost as much as the search).
+    Whether the part gains and settled judge by its ε, as in :func:`fit_tree`.
 
     Why it cannot make a fit worse: a part is replaced only where its search ends lower on
     its own objective, the conflict sweeps and two-view starts judge as :func:`fit_tree`
@@ -622,7 +624,7 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
 
         if tried is not None and lower(tried[0]):
             q[part.dofs], value = tried[0], tried[1]  # SA ended in a worse minimum than the warm start's
-        if value >= eps and part.base >= 0:
+        if value >= stop and part.base >= 0:
             if not candidates:
                 candidates.append(triangulate(det, rig=rig, offsets=off))
             proposed = epipolar_start(part, rotation, origin, candidates[0], points, start, model,
