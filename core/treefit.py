@@ -82,8 +82,7 @@ if TYPE_CHECKING:
     from core.fit import FitParams
 
 __all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "hidden_charge", "part_objective",
-           "refine_whole",
-           "refine_without_lost", "refit_tree", "search_floor", "shared_projections",
+           "refine_whole", "refine_without_lost", "refit_tree", "search_floor", "shared_projections",
            "tree_flip_alternatives", "two_sided_error", "warm_ceilings", "warm_start", "world_frames"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
