@@ -768,14 +768,20 @@ def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], post
     before = _in_seen_views(unseen, start) if unseen.size else np.zeros_like(again)
     again |= before
     fused = _fusions(at, part, model, rig, points, start, off, near)
-    if np.count_nonzero(again) == np.count_nonzero(before) or not _may_leave_out(again, start, fused):
-        again = unseen
+    more = np.count_nonzero(again) > np.count_nonzero(before) and _may_leave_out(again, start, fused)
     flagged = _explained_elsewhere(points, start, at, part, model, rig, params, off)
-    if again is unseen and not flagged[:, 3].any():
+    if not more and not flagged[:, 3].any():
         return tried
-    retried = warm_start(part.dofs, kin, flagged, start, at[None], model, rig, params, eps, off, again,
-                         ceiling, unexplained)
+    retried = warm_start(part.dofs, kin, flagged, start, at[None], model, rig, params, eps, off,
+                         again if more else unseen, ceiling, unexplained)
     return tried if retried is None else retried
+
+
+def _outside(part: Part, n_markers: int) -> np.ndarray:
+    """(n_markers,) bool: the model's markers that are not ``part``'s."""
+    out = np.ones(n_markers, dtype=bool)
+    out[part.markers] = False
+    return out
 
 
 def _explained_elsewhere(points: np.ndarray, start: np.ndarray, posture: np.ndarray, part: Part,
@@ -793,8 +799,7 @@ def _explained_elsewhere(points: np.ndarray, start: np.ndarray, posture: np.ndar
     With 9 px markers the 6-camera hexapod's legs, on the truth, were charged 12-20 px for a
     neighbouring leg's blob next to their own merged pair, above twice their ε, and ran SA
     at 29 ms instead of standing in from the warm start."""
-    others = np.ones(len(model.markers), dtype=bool)
-    others[part.markers] = False
+    others = _outside(part, len(model.markers))
     proj = rig.project(model.marker_positions(posture)[others]) + off[:, None, :]  # (V, M - m, 2)
     radius = max(0.5 * float(params.fusion_px), CLAIM_PX)
     out = np.zeros((len(points), 4))
@@ -874,8 +879,7 @@ def _fusions(q: np.ndarray, part: Part, model: KinematicModel, rig: Rig, points:
     fuse in every view; leaving those projections out for being shared would leave the
     marker in no view, yet each blob is where the two markers' fusion puts it."""
     proj = rig.project(model.marker_positions(q)) + off[:, None, :]  # (V, M, 2)
-    others = np.ones(len(model.markers), dtype=bool)
-    others[part.markers] = False
+    others = _outside(part, len(model.markers))
     out = np.zeros((len(start) - 1, len(part.markers)), dtype=bool)
     for v in np.flatnonzero(_seen_views(start)):
         mine, theirs = proj[v, part.markers], proj[v, others]
@@ -1378,9 +1382,7 @@ def _trunk_masks(geometry: FlipGeometry, model: KinematicModel, tree: Tree) -> n
     joint whose subtree holds markers of one branch only (``Part.flips``) or none."""
     in_branch = np.zeros(len(geometry.flip_joints), dtype=bool)
     for part in tree.branches:
-        outside = np.ones(len(model.markers), dtype=bool)
-        outside[part.markers] = False
-        in_branch |= ~geometry.subtree_markers[:, outside].any(axis=1)
+        in_branch |= ~geometry.subtree_markers[:, _outside(part, len(model.markers))].any(axis=1)
     bits = int(np.sum(np.left_shift(1, np.flatnonzero(in_branch).astype(np.int64))))
     return (geometry.masks & bits) == 0
 

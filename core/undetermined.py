@@ -142,12 +142,17 @@ def fused_projections(projected: np.ndarray, detections: Detections, fusion_px: 
     for v in range(projected.shape[0]):
         points = detections.view(v)
         if len(points):
-            nearest = nearest_detection(projected[v], points)[0]
-            gap = projected[v][:, None, :] - projected[v][None, :, :]
-            near = np.einsum("ijk,ijk->ij", gap, gap) < fusion_px * fusion_px
-            np.fill_diagonal(near, False)
-            out[v] = (near & (nearest[:, None] == nearest[None, :])).any(axis=1)
+            out[v] = _fused_in_view(projected[v], nearest_detection(projected[v], points)[0], fusion_px)
     return out
+
+
+def _fused_in_view(projected: np.ndarray, nearest: np.ndarray, fusion_px: float) -> np.ndarray:
+    """:func:`fused_projections` of one view: ``projected`` (M, 2), each projection's
+    nearest blob ``nearest`` (M,)."""
+    gap = projected[:, None, :] - projected[None, :, :]
+    near = np.einsum("ijk,ijk->ij", gap, gap) < fusion_px * fusion_px
+    np.fill_diagonal(near, False)
+    return (near & (nearest[:, None] == nearest[None, :])).any(axis=1)
 
 
 def residual_tolerance(error_px: float, compared: int, n_dofs: int, tested_dofs: int,
@@ -373,11 +378,10 @@ def _residual_vectors(projected: np.ndarray, detections: Detections, compared: n
     from each: read as scatter, the mouse's fused toes made a calibration's shift of its
     views look like noise). ``projected`` (V, M, 2), ``compared`` (V, M) bool."""
     out = np.zeros(projected.shape)
-    fused = fused_projections(projected, detections, fusion_px)
     for v in np.flatnonzero(compared.any(axis=1)):
         points = detections.view(v)
         nearest, d2 = nearest_detection(projected[v], points)
-        kept = (d2 <= penalty * penalty) & ~fused[v]
+        kept = (d2 <= penalty * penalty) & ~_fused_in_view(projected[v], nearest, fusion_px)
         out[v] = np.where(kept[:, None], projected[v] - points[nearest, :2], 0.0)
     return out[compared].reshape(-1)
 
