@@ -60,7 +60,7 @@ FRAME = 12  # numbers per joint frame: rotation (row-major 3×3), then origin (3
 # ``np.int64``.
 NO_TARGETS = np.zeros((0, 3))  # refine in image mode
 NO_UNSEEN = np.zeros((0, 0), dtype=np.bool_)  # every marker may be seen
-FD_STEP = 1e-5  # forward-difference step of refine's Jacobian, degrees (model units)
+FD_STEP = 1e-5  # forward-difference step of a projection's derivative in refine's Jacobian, model units
 # refine tightens its Huber radius to MIN_RADIUS_PX (px; nearly Eq. 5's own loss, the sum of
 # lengths) where the residuals' median length is under TIGHTEN_BELOW of the radius.
 TIGHTEN_BELOW = 0.5
@@ -294,6 +294,58 @@ def joint_frames(q, kin, fr, sc) -> None:
         o = FRAME * k
         fr[o], fr[o + 1], fr[o + 2], fr[o + 3], fr[o + 4], fr[o + 5] = a00, a01, a02, a10, a11, a12
         fr[o + 6], fr[o + 7], fr[o + 8], fr[o + 9], fr[o + 10], fr[o + 11] = a20, a21, a22, x, y, z
+
+
+@njit(cache=True, inline="always")
+def world_jacobian(fr, sc, kin, world, jac) -> None:
+    """d(world marker)/dq into ``jac`` (M, 3, D) from the joint frames ``fr`` and DOF sines and
+    cosines ``sc`` of :func:`joint_frames` and the world markers ``world`` (M, 3) they place.
+
+    A joint's frame is W = B·R(rest)·Ry·Rx·Rz about its origin o, so an angle turns every
+    point of its subtree about the axis its rotation leaves fixed: Ry about column 1 of
+    B·R(rest), Rx about column 0 of B·R(rest)·Ry, Rz about column 2 of W, the first two read
+    off W by undoing Rz, then Rx. A marker at x moves by (axis × (x − o))·π/180 per degree; a
+    translation moves the joint's subtree along its column of B (the identity at the root).
+    """
+    parent, rot_dof, trans_dof = kin.parent, kin.rot_dof, kin.trans_dof
+    jac[:] = 0.0
+    for m in range(world.shape[0]):
+        k = kin.marker_joint[m]
+        while k >= 0:
+            o = FRAME * k
+            c0x, c0y, c0z = fr[o], fr[o + 3], fr[o + 6]
+            c1x, c1y, c1z = fr[o + 1], fr[o + 4], fr[o + 7]
+            c2x, c2y, c2z = fr[o + 2], fr[o + 5], fr[o + 8]
+            rx, ry, rz = world[m, 0] - fr[o + 9], world[m, 1] - fr[o + 10], world[m, 2] - fr[o + 11]
+            d = rot_dof[k, 2]
+            if d >= 0:
+                _turn(jac, m, d, c2x, c2y, c2z, rx, ry, rz)
+                s, c = sc[2 * d], sc[2 * d + 1]  # undo Rz: columns 0 and 1 before it
+                c0x, c0y, c0z, c1x, c1y, c1z = (c * c0x - s * c1x, c * c0y - s * c1y, c * c0z - s * c1z,
+                                                s * c0x + c * c1x, s * c0y + c * c1y, s * c0z + c * c1z)
+            d = rot_dof[k, 1]
+            if d >= 0:
+                _turn(jac, m, d, c0x, c0y, c0z, rx, ry, rz)
+                s, c = sc[2 * d], sc[2 * d + 1]  # undo Rx: column 1 before it
+                c1x, c1y, c1z = c * c1x - s * c2x, c * c1y - s * c2y, c * c1z - s * c2z
+            d = rot_dof[k, 0]
+            if d >= 0:
+                _turn(jac, m, d, c1x, c1y, c1z, rx, ry, rz)
+            p = parent[k]
+            for a in range(3):
+                d = trans_dof[k, a]
+                if d >= 0:
+                    for r in range(3):
+                        jac[m, r, d] = (1.0 if r == a else 0.0) if p < 0 else fr[FRAME * p + 3 * r + a]
+            k = p
+
+
+@njit(cache=True, inline="always")
+def _turn(jac, m, d, ax, ay, az, rx, ry, rz) -> None:
+    """``jac[m, :, d]`` = (axis × r)·π/180: a point at r from the pivot, per degree about the axis."""
+    jac[m, 0, d] = (ay * rz - az * ry) * DEG
+    jac[m, 1, d] = (az * rx - ax * rz) * DEG
+    jac[m, 2, d] = (ax * ry - ay * rx) * DEG
 
 
 @njit(cache=True, nogil=True)
@@ -818,20 +870,17 @@ def next_uniform(s) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _residuals(q, kin, views, image, targets, work, res, chosen, fixed):
+def _residuals(q, kin, views, image, targets, work, res, chosen):
     """Residual groups ``res`` of posture ``q`` on ``image``, and what they were chosen by,
     ``chosen`` (:class:`Assignment`; ``chosen.valid``: the groups that count).
 
     Image mode (no ``targets``, ``res`` (V·M, 2)): group v·M + m is marker m's
     position in view v (raw, or merged where :func:`blob_error` reads the view so)
     minus its nearest detection; a view without detections does not count, nor
-    does a marker ``unseen`` marks. With ``fixed``, ``chosen`` is read instead, as made at
-    another posture: each group keeps its detection, each marker merges with the markers it
-    merged with at ``chosen.raw``, the groups that count stay those. :func:`refine`'s
-    Jacobian differentiates so, as an analytic Jacobian would, without the view readings and
-    nearest-detection searches that are most of an evaluation's cost (a difference across a
-    switch of nearest detection is no derivative). Target mode (``targets`` and ``res``
-    (M, 3)): group m is world marker m minus its target (inverse kinematics).
+    does a marker ``unseen`` marks. :func:`refine`'s Jacobian keeps ``chosen``: each group its
+    detection, each marker the markers it merged with (a difference across a switch of
+    nearest detection is no derivative). Target mode (``targets`` and ``res`` (M, 3)):
+    group m is world marker m minus its target (inverse kinematics).
     """
     valid, match, level, anchor = chosen
     if targets.shape[0] > 0:
@@ -845,41 +894,74 @@ def _residuals(q, kin, views, image, targets, work, res, chosen, fixed):
         return
     det, start, penalty, fuse_px, unseen = (image.det, image.start, image.penalty, image.fuse_px,
                                             image.unseen)
-    project_posture(q, kin, views, image.offset, 0.0 if fixed else fuse_px, work)
+    project_posture(q, kin, views, image.offset, fuse_px, work)
     raw, fused, index, dist, claims = work.raw, work.fused, work.index, work.dist, work.claims
     V, M = raw.shape[0], raw.shape[1]
     for v in range(V):
         a, b = start[v], start[v + 1]
-        if fixed:
-            _merge_as(raw, fused, v, level[v], anchor)
-        else:
-            level[v] = -1.0
-            if a < b and fuse_px > 0.0:
-                level[v] = _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, 0.0, unseen,
-                                         index, dist, claims)[1]
-            if a < b:
-                _match_view(fused if level[v] >= 0.0 else raw, v, det, a, b, index, dist, unseen,
-                            penalty)
+        level[v] = -1.0
+        if a < b and fuse_px > 0.0:
+            level[v] = _view_reading(raw, fused, v, det, a, b, penalty, fuse_px, 0.0, unseen,
+                                     index, dist, claims)[1]
+        if a < b:
+            _match_view(fused if level[v] >= 0.0 else raw, v, det, a, b, index, dist, unseen, penalty)
         pos = fused if level[v] >= 0.0 else raw
         for m in range(M):
             g = v * M + m
-            if not fixed:
-                match[g], valid[g] = index[m], a < b and index[m] >= 0
-                anchor[v, m, 0], anchor[v, m, 1] = raw[v, m, 0], raw[v, m, 1]
+            match[g], valid[g] = index[m], a < b and index[m] >= 0
+            anchor[v, m, 0], anchor[v, m, 1] = raw[v, m, 0], raw[v, m, 1]
             res[g, 0] = pos[v, m, 0] - det[match[g], 0] if valid[g] else 0.0
             res[g, 1] = pos[v, m, 1] - det[match[g], 1] if valid[g] else 0.0
 
 
 @njit(cache=True, inline="always")
-def _merge_as(raw, fused, v, level, anchor) -> None:
-    """View v of ``fused``: each marker of ``raw`` at the mean of those within squared
-    distance ``level`` of it at ``anchor`` (V, M, 2), itself included (nothing where
-    ``level`` < 0: read apart). The merges of ``anchor``'s reading, as
-    :func:`_merge_closer` made them, kept while ``raw`` moves."""
-    if level < 0.0:
-        return
-    for m in range(raw.shape[1]):
-        fused[v, m, 0], fused[v, m, 1] = _merged(raw, anchor, v, m, level)
+def _image_jacobian(q, kin, views, work, chosen, wj, view_jac, jac) -> None:
+    """d(residual)/dq of :func:`_residuals`' image mode under ``chosen`` at posture ``q`` into
+    ``jac`` (V·M, 2, D): each marker's world Jacobian (:func:`world_jacobian`, into ``wj``
+    (M, 3, D)) through its projection's (forward differences of :data:`FD_STEP` model units,
+    lens distortion included), then merged as ``chosen`` merges the view (each marker the mean of
+    those within ``chosen.level`` of it at ``chosen.raw``, as :func:`_merged`; ``view_jac``
+    (M, 2, D) scratch). One forward kinematics and 3·V·M projections, where
+    differencing every DOF costs D of each with all V·M projections.
+    """
+    fr, sc, world = work.frames, work.sincos, work.world
+    joint_frames(q, kin, fr, sc)
+    world_markers(fr, kin, world)
+    world_jacobian(fr, sc, kin, world, wj)
+    kind, P, K, dist = views.kind, views.P, views.K, views.dist
+    M, D, h = world.shape[0], q.shape[0], FD_STEP
+    for v in range(kind.shape[0]):
+        for m in range(M):
+            x0, x1, x2 = world[m, 0], world[m, 1], world[m, 2]
+            u, w = project_point(kind, P, K, dist, v, x0, x1, x2)
+            du0, dw0 = project_point(kind, P, K, dist, v, x0 + h, x1, x2)
+            du1, dw1 = project_point(kind, P, K, dist, v, x0, x1 + h, x2)
+            du2, dw2 = project_point(kind, P, K, dist, v, x0, x1, x2 + h)
+            for i in range(D):
+                a, b, c = wj[m, 0, i], wj[m, 1, i], wj[m, 2, i]
+                view_jac[m, 0, i] = ((du0 - u) * a + (du1 - u) * b + (du2 - u) * c) / h
+                view_jac[m, 1, i] = ((dw0 - w) * a + (dw1 - w) * b + (dw2 - w) * c) / h
+        level = chosen.level[v]
+        for m in range(M):
+            g = v * M + m
+            if level < 0.0:
+                for a in range(2):
+                    for i in range(D):
+                        jac[g, a, i] = view_jac[m, a, i]
+                continue
+            n = 0.0
+            jac[g] = 0.0
+            for k in range(M):
+                du = chosen.raw[v, k, 0] - chosen.raw[v, m, 0]
+                dv = chosen.raw[v, k, 1] - chosen.raw[v, m, 1]
+                if du * du + dv * dv <= level:
+                    n += 1.0
+                    for a in range(2):
+                        for i in range(D):
+                            jac[g, a, i] += view_jac[k, a, i]
+            for a in range(2):
+                for i in range(D):
+                    jac[g, a, i] /= n
 
 
 @njit(cache=True, nogil=True)
@@ -990,41 +1072,39 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     marker hidden from a camera, lying a few pixels from another blob, pulls the posture
     off Eq. 5's minimum (docs/ENGINE_NOTES.md). Target mode (``targets`` (M, 3)):
     inverse kinematics onto world marker positions (``image`` not read; radius ``huber_c``).
-    Jacobian by forward differences of :data:`FD_STEP` under the assignment of detections
-    at the current posture (:func:`_residuals`). Stops after
+    Jacobian under the assignment of detections at the current posture (:func:`_residuals`):
+    the markers' exact world Jacobian (:func:`world_jacobian`), through the projections in
+    image mode (:func:`_image_jacobian`). Stops after
     ``max_iter`` steps, or when a step moves less than 1e-6 (degrees, model
     units) or gains less than 1e-10 of the cost at the final radius. Returns the refined
     posture.
     """
     M, D = kin.marker_joint.shape[0], q0.shape[0]
     G, C = (M, 3) if targets.shape[0] > 0 else (views.kind.shape[0] * M, 2)
-    lower, upper, h_fd = bounds.lower, bounds.upper, FD_STEP
+    lower, upper = bounds.lower, bounds.upper
     q, trial = q0.copy(), q0.copy()
     work = workspace(kin, views, D, image.det.shape[0])
     res, res2 = np.empty((G, C)), np.empty((G, C))
     V = views.kind.shape[0]
     chosen, tried = _assignment(G, V, M), _assignment(G, V, M)  # at q, and at the step tried
-    # _residuals' ``fixed``: False, and True for the Jacobian. A value, not a literal: numba
-    # would compile _residuals once per literal, seconds more of a first run.
-    given = max_iter < 0
     valid = chosen.valid
     jac = np.empty((G, C, D))
+    wj, view_jac = np.empty((M, 3, D)), np.empty((M, 2, D))  # image mode's scratch
     A, H, L = np.empty((D, D)), np.empty((D, D)), np.empty((D, D))
     g, delta = np.empty(D), np.empty(D)
     moves = np.empty(D, dtype=np.int64)
-    _residuals(q, kin, views, image, targets, work, res, chosen, given)
+    _residuals(q, kin, views, image, targets, work, res, chosen)
     c = huber_c
     cost = _huber_cost(res, valid, c)
     lam = 1e-3
     step, gain = np.inf, np.inf
     for _ in range(max_iter):
-        for i in range(D):
-            _copy(trial, q)
-            trial[i] += h_fd
-            _residuals(trial, kin, views, image, targets, work, res2, chosen, not given)
-            for k in range(G):
-                for a in range(C):
-                    jac[k, a, i] = (res2[k, a] - res[k, a]) / h_fd
+        if targets.shape[0] > 0:
+            joint_frames(q, kin, work.frames, work.sincos)
+            world_markers(work.frames, kin, work.world)
+            world_jacobian(work.frames, work.sincos, kin, work.world, jac)
+        else:
+            _image_jacobian(q, kin, views, work, chosen, wj, view_jac, jac)
         A[:] = 0.0
         g[:] = 0.0
         for k in range(G):
@@ -1057,7 +1137,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
             moved = np.max(np.abs(trial - q))
             if moved < 1e-6:
                 break  # converged: more damping only shortens the step (saves ~15 trials)
-            _residuals(trial, kin, views, image, targets, work, res2, tried, given)
+            _residuals(trial, kin, views, image, targets, work, res2, tried)
             new_cost = _huber_cost(res2, tried.valid, c)
             if new_cost < cost:
                 step = moved

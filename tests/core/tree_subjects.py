@@ -83,8 +83,10 @@ def _leg(n: str, parent: str, x: float, y: float) -> list[str]:
 
 
 def ring_rig(cameras: int = 3, distance: float = 150.0, f: float = 900.0,
-             size: tuple[int, int] = (640, 480), elevation_deg: float = 35.0) -> Rig:
-    """``cameras`` pinhole cameras on a ring around the origin, looking at it."""
+             size: tuple[int, int] = (640, 480), elevation_deg: float = 35.0,
+             dist: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)) -> Rig:
+    """``cameras`` pinhole cameras on a ring around the origin, looking at it, with OpenCV's
+    distortion coefficients ``dist``."""
     views = []
     for c in range(cameras):
         az, el = 2 * math.pi * c / cameras + 0.3, math.radians(elevation_deg)
@@ -96,7 +98,7 @@ def ring_rig(cameras: int = 3, distance: float = 150.0, f: float = 900.0,
         R = np.vstack([right, np.cross(forward, right), forward])
         views.append({"name": f"cam{c}", "video": c, "projection": {
             "type": "pinhole", "K": [[f, 0, size[0] / 2], [0, f, size[1] / 2], [0, 0, 1]],
-            "dist": [0, 0, 0, 0, 0], "rvec": cv2.Rodrigues(R)[0].ravel().tolist(),
+            "dist": list(dist), "rvec": cv2.Rodrigues(R)[0].ravel().tolist(),
             "tvec": (-R @ eye).tolist()}})
     return Rig.from_json(json.dumps({"views": views}))
 
