@@ -1,17 +1,18 @@
 """What one attempt on one image costs, estimated from sizes before anything runs.
 
 A fit's work grows with the model faster than linearly: one evaluation of the objective
-(Eq. 5) projects every marker into every view and matches it to the view's detections
-(V·M·N), and one Levenberg–Marquardt step of the refinement differentiates that for each
-of the D DOFs and builds and solves the D×D normal equations (D·evaluation + V·M·D² +
-D³). A model of 1000 joints is within the file limits but one image of it runs for hours;
-a worker busy that long is a worker lost to every other job. :func:`estimate_fit_cost`
-bounds one attempt from above (every restart runs, each SA run all its iterations and
-polish rounds, then the final refinements and the depth-flip search; a hard image whose
-error keeps falling 1 % a round does all that), and :func:`check_fit_cost` refuses what
-no worker could finish, naming the numbers: ``mocap fit`` and the service call it before
-a job starts. The unit times are measured (``bench/cost.py``, docs/RELIABILITY.md); on
-another machine they are off by a constant factor, not in how they grow.
+(Eq. 5) projects every marker into every view and matches it to the view's detections (V·M·N),
+and one Levenberg–Marquardt step of the refinement takes the Jacobian (the markers' world
+Jacobian through each projection, V·M·D) and builds and solves the D×D normal equations
+(V·M·D² + D³). A model of 1000 joints is within the file limits but one image of it runs for
+hours; a worker busy that long is a worker lost to every other job.
+:func:`estimate_fit_cost` bounds one attempt from above (every restart runs, each SA run all
+its iterations and polish rounds, then the final refinements and the depth-flip search; a
+hard image whose error keeps falling 1 % a round does all that), and :func:`check_fit_cost`
+refuses what no worker could finish, naming the numbers: ``mocap fit`` and the service call
+it before a job starts. The unit times are measured (``bench/cost.py``,
+docs/RELIABILITY.md); on another machine they are off by a constant factor, not in how they
+grow.
 """
 
 from __future__ import annotations
@@ -34,15 +35,16 @@ MAX_ATTEMPT_SECONDS = 1800.0
 # Largest scratch memory of one refinement (its Jacobian and D×D matrices) accepted.
 MAX_WORKSPACE_BYTES = 2**30
 
-# Unit times, seconds, measured with bench/cost.py (2-core EPYC VM, 2026-11-23): an
-# evaluation costs _EVALUATION_S, _JOINT_S per joint and DOF, _MARKER_S per projected marker
-# and _MATCH_S per marker-detection pair; a LM step also _NORMAL_S per Jacobian product term
-# (V·M·2·D²) and _SOLVE_S per D³ of each damped solve.
+# Unit times, seconds, measured with bench/cost.py (2-core EPYC VM; _NORMAL_S 2026-11-29, the
+# others 2026-11-23): an evaluation costs _EVALUATION_S, _JOINT_S per joint and DOF,
+# _MARKER_S per projected marker and _MATCH_S per marker-detection pair; a LM step also
+# _NORMAL_S per Jacobian product term (V·M·2·D², each marker's DOFs taken as all D: a chain's
+# are a third of that on average) and _SOLVE_S per D³ of each damped solve.
 _EVALUATION_S = 1e-6
 _JOINT_S = 15e-9
 _MARKER_S = 10e-9
 _MATCH_S = 0.7e-9
-_NORMAL_S = 1.6e-9
+_NORMAL_S = 0.2e-9
 _SOLVE_S = 0.2e-9
 # LM trials (damped solves) per step, taken as 3: one when the first solve is accepted, more
 # while the damping grows.
@@ -84,7 +86,11 @@ def estimate_fit_cost(model: KinematicModel, rig: Rig, params: FitParams, *, ima
     """
     J, D, M, V = len(model.joints), len(model.dofs), len(model.markers), len(rig.views)
     evaluation = _EVALUATION_S + _JOINT_S * (J + D) + _MARKER_S * V * M + _MATCH_S * V * M * M
-    lm_step = ((D + _LM_TRIALS) * evaluation + _NORMAL_S * V * M * 2 * D * D
+    # The Jacobian: forward kinematics, every marker's world Jacobian (M·D), three projections
+    # of each marker per view, their chain (V·M·2·3·D) and the merges (V·M·M pairs).
+    jacobian = (evaluation + _JOINT_S * M * D + 3 * _MARKER_S * V * M + _MATCH_S * V * M * M
+                + _NORMAL_S * V * M * 2 * 3 * D)
+    lm_step = (jacobian + _LM_TRIALS * evaluation + _NORMAL_S * V * M * 2 * D * D
                + _SOLVE_S * _LM_TRIALS * D**3)
     a = params.anneal
     rounds = a.n_end // a.polish_every if a.polish_every else 0
@@ -102,9 +108,10 @@ def estimate_fit_cost(model: KinematicModel, rig: Rig, params: FitParams, *, ima
         steps = 2 * sum(d.rotational for d in model.dofs) * (WITNESS_DOUBLINGS + 1)
         image += ((D + 1) * evaluation + _SOLVE_S * D**3
                   + steps * (2 * evaluation + PROFILE_STEPS * lm_step))
-    # 8-byte words: Jacobian and two residual arrays, two assignments (raw projections,
-    # detection, validity, view levels: _kernels.Assignment), normal equations and factors.
-    workspace = 8 * (V * M * 2 * (D + 2) + 2 * (4 * V * M + V) + 3 * D * D + D)
+    # 8-byte words: Jacobian and two residual arrays, the markers' world and per-view
+    # Jacobians, two assignments (raw projections, detection, validity, view levels:
+    # _kernels.Assignment), normal equations and factors.
+    workspace = 8 * (V * M * 2 * (D + 2) + 5 * M * D + 2 * (4 * V * M + V) + 3 * D * D + D)
     return FitCost(evaluation, lm_step, image, images * params.max_attempts * image, workspace)
 
 
