@@ -880,7 +880,8 @@ def _residuals(q, kin, views, image, targets, work, res, chosen):
     does a marker ``unseen`` marks. :func:`refine`'s Jacobian keeps ``chosen``: each group its
     detection, each marker the markers it merged with (a difference across a switch of
     nearest detection is no derivative). Target mode (``targets`` and ``res`` (M, 3)):
-    group m is world marker m minus its target (inverse kinematics).
+    group m is world marker m minus its target (inverse kinematics); a marker whose target
+    is NaN does not count.
     """
     valid, match, level, anchor = chosen
     if targets.shape[0] > 0:
@@ -888,9 +889,9 @@ def _residuals(q, kin, views, image, targets, work, res, chosen):
         joint_frames(q, kin, fr, sc)
         world_markers(fr, kin, world)
         for m in range(world.shape[0]):
+            valid[m] = not math.isnan(targets[m, 0])
             for a in range(3):
-                res[m, a] = world[m, a] - targets[m, a]
-            valid[m] = True
+                res[m, a] = world[m, a] - targets[m, a] if valid[m] else 0.0
         return
     det, start, penalty, fuse_px, unseen = (image.det, image.start, image.penalty, image.fuse_px,
                                             image.unseen)
@@ -1071,7 +1072,8 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     residuals far below the radius every one of them is nearly free at first order, and one
     marker hidden from a camera, lying a few pixels from another blob, pulls the posture
     off Eq. 5's minimum (docs/ENGINE_NOTES.md). Target mode (``targets`` (M, 3)):
-    inverse kinematics onto world marker positions (``image`` not read; radius ``huber_c``).
+    inverse kinematics onto world marker positions, NaN rows left out (``image`` not read;
+    radius ``huber_c``).
     Jacobian under the assignment of detections at the current posture (:func:`_residuals`):
     the markers' exact world Jacobian (:func:`world_jacobian`), through the projections in
     image mode (:func:`_image_jacobian`). Stops after

@@ -18,7 +18,8 @@ marker of the branch spans an interval (a point on a rigid segment: a single len
 candidate is tried for a marker only if its distances to the base and to the candidates
 already assigned fall in those intervals, widened by :data:`SLACK_FRACTION` of the reach,
 and only the :data:`TRIES` best supported of them, nearest the marker's place at the beam's
-posture first.
+posture first. The search itself is compiled (``core._epipolar_kernels.beam_search``); this
+module prepares its arrays and picks among the assignments it ends with.
 
 The result is a start for the search, never its result: it is only as good as the
 candidates, and its Eq. 5 error says whether it explains the images.
@@ -31,9 +32,9 @@ from weakref import WeakKeyDictionary
 
 import numpy as np
 
-from core import _kernels
+from core import _epipolar_kernels, _kernels
 from core.model import KinematicArrays, KinematicModel
-from core.rig import Rig, RigArrays
+from core.rig import Rig
 from core.tree import REACH_MARGIN, Part
 from core.triangulate import Candidates
 
@@ -62,25 +63,6 @@ class BranchStart:
     dofs: np.ndarray
     error: float
     assigned: int
-
-
-@dataclass(frozen=True)
-class _Beam:
-    """A partial assignment: ``targets`` (M,) candidate index per marker, -1 unassigned or
-    not yet reached; posture ``q`` (d,) solved onto it, ``places`` its markers; ``residual``:
-    squared distances of the assigned markers to their targets, and ``skips``: the charge of
-    the markers left out and the doubts about the candidates assigned (:func:`_doubt`),
-    model units²."""
-
-    targets: np.ndarray
-    q: np.ndarray
-    places: np.ndarray  # (M, 3) the markers' world positions at ``q``
-    residual: float
-    skips: float
-
-    @property
-    def cost(self) -> float:
-        return self.residual + self.skips
 
 
 def branch_start(candidates: Candidates, *, part: Part, rotation: np.ndarray, origin: np.ndarray,
@@ -118,31 +100,19 @@ def branch_start(candidates: Candidates, *, part: Part, rotation: np.ndarray, or
     q = np.clip(q0, lower, upper)
     order = np.argsort(np.linalg.norm(_markers(q, kin) - origin, axis=1), kind="stable")
     skip = (SKIP_FRACTION * part.reach) ** 2
-    doubt = skip * _doubt(candidates.n_views[near])
     low, high = _part_bounds(part, lower, upper)
-    from_base = np.linalg.norm(targets - origin, axis=1)
-    apart = np.linalg.norm(targets[:, None] - targets[None], axis=2)  # (K, K)
-    beams = [_Beam(np.full(len(order), -1, dtype=np.int64), q, _markers(q, kin), 0.0, 0.0)]
-    bounds = _kernels.Bounds(lower, upper)
-    image = _kernels.Image.of(points, start, offsets, penalty=0.0, fuse_px=0.0)  # refine's, not read
-    subsets: dict[bytes, KinematicArrays] = {}  # the part with only the assigned markers, by mask
-    for m in order:
-        grown = []
-        for beam in beams:
-            grown.append(_Beam(beam.targets, beam.q, beam.places, beam.residual, beam.skips + skip))
-            for k in _allowed(m, beam, targets, apart, doubt, from_base, low, high):
-                assigned = beam.targets.copy()
-                assigned[m] = k
-                grown.append(_solve(assigned, beam.q, kin, subsets, targets, bounds, rig.arrays, image,
-                                    beam.skips + doubt[k]))
-        beams = sorted(grown, key=lambda b: b.cost)[:BEAM]
+    refine_image = _kernels.Image.of(points, start, offsets, penalty=0.0, fuse_px=0.0)  # not read
+    assigned, postures, costs = _epipolar_kernels.beam_search(
+        order, q, kin, _kernels.Bounds(lower, upper), rig.arrays, refine_image, targets,
+        np.linalg.norm(targets - origin, axis=1), np.linalg.norm(targets[:, None] - targets[None], axis=2),
+        skip * _doubt(candidates.n_views[near]), low, high, skip, BEAM, TRIES, IK_STEPS)
+    image = _kernels.Image.of(points, start, offsets, penalty=empty_view_penalty_px, fuse_px=0.0)
     found = []
-    for beam in beams:
-        n = int(np.count_nonzero(beam.targets >= 0))
+    for targeted, posture, cost in zip(assigned, postures, costs, strict=True):
+        n = int(np.count_nonzero(targeted >= 0))
         if n >= MIN_ASSIGNED:
-            image = _kernels.Image.of(points, start, offsets, penalty=empty_view_penalty_px, fuse_px=0.0)
-            error = float(_kernels.posture_error(beam.q, kin, rig.arrays, image))
-            found.append((error, beam.cost, BranchStart(beam.q, error, n)))
+            error = float(_kernels.posture_error(posture, kin, rig.arrays, image))
+            found.append((error, cost, BranchStart(posture, error, n)))
     if not found:
         return None
     least = min(e for e, _, _ in found)
@@ -197,37 +167,3 @@ def _distance_bounds(kin: KinematicArrays, lower: np.ndarray, upper: np.ndarray,
     world = np.concatenate([world, base], axis=1)
     dist = np.linalg.norm(world[:, :, None] - world[:, None], axis=3)
     return dist.min(axis=0) - slack, dist.max(axis=0) + slack
-
-
-def _allowed(m: int, beam: _Beam, targets: np.ndarray, apart: np.ndarray, doubt: np.ndarray,
-             from_base: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """Candidates (indices) marker ``m`` may take in ``beam``: free, at distances from the base
-    and (``apart`` (K, K), between candidates) from the beam's assigned candidates within the
-    sampled intervals; the :data:`TRIES` best supported (least ``doubt``), nearest the
-    marker's place at the beam's posture first."""
-    ok = (from_base >= low[m, -1]) & (from_base <= high[m, -1])
-    ok[beam.targets[beam.targets >= 0]] = False
-    for j in np.flatnonzero(beam.targets >= 0):
-        d = apart[beam.targets[j]]
-        ok &= (d >= low[m, j]) & (d <= high[m, j])
-    index = np.flatnonzero(ok)
-    rank = np.lexsort((np.linalg.norm(targets[index] - beam.places[m], axis=1), doubt[index]))
-    return index[rank[:TRIES]]
-
-
-def _solve(assigned: np.ndarray, q: np.ndarray, kin: KinematicArrays, subsets: dict[bytes, KinematicArrays],
-           targets: np.ndarray, bounds: _kernels.Bounds, views: RigArrays, image: _kernels.Image,
-           skips: float) -> _Beam:
-    """Inverse kinematics from ``q`` within ``bounds`` of the markers ``assigned`` (M,) onto
-    their targets (``_kernels.refine`` in target mode, which takes but does not read
-    ``image``); ``subsets`` caches the part with only the assigned markers, by mask."""
-    posed = assigned >= 0
-    key = posed.tobytes()
-    if (sub := subsets.get(key)) is None:
-        sub = subsets[key] = kin._replace(marker_joint=kin.marker_joint[posed],
-                                          marker_pos=np.ascontiguousarray(kin.marker_pos[posed]))
-    solved = _kernels.refine(q, bounds, sub, views, image, np.inf, IK_STEPS,
-                             np.ascontiguousarray(targets[assigned[posed]]))
-    places = _markers(solved, kin)
-    d = places[posed] - targets[assigned[posed]]
-    return _Beam(assigned, solved, places, float(np.sum(d * d)), skips)

@@ -100,3 +100,28 @@ def test_image_jacobian_matches_central_differences_through_distortion_and_merge
         step[i] = h
         numeric[:, :, i] = (merged(q + step) - merged(q - step)) / (2 * h)
     np.testing.assert_allclose(jac, numeric, atol=1e-4 * np.abs(numeric).max())
+
+
+def test_inverse_kinematics_leaves_out_markers_whose_target_is_nan():
+    """refine in target mode with some targets NaN solves as the model without those markers:
+    the beam search of core.epipolar_start poses a branch onto the markers assigned so far."""
+    from tree_subjects import insect, ring_rig
+
+    from core import _kernels
+
+    model = insect(legs=1)
+    kin, views = model.arrays, ring_rig(1).arrays
+    targets = model.marker_positions((model.lower + 0.6 * (model.upper - model.lower))[None])[0]
+    targets[[1, 3]] = np.nan
+    kept = ~np.isnan(targets[:, 0])
+    subset = kin._replace(marker_joint=kin.marker_joint[kept],
+                          marker_pos=np.ascontiguousarray(kin.marker_pos[kept]))
+    unread = _kernels.Image.of(np.zeros((0, 3)), np.zeros(2, dtype=np.int64), np.zeros((1, 2)),
+                               penalty=0.0, fuse_px=0.0)
+    bounds = _kernels.Bounds(model.lower, model.upper)
+    start = model.lower + 0.4 * (model.upper - model.lower)
+    masked = _kernels.refine(start, bounds, kin, views, unread, np.inf, 10, targets)
+    apart = _kernels.refine(start, bounds, subset, views, unread, np.inf, 10,
+                            np.ascontiguousarray(targets[kept]))
+    assert np.abs(masked - start).max() > 1.0
+    np.testing.assert_allclose(masked, apart, atol=1e-9)
