@@ -33,38 +33,71 @@ def beam_search(order, q0, kin, bounds, views, image, targets, from_base, apart,
 
     Returns (assigned (B, M) int64, candidate per marker or -1; postures (B, d); costs (B,)).
     """
-    M, d = kin.marker_joint.shape[0], q0.shape[0]
-    assigned = np.full((1, M), -1, dtype=np.int64)
-    q = q0.copy().reshape(1, d)
-    places = marker_positions_many(q, kin)
-    residual, charges = np.zeros(1), np.zeros(1)
+    M, d, n = kin.marker_joint.shape[0], q0.shape[0], width * (1 + tries)
+    # Beams (at most ``width``) and the assignments grown from them (at most ``n``): candidate
+    # per marker, posture, marker places, and (squared residual, charges).
+    assigned, q, places, cost = (np.full((width, M), -1, dtype=np.int64), np.empty((width, d)),
+                                 np.empty((width, M, 3)), np.zeros((width, 2)))
+    g_assigned, g_q, g_places, g_cost = (np.empty((n, M), dtype=np.int64), np.empty((n, d)),
+                                         np.empty((n, M, 3)), np.empty((n, 2)))
+    for i in range(d):
+        q[0, i] = q0[i]
+    _place(q, places, 0, kin)
     goal = np.empty((M, 3))
+    beams = 1
     for m in order:
-        n = assigned.shape[0] * (1 + tries)
-        g_assigned, g_q, g_places = np.empty((n, M), dtype=np.int64), np.empty((n, d)), np.empty((n, M, 3))
-        g_residual, g_charges = np.empty(n), np.empty(n)
         grown = 0
-        for b in range(assigned.shape[0]):
-            g_assigned[grown], g_q[grown], g_places[grown] = assigned[b], q[b], places[b]
-            g_residual[grown], g_charges[grown] = residual[b], charges[b] + skip
+        for b in range(beams):
+            _copy_beam(g_assigned, g_q, g_places, g_cost, grown, assigned, q, places, cost, b)
+            g_cost[grown, 1] += skip
             grown += 1
             for k in _allowed(m, assigned[b], places[b, m], targets, apart, doubt, from_base, low, high,
                               tries):
-                g_assigned[grown] = assigned[b]
+                _copy_beam(g_assigned, g_q, g_places, g_cost, grown, assigned, q, places, cost, b)
                 g_assigned[grown, m] = k
-                goal[:] = np.nan
                 for j in range(M):
-                    if g_assigned[grown, j] >= 0:
-                        goal[j] = targets[g_assigned[grown, j]]
-                g_q[grown] = refine(q[b], bounds, kin, views, image, np.inf, ik_steps, goal)
-                g_places[grown] = marker_positions_many(g_q[grown].reshape(1, d), kin)[0]
-                g_residual[grown] = _squared_distance(g_places[grown], goal)
-                g_charges[grown] = charges[b] + doubt[k]
+                    for a in range(3):
+                        goal[j, a] = targets[g_assigned[grown, j], a] if g_assigned[grown, j] >= 0 else np.nan
+                solved = refine(q[b], bounds, kin, views, image, np.inf, ik_steps, goal)
+                for i in range(d):
+                    g_q[grown, i] = solved[i]
+                _place(g_q, g_places, grown, kin)
+                g_cost[grown, 0] = _squared_distance(g_places[grown], goal)
+                g_cost[grown, 1] += doubt[k]
                 grown += 1
-        keep = np.argsort(g_residual[:grown] + g_charges[:grown], kind="mergesort")[:width]
-        assigned, q, places = g_assigned[keep], g_q[keep], g_places[keep]
-        residual, charges = g_residual[keep], g_charges[keep]
-    return assigned, q, residual + charges
+        total = np.empty(grown)
+        for i in range(grown):
+            total[i] = g_cost[i, 0] + g_cost[i, 1]
+        keep = _order(total, total)
+        beams = min(width, grown)
+        for b in range(beams):
+            _copy_beam(assigned, q, places, cost, b, g_assigned, g_q, g_places, g_cost, keep[b])
+    total = np.empty(beams)
+    for b in range(beams):
+        total[b] = cost[b, 0] + cost[b, 1]
+    return assigned[:beams], q[:beams], total
+
+
+@njit(cache=True, nogil=True)
+def _copy_beam(assigned, q, places, cost, i, from_assigned, from_q, from_places, from_cost, j) -> None:
+    """Row ``i`` of the beam arrays takes row ``j`` of the ``from_`` ones (explicit loops:
+    less code to compile than array assignments)."""
+    for a in range(assigned.shape[1]):
+        assigned[i, a] = from_assigned[j, a]
+        for c in range(3):
+            places[i, a, c] = from_places[j, a, c]
+    for a in range(q.shape[1]):
+        q[i, a] = from_q[j, a]
+    cost[i, 0], cost[i, 1] = from_cost[j, 0], from_cost[j, 1]
+
+
+@njit(cache=True, nogil=True)
+def _place(q, places, i, kin) -> None:
+    """``places[i]`` (M, 3): the world markers of the branch posed at ``q[i]``."""
+    world = marker_positions_many(q[i : i + 1], kin)[0]
+    for a in range(world.shape[0]):
+        for c in range(3):
+            places[i, a, c] = world[a, c]
 
 
 @njit(cache=True, inline="always")
@@ -84,18 +117,36 @@ def _allowed(m, assigned, place, targets, apart, doubt, from_base, low, high, tr
     """Candidates (indices) marker ``m`` may take beside ``assigned`` (M,): free, at distances
     from the base and from the assigned candidates within the sampled intervals; the
     ``tries`` best supported (least ``doubt``), nearest the marker's ``place`` (3,) first."""
-    M = assigned.shape[0]
-    ok = (from_base >= low[m, M]) & (from_base <= high[m, M])
-    for j in range(M):
-        if assigned[j] >= 0:
-            ok[assigned[j]] = False
-            ok &= (apart[assigned[j]] >= low[m, j]) & (apart[assigned[j]] <= high[m, j])
-    index = np.flatnonzero(ok)
-    near = np.empty(index.shape[0])
-    for i in range(index.shape[0]):
-        k = index[i]
-        near[i] = math.sqrt((targets[k, 0] - place[0]) ** 2 + (targets[k, 1] - place[1]) ** 2
-                            + (targets[k, 2] - place[2]) ** 2)
-    by_place = np.argsort(near, kind="mergesort")
-    rank = by_place[np.argsort(doubt[index[by_place]], kind="mergesort")]
-    return index[rank[:tries]]
+    M, K = assigned.shape[0], targets.shape[0]
+    index, support, near = np.empty(K, dtype=np.int64), np.empty(K), np.empty(K)
+    n = 0
+    for k in range(K):
+        ok = low[m, M] <= from_base[k] <= high[m, M]
+        for j in range(M):
+            if assigned[j] >= 0:
+                ok = ok and assigned[j] != k and low[m, j] <= apart[assigned[j], k] <= high[m, j]
+        if ok:
+            index[n], support[n] = k, doubt[k]
+            near[n] = math.sqrt((targets[k, 0] - place[0]) ** 2 + (targets[k, 1] - place[1]) ** 2
+                                + (targets[k, 2] - place[2]) ** 2)
+            n += 1
+    rank = _order(support[:n], near[:n])
+    out = np.empty(min(tries, n), dtype=np.int64)
+    for i in range(out.shape[0]):
+        out[i] = index[rank[i]]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _order(first, then):
+    """Indices (n,) that sort by ``first`` (n,), ties by ``then``, equal pairs in their order
+    (insertion sort: a few dozen entries, and far less code to compile than ``np.argsort``)."""
+    out = np.arange(first.shape[0])
+    for i in range(1, out.shape[0]):
+        j, moving = i, out[i]
+        while j > 0 and (first[moving] < first[out[j - 1]]
+                         or (first[moving] == first[out[j - 1]] and then[moving] < then[out[j - 1]])):
+            out[j] = out[j - 1]
+            j -= 1
+        out[j] = moving
+    return out

@@ -60,7 +60,6 @@ FRAME = 12  # numbers per joint frame: rotation (row-major 3×3), then origin (3
 # ``np.int64``.
 NO_TARGETS = np.zeros((0, 3))  # refine in image mode
 NO_UNSEEN = np.zeros((0, 0), dtype=np.bool_)  # every marker may be seen
-FD_STEP = 1e-5  # forward-difference step of a projection's derivative in refine's Jacobian, model units
 # refine tightens its Huber radius to MIN_RADIUS_PX (px; nearly Eq. 5's own loss, the sum of
 # lengths) where the residuals' median length is under TIGHTEN_BELOW of the radius.
 TIGHTEN_BELOW = 0.5
@@ -915,54 +914,94 @@ def _residuals(q, kin, views, image, targets, work, res, chosen):
             res[g, 1] = pos[v, m, 1] - det[match[g], 1] if valid[g] else 0.0
 
 
+@njit(cache=True, nogil=True)
+def projection_jacobians(world, views, out) -> None:
+    """d(pixel)/d(world point) (V, M, 2, 3) of every marker ``world`` (M, 3) in ``views``:
+    the derivative of :func:`project_point`'s formula, OpenCV's lens distortion included;
+    zero where the point projects to ``BEHIND_CAMERA``."""
+    kind, P, K, dist = views.kind, views.P, views.K, views.dist
+    out[:] = 0.0
+    for v in range(kind.shape[0]):
+        for m in range(world.shape[0]):
+            X0, X1, X2 = world[m, 0], world[m, 1], world[m, 2]
+            if project_point(kind, P, K, dist, v, X0, X1, X2)[0] == BEHIND_CAMERA:
+                continue
+            if kind[v] == AFFINE:
+                for j in range(3):
+                    out[v, m, 0, j], out[v, m, 1, j] = P[v, 0, j], P[v, 1, j]
+                continue
+            h2 = P[v, 2, 0] * X0 + P[v, 2, 1] * X1 + P[v, 2, 2] * X2 + P[v, 2, 3]
+            x = (P[v, 0, 0] * X0 + P[v, 0, 1] * X1 + P[v, 0, 2] * X2 + P[v, 0, 3]) / h2
+            y = (P[v, 1, 0] * X0 + P[v, 1, 1] * X1 + P[v, 1, 2] * X2 + P[v, 1, 3]) / h2
+            # d(pixel)/d(x, y): the identity for a DLT matrix, the distortion's through K for a pinhole
+            xx, xy, yx, yy = 1.0, 0.0, 0.0, 1.0
+            if kind[v] == PINHOLE:
+                xx, xy, yx, yy = _distortion_jacobian(K, dist, v, x, y)
+            for j in range(3):
+                dx, dy = (P[v, 0, j] - x * P[v, 2, j]) / h2, (P[v, 1, j] - y * P[v, 2, j]) / h2
+                out[v, m, 0, j] = xx * dx + xy * dy
+                out[v, m, 1, j] = yx * dx + yy * dy
+
+
 @njit(cache=True, inline="always")
-def _image_jacobian(q, kin, views, work, chosen, wj, view_jac, jac) -> None:
-    """d(residual)/dq of :func:`_residuals`' image mode under ``chosen`` at posture ``q`` into
-    ``jac`` (V·M, 2, D): each marker's world Jacobian (:func:`world_jacobian`, into ``wj``
-    (M, 3, D)) through its projection's (forward differences of :data:`FD_STEP` model units,
-    lens distortion included), then merged as ``chosen`` merges the view (each marker the mean of
-    those within ``chosen.level`` of it at ``chosen.raw``, as :func:`_merged`; ``view_jac``
-    (M, 2, D) scratch). One forward kinematics and 3·V·M projections, where
-    differencing every DOF costs D of each with all V·M projections.
+def _distortion_jacobian(K, dist, v, x, y):
+    """d(u, v)/d(x, y) of :func:`_distort` at the normalised point (x, y): (du/dx, du/dy,
+    dv/dx, dv/dy), pixels per unit."""
+    r2 = x * x + y * y
+    k1, k2, p1, p2, k3, k4, k5, k6 = (dist[v, 0], dist[v, 1], dist[v, 2], dist[v, 3], dist[v, 4],
+                                      dist[v, 5], dist[v, 6], dist[v, 7])
+    num, den = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3)), 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    radial = num / den
+    slope = ((k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)) * den - num * (k4 + r2 * (2.0 * k5 + 3.0 * k6 * r2))) / (
+        den * den)  # d(radial)/d(r2)
+    cross = 2.0 * x * y * slope + 2.0 * p1 * x + 2.0 * p2 * y  # d(xd)/dy = d(yd)/dx
+    fx, fy = K[v, 0, 0], K[v, 1, 1]
+    return (fx * (radial + 2.0 * x * x * slope + 2.0 * p1 * y + 6.0 * p2 * x), fx * cross,
+            fy * cross, fy * (radial + 2.0 * y * y * slope + 6.0 * p1 * y + 2.0 * p2 * x))
+
+
+@njit(cache=True, inline="always")
+def _jacobian(kin, views, targets, work, chosen, wj, dp, view_jac, jac) -> None:
+    """d(residual)/dq of :func:`_residuals` under ``chosen`` into ``jac`` (G, C, D), at the
+    posture whose joint frames, sines and cosines and world markers ``work`` holds.
+
+    Target mode: the markers' world Jacobian (:func:`world_jacobian`). Image mode: that
+    Jacobian (into ``wj`` (M, 3, D)) through each marker's projection
+    (:func:`projection_jacobians`), merged as ``chosen`` merges the view (each marker the
+    mean of those within ``chosen.level`` of it at ``chosen.raw``, as :func:`_merged`;
+    ``dp`` (V, M, 2, 3) and ``view_jac`` (M, 2, D) scratch). No evaluation: differencing
+    every DOF cost D of them.
     """
     fr, sc, world = work.frames, work.sincos, work.world
-    joint_frames(q, kin, fr, sc)
-    world_markers(fr, kin, world)
-    world_jacobian(fr, sc, kin, world, wj)
-    kind, P, K, dist = views.kind, views.P, views.K, views.dist
-    M, D, h = world.shape[0], q.shape[0], FD_STEP
-    for v in range(kind.shape[0]):
+    world_jacobian(fr, sc, kin, world, jac if targets.shape[0] > 0 else wj)
+    if targets.shape[0] > 0:
+        return
+    V, M, D = views.kind.shape[0], world.shape[0], jac.shape[2]
+    projection_jacobians(world, views, dp)
+    for v in range(V):
         for m in range(M):
-            x0, x1, x2 = world[m, 0], world[m, 1], world[m, 2]
-            u, w = project_point(kind, P, K, dist, v, x0, x1, x2)
-            du0, dw0 = project_point(kind, P, K, dist, v, x0 + h, x1, x2)
-            du1, dw1 = project_point(kind, P, K, dist, v, x0, x1 + h, x2)
-            du2, dw2 = project_point(kind, P, K, dist, v, x0, x1, x2 + h)
-            for i in range(D):
-                a, b, c = wj[m, 0, i], wj[m, 1, i], wj[m, 2, i]
-                view_jac[m, 0, i] = ((du0 - u) * a + (du1 - u) * b + (du2 - u) * c) / h
-                view_jac[m, 1, i] = ((dw0 - w) * a + (dw1 - w) * b + (dw2 - w) * c) / h
-        level = chosen.level[v]
-        for m in range(M):
-            g = v * M + m
-            if level < 0.0:
-                for a in range(2):
-                    for i in range(D):
-                        jac[g, a, i] = view_jac[m, a, i]
-                continue
-            n = 0.0
-            jac[g] = 0.0
-            for k in range(M):
-                du = chosen.raw[v, k, 0] - chosen.raw[v, m, 0]
-                dv = chosen.raw[v, k, 1] - chosen.raw[v, m, 1]
-                if du * du + dv * dv <= level:
-                    n += 1.0
-                    for a in range(2):
-                        for i in range(D):
-                            jac[g, a, i] += view_jac[k, a, i]
-            for a in range(2):
+            for r in range(2):
+                d0, d1, d2 = dp[v, m, r, 0], dp[v, m, r, 1], dp[v, m, r, 2]
                 for i in range(D):
-                    jac[g, a, i] /= n
+                    view_jac[m, r, i] = d0 * wj[m, 0, i] + d1 * wj[m, 1, i] + d2 * wj[m, 2, i]
+        level, raw = chosen.level[v], chosen.raw
+        for m in range(M):
+            g, n = v * M + m, 1.0
+            for r in range(2):
+                for i in range(D):
+                    jac[g, r, i] = view_jac[m, r, i]
+            if level < 0.0:  # read apart
+                continue
+            for k in range(M):
+                du, dv = raw[v, k, 0] - raw[v, m, 0], raw[v, k, 1] - raw[v, m, 1]
+                if k != m and du * du + dv * dv <= level:
+                    n += 1.0
+                    for r in range(2):
+                        for i in range(D):
+                            jac[g, r, i] += view_jac[k, r, i]
+            for r in range(2):
+                for i in range(D):
+                    jac[g, r, i] /= n
 
 
 @njit(cache=True, nogil=True)
@@ -1074,9 +1113,9 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     off Eq. 5's minimum (docs/ENGINE_NOTES.md). Target mode (``targets`` (M, 3)):
     inverse kinematics onto world marker positions, NaN rows left out (``image`` not read;
     radius ``huber_c``).
-    Jacobian under the assignment of detections at the current posture (:func:`_residuals`):
-    the markers' exact world Jacobian (:func:`world_jacobian`), through the projections in
-    image mode (:func:`_image_jacobian`). Stops after
+    Jacobian (:func:`_jacobian`) under the assignment of detections at the current posture
+    (:func:`_residuals`): the markers' exact world Jacobian, through the projections in image
+    mode. Stops after
     ``max_iter`` steps, or when a step moves less than 1e-6 (degrees, model
     units) or gains less than 1e-10 of the cost at the final radius. Returns the refined
     posture.
@@ -1091,7 +1130,8 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     chosen, tried = _assignment(G, V, M), _assignment(G, V, M)  # at q, and at the step tried
     valid = chosen.valid
     jac = np.empty((G, C, D))
-    wj, view_jac = np.empty((M, 3, D)), np.empty((M, 2, D))  # image mode's scratch
+    n = M if targets.shape[0] == 0 else 0  # image mode's scratch
+    wj, dp, view_jac = np.empty((n, 3, D)), np.empty((V, n, 2, 3)), np.empty((n, 2, D))
     A, H, L = np.empty((D, D)), np.empty((D, D)), np.empty((D, D))
     g, delta = np.empty(D), np.empty(D)
     moves = np.empty(D, dtype=np.int64)
@@ -1101,12 +1141,7 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
     lam = 1e-3
     step, gain = np.inf, np.inf
     for _ in range(max_iter):
-        if targets.shape[0] > 0:
-            joint_frames(q, kin, work.frames, work.sincos)
-            world_markers(work.frames, kin, work.world)
-            world_jacobian(work.frames, work.sincos, kin, work.world, jac)
-        else:
-            _image_jacobian(q, kin, views, work, chosen, wj, view_jac, jac)
+        _jacobian(kin, views, targets, work, chosen, wj, dp, view_jac, jac)
         A[:] = 0.0
         g[:] = 0.0
         for k in range(G):
@@ -1157,6 +1192,10 @@ def refine(q0, bounds, kin, views, image, huber_c, max_iter, targets):
             if targets.shape[0] > 0 or not _tightens(res, valid, c):
                 break
             c = MIN_RADIUS_PX
+            # The Jacobian reads q's evaluation from ``work``, which a rejected trial may hold:
+            # evaluated again (an accepted step leaves it there, and this is the only way on
+            # without one).
+            _residuals(q, kin, views, image, targets, work, res, chosen)
             cost = _huber_cost(res, valid, c)
             lam, step, gain = 1e-3, np.inf, np.inf
     return q

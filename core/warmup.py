@@ -34,7 +34,7 @@ import numpy as np
 from numba.core import config
 from numba.core.registry import CPUDispatcher as Dispatcher
 
-from core import _detect_kernels, _kernels
+from core import _detect_kernels, _epipolar_kernels, _kernels
 from core.ambiguity import Candidate, FlipGeometry, flip_alternatives
 from core.detect import detect
 from core.error import Detections, view_error, view_offsets
@@ -110,18 +110,23 @@ def compile_kernels() -> float:
 def _warm_up(aside: subprocess.Popen[bytes] | None) -> None:
     """:func:`compile_kernels`' fits and detections in this process, waiting for the kernels
     ``aside`` (None: the cache is filled) compiles where it reaches them."""
-    rig, chain = _rig(), KinematicModel.from_xml(_CHAIN)
-    fits = [(m, _images(m, rig)) for m in (chain, KinematicModel.from_xml(_TREE))]
+    rig, chain, tree = _rig(), KinematicModel.from_xml(_CHAIN), KinematicModel.from_xml(_TREE)
+    chain_images, tree_images = _images(chain, rig), _images(tree, rig)
     refine(_posture(chain), _blobs(), model=chain, rig=rig, fusion_px=8.0)
     if aside is not None:
         _wait_for_cache(aside, (_kernels.posture_error, _kernels._lost_markers))
-    for m, images in fits:
-        params = FitParams(anneal=FitParams().anneal.with_iterations(300), fusion_px=8.0, max_attempts=2)
-        fit_sequence(images, model=m, rig=rig, histograms=Histograms.uniform(m), params=params, seed=0)
-    if aside is not None:  # its last kernels: waiting costs less than compiling them again
-        _wait_for_cache(aside, (_detect_kernels.fit_field_discs,))
+    _fit(chain, rig, chain_images)
+    if aside is not None:  # its last kernel, for the tree's two-view starts, and the fields'
+        _wait_for_cache(aside, (_epipolar_kernels.beam_search, _detect_kernels.fit_field_discs))
+    _fit(tree, rig, tree_images)
     _detect(rig)
     _detect_fields(rig)
+
+
+def _fit(m: KinematicModel, rig: Rig, images: list[Detections]) -> None:
+    """A short fit of ``images``, fusion on, two attempts."""
+    params = FitParams(anneal=FitParams().anneal.with_iterations(300), fusion_px=8.0, max_attempts=2)
+    fit_sequence(images, model=m, rig=rig, histograms=Histograms.uniform(m), params=params, seed=0)
 
 
 @contextmanager
@@ -141,10 +146,11 @@ def _optimisation_level() -> Iterator[None]:
 def _compile_aside() -> None:
     """Into numba's cache: the nested readings (refinement in the first process reaches them
     some 3 s in), the objective, the posture draw and the lost-marker search (the first
-    process waits for them: SA calls them), detection, then what needs the first process's
-    refinement: the refit without lost markers (the attempt calls it), depth flips; the
-    tree's joint frames; last the de-interlaced fields' detection, which the first process
-    needs last (it waits for it)."""
+    process waits for them: SA calls them), detection and the de-interlaced fields'
+    detection, then, once the first process has cached refinement (compiling it here too
+    would take longer than the wait), what calls it: the refit without lost markers (the
+    attempt calls it), depth flips; the tree's joint frames; last the beam search of
+    triangulated starts, which the first process waits for before the tree."""
     rig, m = _rig(), KinematicModel.from_xml(_CHAIN)
     det, q = _blobs(), _posture(m)
     _nested_readings(m, rig, det)
@@ -153,11 +159,24 @@ def _compile_aside() -> None:
     _draw(m)
     _kernels._lost_markers(q, m.arrays, rig.arrays, image, 1.0, False)
     _detect(rig)
+    _detect_fields(rig)
+    _wait_for(_kernels.refine)
     _kernels._refit_unseen(q, np.inf, _kernels.Bounds(m.lower, m.upper), m.arrays, rig.arrays, image, 1.0)
     flip_alternatives(Candidate(q, 1.0, 1.0), det, model=m, rig=rig, geometry=FlipGeometry.of(m, rig),
                       tolerance_px=1e9, fusion_px=8.0, empty_view_penalty_px=1.0, huber_px=1.0)
     world_frames(q, m)
-    _detect_fields(rig)
+    _beam_search(m, rig, image)
+
+
+def _beam_search(m: KinematicModel, rig: Rig, image: _kernels.Image) -> None:
+    """``_epipolar_kernels.beam_search`` called as ``core.epipolar_start`` calls it: ``m``
+    posed onto its own markers, every candidate allowed everywhere."""
+    q = _posture(m)
+    targets = m.marker_positions(q[None])[0]
+    K, M = len(targets), len(m.markers)
+    _epipolar_kernels.beam_search(np.arange(M), q, m.arrays, _kernels.Bounds(m.lower, m.upper), rig.arrays,
+                                  image, targets, np.ones(K), np.ones((K, K)), np.zeros(K),
+                                  np.zeros((M + 1, M + 1)), np.ones((M + 1, M + 1)), 1.0, 2, 2, 2)
 
 
 def _nested_readings(m: KinematicModel, rig: Rig, det: Detections) -> None:
@@ -167,6 +186,13 @@ def _nested_readings(m: KinematicModel, rig: Rig, det: Detections) -> None:
     work.raw[:], work.fused[:] = 0.0, 0.0
     _kernels._nested_reading(work.raw, work.fused, 0, det.kernel_points, 0, 0, 64.0, 0.0, np.inf,
                              _kernels.NO_UNSEEN, work.index, work.dist, work.claims)
+
+
+def _wait_for(kernel: Dispatcher, timeout_s: float = 300.0) -> None:
+    """Until numba's cache holds ``kernel`` (the first process compiles it), or ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not _cached(kernel):
+        time.sleep(0.1)
 
 
 def _wait_for_cache(aside: subprocess.Popen[bytes], kernels: tuple[Dispatcher, ...],

@@ -84,8 +84,11 @@ def test_image_jacobian_matches_central_differences_through_distortion_and_merge
     chosen = _kernels.Assignment(np.ones(V * M, dtype=bool), np.zeros(V * M, dtype=np.int64),
                                  level, raw)
     jac = np.empty((V * M, 2, D))
-    _kernels._image_jacobian(q, kin, views, _kernels.workspace(kin, views, D, 1), chosen,
-                             np.empty((M, 3, D)), np.empty((M, 2, D)), jac)
+    work = _kernels.workspace(kin, views, D, 1)
+    _kernels.joint_frames(q, kin, work.frames, work.sincos)
+    _kernels.world_markers(work.frames, kin, work.world)
+    _kernels._jacobian(kin, views, _kernels.NO_TARGETS, work, chosen, np.empty((M, 3, D)),
+                       np.empty((V, M, 2, 3)), np.empty((M, 2, D)), jac)
     near = np.sum((raw[0, :, None] - raw[0, None]) ** 2, axis=2) <= level[0]  # (M, M)
     assert near.sum() > M  # some markers merge in view 0
 
@@ -125,3 +128,30 @@ def test_inverse_kinematics_leaves_out_markers_whose_target_is_nan():
                             np.ascontiguousarray(targets[kept]))
     assert np.abs(masked - start).max() > 1.0
     np.testing.assert_allclose(masked, apart, atol=1e-9)
+
+
+@pytest.mark.parametrize("projection", [
+    {"type": "affine", "matrix": [[3.0, 0.2, 0.1, 360.0], [0.1, -3.0, 0.4, 144.0]]},
+    {"type": "matrix", "P": [[800.0, 10.0, 300.0, 5e4], [5.0, 820.0, 250.0, 4e4], [0.1, 0.05, 1.0, 150.0]]},
+    {"type": "pinhole", "K": [[900.0, 0.0, 320.0], [0.0, 880.0, 240.0], [0.0, 0.0, 1.0]],
+     "dist": [-0.2, 0.05, 0.001, -0.002, 0.01, 0.02, -0.01, 0.005], "rvec": [0.1, -0.2, 0.05],
+     "tvec": [1.0, -2.0, 150.0]},
+])
+def test_projection_jacobians_match_central_differences(projection):
+    """Each view kind's derivative of its projection (the rational distortion model too)."""
+    import json
+
+    from core import _kernels
+    from core.rig import Rig
+
+    rig = Rig.from_json(json.dumps({"views": [{"name": "v", "video": 0, "projection": projection}]}))
+    world = np.random.default_rng(5).uniform(-20.0, 20.0, (6, 3))
+    out = np.empty((1, 6, 2, 3))
+    _kernels.projection_jacobians(world, rig.arrays, out)
+    h, numeric = 1e-5, np.empty_like(out)
+    for j in range(3):
+        step = np.zeros(3)
+        step[j] = h
+        numeric[..., j] = (rig.project(world + step) - rig.project(world - step)) / (2 * h)
+    assert np.abs(numeric).max() > 1.0
+    np.testing.assert_allclose(out, numeric, rtol=1e-6, atol=1e-6)
