@@ -876,11 +876,10 @@ def _residuals(q, kin, views, image, targets, work, res, chosen):
     Image mode (no ``targets``, ``res`` (V·M, 2)): group v·M + m is marker m's
     position in view v (raw, or merged where :func:`blob_error` reads the view so)
     minus its nearest detection; a view without detections does not count, nor
-    does a marker ``unseen`` marks. :func:`refine`'s Jacobian keeps ``chosen``: each group its
-    detection, each marker the markers it merged with (a difference across a switch of
-    nearest detection is no derivative). Target mode (``targets`` and ``res`` (M, 3)):
-    group m is world marker m minus its target (inverse kinematics); a marker whose target
-    is NaN does not count.
+    does a marker ``unseen`` marks. :func:`refine`'s Jacobian (:func:`_jacobian`) keeps
+    ``chosen``: each group its detection, each marker the markers it merged with. Target
+    mode (``targets`` and ``res`` (M, 3)): group m is world marker m minus its target
+    (inverse kinematics); a marker whose target is NaN does not count.
     """
     valid, match, level, anchor = chosen
     if targets.shape[0] > 0:

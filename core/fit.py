@@ -642,21 +642,27 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
 
 def _still_alternatives(best: Candidate, alternatives: tuple[Candidate, ...], previous: ImageFit,
                         det: Detections, model: KinematicModel, params: FitParams) -> tuple[Candidate, ...]:
-    """The kept posture of a re-analysed image, and its alternatives that are minima, where a
-    re-analysis found a lower minimum ``best`` and they are still within
-    :func:`alternative_tolerance` of it and distinct from it and from its ``alternatives``.
+    """The kept posture of a re-analysed image, and its alternatives, where a re-analysis
+    found a lower minimum ``best``, distinct from it and from its ``alternatives``: those
+    that are minima while still within :func:`alternative_tolerance` of it, those reported
+    only (``Candidate.minimum`` False) where ``best`` is the kept posture's own minimum
+    found again.
 
     A re-analysis that finds a lower minimum would otherwise drop the first attempt's
     candidates: where the image supports both postures about as well (a marker hidden from
     one camera, a Fig. 9 flip), the right one, often the first attempt's warm-started fit or
-    its alternative, is then lost to the choice by continuity.
+    its alternative, is then lost to the choice by continuity. A reported alternative (the
+    previous image's posture refined without a marker hidden here) belongs to the minimum it
+    was found beside: an attempt ending a hair lower in that same, wrong, minimum must not
+    leave the image `ok` with no alternative.
     """
     tolerance = alternative_tolerance(params, det, model, best.error, len(model.dofs))
     rot = model.rotational
+    again = not distinct(best.dofs, previous.dofs, rot)
     kept: list[Candidate] = []
     for c in (previous.as_candidate(), *previous.alternatives):
-        if (c.minimum and c.objective <= best.objective + tolerance
-                and all(distinct(c.dofs, o.dofs, rot) for o in (best, *alternatives, *kept))):
+        still = c.objective <= best.objective + tolerance if c.minimum else again
+        if still and all(distinct(c.dofs, o.dofs, rot) for o in (best, *alternatives, *kept)):
             kept.append(c)
     return tuple(kept)
 

@@ -851,6 +851,27 @@ def test_the_previous_images_alternative_is_followed_where_the_warm_start_carrie
     assert min(off(248, a.dofs) for a in fits[1].alternatives) < 2.0
 
 
+def test_a_reanalysis_ending_in_the_same_wrong_minimum_keeps_the_reported_alternative(stick_hidden):
+    """Image 249 of the chunk above: its right posture is a reported alternative (not a
+    minimum). Re-analysed, SA ends in the same wrong minimum, lower by 1e-13 px: the
+    alternative must stay, or the image is `ok`, 32° off, with none."""
+    subject, data = stick_hidden
+    model, rot = subject.model, subject.model.rotational
+    prior = Histograms.uniform(model, prior_weight=100.0)
+    params = fit_params(data)[0]
+    first = fit_chunk(data.detections[247:250], model=model, rig=subject.rig, histograms=prior,
+                      params=params, seed=0, first_sample=247).fits[2]
+    again = reanalyse_image(data.detections[249], first, model=model, rig=subject.rig, histograms=prior,
+                            params=params, seed=0, typical=0.05)
+
+    def off(dofs: np.ndarray) -> float:
+        return float(angle_errors(dofs[rot], data.truth[249][rot]).max())
+
+    assert again.attempts == 2 and off(again.dofs) > 30.0 and again.objective < first.objective
+    right = [a for a in again.alternatives if off(a.dofs) < 2.0]
+    assert len(right) == 1 and not right[0].minimum
+
+
 def test_the_previous_cycle_predicts_each_leg_where_its_last_step_does_not():
     """Two legs cycling with periods of 5 and 7 images (a fly's steps filmed at 50 Hz): after
     one cycle of each, the second warm start (``_next_in_cycle``) is the next posture of both
