@@ -86,9 +86,10 @@ def estimate_fit_cost(model: KinematicModel, rig: Rig, params: FitParams, *, ima
     """
     J, D, M, V = len(model.joints), len(model.dofs), len(model.markers), len(rig.views)
     evaluation = _EVALUATION_S + _JOINT_S * (J + D) + _MARKER_S * V * M + _MATCH_S * V * M * M
-    # The Jacobian: forward kinematics, every marker's world Jacobian (M·D), three projections
-    # of each marker per view, their chain (V·M·2·3·D) and the merges (V·M·M pairs).
-    jacobian = (evaluation + _JOINT_S * M * D + 3 * _MARKER_S * V * M + _MATCH_S * V * M * M
+    # The Jacobian, at the posture the last evaluation left: every marker's world Jacobian
+    # (M·D), each projection's derivative (about two projections' work), their chain
+    # (V·M·2·3·D) and the merges (V·M·M pairs).
+    jacobian = (_JOINT_S * M * D + 2 * _MARKER_S * V * M + _MATCH_S * V * M * M
                 + _NORMAL_S * V * M * 2 * 3 * D)
     lm_step = (jacobian + _LM_TRIALS * evaluation + _NORMAL_S * V * M * 2 * D * D
                + _SOLVE_S * _LM_TRIALS * D**3)
