@@ -278,3 +278,15 @@ def test_with_two_views_the_sa_minimum_that_leaves_fewest_blobs_unexplained_is_k
     treefit._two_view_starts(q, det, model, rig, tree, search_space(model, Histograms.uniform(model)),
                              FitParams(), off, reach, Candidates.empty(2), {}, minima)
     np.testing.assert_array_equal(q, q_true)
+
+
+def test_the_beam_searchs_order_is_numpys_stable_two_key_sort():
+    """``_epipolar_kernels._order``: by the first key, ties by the second, equal pairs in
+    their order, as ``np.lexsort`` (a stable sort); ties are common (candidates equally
+    supported, beams of equal cost)."""
+    from core._epipolar_kernels import _order
+
+    rng = np.random.default_rng(2)
+    for n in (0, 1, 7, 40):
+        first, then = rng.integers(0, 3, n).astype(float), rng.integers(0, 3, n).astype(float)
+        np.testing.assert_array_equal(_order(first, then), np.lexsort((then, first)))
