@@ -21,6 +21,7 @@ shorter, and the kernels run as fast (``bench/speed.py``; figures in docs/ENGINE
 
 from __future__ import annotations
 
+import gc
 import json
 import os
 import subprocess
@@ -51,6 +52,9 @@ __all__ = ["compile_kernels", "compile_kernels_saying_so"]
 
 _ROOT = Path(__file__).resolve().parents[1]  # holds the package core
 OPT_LEVEL = 1  # LLVM optimisation level of the kernels compiled here (numba's NUMBA_OPT)
+# The cycle collector's thresholds while compiling (Python's default: 700, 10, 10): the same
+# first run as with the collector off, at a tenth of the memory that costs (docs/ENGINE_NOTES.md).
+COMPILE_GC_THRESHOLDS = (20000, 20, 1000)
 
 FIRST_RUN = ("compiling the fitting kernels, once (half a minute to a minute and a half on a 2-core "
              "machine, more if it is busy; later runs load them from numba's cache in about a second)")
@@ -99,7 +103,7 @@ def compile_kernels() -> float:
         | {"PYTHONPATH": os.pathsep.join([str(_ROOT), os.environ.get("PYTHONPATH", "")])},
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        with _optimisation_level():
+        with _optimisation_level(), _fewer_collections():
             _warm_up(aside)
     finally:
         if aside is not None:
@@ -130,6 +134,20 @@ def _fit(m: KinematicModel, rig: Rig, images: list[Detections]) -> None:
 
 
 @contextmanager
+def _fewer_collections() -> Iterator[None]:
+    """Python's cycle collector runs at :data:`COMPILE_GC_THRESHOLDS` inside, its thresholds
+    before restored after. Compiling allocates millions of objects, and at the default
+    thresholds the collector's passes over them were some 5 s of a first run's 30 under
+    ``mocap``'s console script (docs/ENGINE_NOTES.md)."""
+    saved = gc.get_threshold()
+    gc.set_threshold(*COMPILE_GC_THRESHOLDS)
+    try:
+        yield
+    finally:
+        gc.set_threshold(*saved)
+
+
+@contextmanager
 def _optimisation_level() -> Iterator[None]:
     """numba compiles at LLVM level :data:`OPT_LEVEL` inside, unless ``NUMBA_OPT`` is set; its
     level before is restored after. numba reads ``config.OPT`` at every compile and keeps a
@@ -151,6 +169,7 @@ def _compile_aside() -> None:
     would take longer than the wait), what calls it: the refit without lost markers (the
     attempt calls it), depth flips; the tree's joint frames; last the beam search of
     triangulated starts, which the first process waits for before the tree."""
+    gc.set_threshold(*COMPILE_GC_THRESHOLDS)  # as in the first process; this one ends after
     rig, m = _rig(), KinematicModel.from_xml(_CHAIN)
     det, q = _blobs(), _posture(m)
     _nested_readings(m, rig, det)
