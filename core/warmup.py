@@ -179,7 +179,7 @@ def _compile_aside() -> None:
     _kernels._lost_markers(q, m.arrays, rig.arrays, image, 1.0, False)
     _detect(rig)
     _detect_fields(rig)
-    _wait_for(_kernels.refine)
+    _wait_for_cache(None, (_kernels.refine,))
     _kernels._refit_unseen(q, np.inf, _kernels.Bounds(m.lower, m.upper), m.arrays, rig.arrays, image, 1.0)
     flip_alternatives(Candidate(q, 1.0, 1.0), det, model=m, rig=rig, geometry=FlipGeometry.of(m, rig),
                       tolerance_px=1e9, fusion_px=8.0, empty_view_penalty_px=1.0, huber_px=1.0)
@@ -207,19 +207,15 @@ def _nested_readings(m: KinematicModel, rig: Rig, det: Detections) -> None:
                              _kernels.NO_UNSEEN, work.index, work.dist, work.claims)
 
 
-def _wait_for(kernel: Dispatcher, timeout_s: float = 300.0) -> None:
-    """Until numba's cache holds ``kernel`` (the first process compiles it), or ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline and not _cached(kernel):
-        time.sleep(0.1)
-
-
-def _wait_for_cache(aside: subprocess.Popen[bytes], kernels: tuple[Dispatcher, ...],
+def _wait_for_cache(writer: subprocess.Popen[bytes] | None, kernels: tuple[Dispatcher, ...],
                     timeout_s: float = 300.0) -> None:
-    """Until ``aside`` has written a cache entry of every one of ``kernels`` (or has ended, or
-    ``timeout_s`` has passed): loading an entry costs far less than compiling the kernel again."""
+    """Until numba's cache holds an entry of every one of ``kernels`` (or the process
+    ``writer`` compiling them has ended, or ``timeout_s`` has passed; None: the first
+    process, which this one cannot watch): loading an entry costs far less than compiling
+    the kernel again."""
     deadline = time.monotonic() + timeout_s
-    while aside.poll() is None and time.monotonic() < deadline and not all(map(_cached, kernels)):
+    while ((writer is None or writer.poll() is None) and time.monotonic() < deadline
+           and not all(map(_cached, kernels))):
         time.sleep(0.1)
 
 
