@@ -110,9 +110,9 @@ def estimate_fit_cost(model: KinematicModel, rig: Rig, params: FitParams, *, ima
         image += ((D + 1) * evaluation + _SOLVE_S * D**3
                   + steps * (2 * evaluation + PROFILE_STEPS * lm_step))
     # 8-byte words: Jacobian and two residual arrays, the markers' world and per-view
-    # Jacobians, two assignments (raw projections, detection, validity, view levels:
-    # _kernels.Assignment), normal equations and factors.
-    workspace = 8 * (V * M * 2 * (D + 2) + 5 * M * D + 2 * (4 * V * M + V) + 3 * D * D + D)
+    # Jacobians and the projections' derivatives, two assignments (raw projections,
+    # detection, validity, view levels: _kernels.Assignment), normal equations and factors.
+    workspace = 8 * (V * M * 2 * (D + 2) + 5 * M * D + 6 * V * M + 2 * (4 * V * M + V) + 3 * D * D + D)
     return FitCost(evaluation, lm_step, image, images * params.max_attempts * image, workspace)
 
 
