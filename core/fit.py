@@ -411,11 +411,12 @@ def first_attempt(
 
 
 def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None,
-             ceilings=None, keep=None, carried=None):
+             ceilings=None, keep=None, carried=None, typical=math.nan):
     """fit_image, then its alternatives: (best candidate, the others, SA iterations, settled).
 
     ``keep`` (D,), a tree's kept posture, makes the attempt a re-analysis part by part
-    (``core.treefit.refit_tree``, whose ``settled`` this returns; False otherwise).
+    (``core.treefit.refit_tree`` given the sequence's typical objective ``typical``, whose
+    ``settled`` this returns; False otherwise).
 
     ``warm`` holds warm starts (:func:`fit_image`; the chunk's previous postures,
     ``core.sequence.fit_chunk``): at 50-200 Hz the previous image's posture is usually near
@@ -441,7 +442,7 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     else:
         check_views(det, rig)
         dofs, error, objective, its, settled = refit_tree(
-            det, model, rig, model.tree, space, params, stream, view_offsets(offsets, rig), keep)
+            det, model, rig, model.tree, space, params, stream, view_offsets(offsets, rig), keep, typical)
     fit = Candidate(dofs, error, objective)
     others = []
     tolerance = alternative_tolerance(params, det, model, error, len(model.dofs))
@@ -707,7 +708,9 @@ def reanalyse_image(
     unsettled: the search goes on, as the paper's re-analysis.
 
     A tree (``model.tree``) is re-analysed part by part given the kept posture
-    (``core.treefit.refit_tree``, each part's SA stopping as low as its kept posture): a
+    (``core.treefit.refit_tree``, each part's SA stopping as low as its kept posture, and a
+    part no worse than the ``typical`` image's by what its residual can tell apart not
+    searched again): a
     whole attempt from a drawn start searches every part cold at once, and one part landing
     in a worse minimum made it worse than the kept posture, whose warm-started parts
     agreed, in almost every image. It is settled when
@@ -723,7 +726,7 @@ def reanalyse_image(
     best, alternatives, its, settled = _attempt(
         detections, model, rig, search_space(model, histograms), params,
         image_stream(seed, previous.sample, attempt), True, offsets, flip_geometry(model, rig),
-        keep=previous.dofs if tree else None,
+        keep=previous.dofs if tree else None, typical=typical,
     )
     if not tree:
         settled = (best.objective > previous.objective - params.anneal.eps

@@ -83,7 +83,8 @@ if TYPE_CHECKING:
 
 __all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "hidden_charge", "part_objective",
            "refine_whole", "refine_without_lost", "refit_tree", "search_floor", "shared_projections",
-           "tree_flip_alternatives", "two_sided_error", "warm_ceilings", "warm_start", "world_frames"]
+           "tree_flip_alternatives", "two_sided_error", "typical_ceilings", "warm_ceilings", "warm_start",
+           "world_frames"]
 
 EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
@@ -153,7 +154,8 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     (2-camera hexapod, 10 % of projections hidden: 97 of 116 such warm starts). A branch
     most of whose projections looked hidden has no ceiling (:func:`warm_ceilings`). The image's
     depth flips and undetermined DOFs are still searched (``core.fit``), and a chunk's first
-    image and every re-analysis run SA on every part.
+    image runs SA on every part. A re-analysis judges its kept posture by ceilings from the
+    sequence's typical objective instead (:func:`typical_ceilings`).
 
     ``unexplained(q, hidden)``, where given (a re-analysis), says whether a marker the part
     at posture ``q`` (d,) leaves out as hidden (``hidden`` (V, m)) has unexplained blobs in
@@ -373,10 +375,9 @@ def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
     below which its warm start stands in for SA in the next image (:func:`warm_start`):
     the part's objective at this image's fitted posture ``q`` (D,) on detections ``det``
     with its projections that look hidden charged the empty-view penalty
-    (:func:`_ceiling_level`), plus ``core.undetermined.residual_tolerance`` of it for
-    another minimum anywhere in the part's DOFs, over its compared projections (markers ×
-    views with detections within its reach, less those next to another part's marker,
-    :func:`shared_projections`).
+    (:func:`_ceiling_level`), plus what a residual at that level cannot tell apart
+    (:func:`_ceiling`), over its compared projections (markers × views with detections
+    within its reach, less those next to another part's marker, :func:`shared_projections`).
 
     The level is that of this image's first fit (its parts searched by SA, or warm started
     under this image's own ceilings); per projection, so that a marker next to another
@@ -391,25 +392,64 @@ def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
     place it (:func:`_trunk_by_whole`), and searched on its own third marker it ended
     15-55° off (``tests/core/test_tree.py``).
     """
-    from core.undetermined import residual_tolerance  # it imports this module
+    out = {}
+    for part, points, start, unseen, counted in _compared_parts(q, det, model, rig, params, off):
+        kin = part.at(*_base_frame(q, model, part))
+        level, hidden = _ceiling_level(q[part.dofs], kin, rig, _image(points, start, params, off, unseen),
+                                       params)
+        out[part.name] = math.nan if hidden and part.base >= 0 else _ceiling(level, counted, len(part.dofs))
+    return out
 
+
+def typical_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
+                     params: FitParams, off: np.ndarray, typical: float) -> dict[str, float]:
+    """Per part of ``model.tree`` (by name), the objective per compared marker projection
+    below which a re-analysis keeps the part's kept posture ``q`` (D,) without searching it
+    again (:func:`refit_tree`): :func:`_ceiling` of the level the sequence's typical
+    objective ``typical`` (pixels, ``core.sequence.typical_objective``) gives the part's
+    compared projections on ``det``, at ``typical`` shared evenly over the model's markers in
+    this image's views with detections.
+
+    Why: under sliding skin markers every image is over the threshold and every part above
+    its ε, and the re-analysis searched every part again, to find the part's minimum once
+    more. A part no worse than a typical image's, by more than its residual can tell apart,
+    leaves a search nothing it could tell from its kept posture, as a warm start under its
+    ceiling does (:func:`warm_start`); a part in another basin costs pixels more than that
+    and is searched. Clean footage fits at a typical ~0.01 px a projection, where every
+    part that reaches such a level has reached twice its ε already.
+    """
+    views = int(np.count_nonzero(det.counts))
+    per_projection = typical / max(1, len(model.markers) * views)
+    return {part.name: _ceiling(per_projection * counted, counted, len(part.dofs))
+            for part, _, _, _, counted in _compared_parts(q, det, model, rig, params, off)}
+
+
+def _compared_parts(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
+                    off: np.ndarray) -> list[tuple[Part, np.ndarray, np.ndarray, np.ndarray, int]]:
+    """Each part of ``model.tree`` with what it is compared with at posture ``q`` (D,): its
+    detections (kernel points (n, 3) and view starts (V + 1,); a branch's those within its
+    reach), its projections next to another part's marker (``unseen`` (V, m),
+    :func:`shared_projections`) and how many projections are compared (:func:`_compared`)."""
     tree = model.tree
     assert tree is not None
     shared = shared_projections(q, model, rig, tree, params, off)
     reach = _reaches(q, det, model, rig, list(tree.branches), off)
     posed = [] if tree.trunk is None else [(tree.trunk, det.kernel_points, det.start)]
     posed += [(b, *_subset(det, keep)) for b, keep in zip(tree.branches, reach, strict=True)]
-    out = {}
+    out = []
     for part, points, start in posed:
-        kin = part.at(*_base_frame(q, model, part))
         unseen = _in_seen_views(shared[part.name], start)
-        counted = _compared(unseen, start, len(part.markers))
-        image = _image(points, start, params, off, unseen)
-        level, hidden = _ceiling_level(q[part.dofs], kin, rig, image, params)
-        d = len(part.dofs)
-        out[part.name] = (math.nan if hidden and part.base >= 0
-                          else (level + residual_tolerance(level, counted, d, d)) / max(counted, 1))
+        out.append((part, points, start, unseen, _compared(unseen, start, len(part.markers))))
     return out
+
+
+def _ceiling(level: float, counted: int, d: int) -> float:
+    """A part's ceiling per compared projection (pixels): its objective ``level`` (pixels)
+    over ``counted`` projections plus ``core.undetermined.residual_tolerance`` of it for
+    another minimum anywhere in its ``d`` DOFs."""
+    from core.undetermined import residual_tolerance  # it imports this module
+
+    return (level + residual_tolerance(level, counted, d, d)) / max(counted, 1)
 
 
 def _judged_in_two_views(unseen: np.ndarray, start: np.ndarray) -> bool:
@@ -502,8 +542,8 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
 
 
 def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
-               params: FitParams, stream: np.ndarray, off: np.ndarray, keep: np.ndarray
-               ) -> tuple[np.ndarray, float, float, int, bool]:
+               params: FitParams, stream: np.ndarray, off: np.ndarray, keep: np.ndarray,
+               typical: float = math.nan) -> tuple[np.ndarray, float, float, int, bool]:
     """A re-analysis attempt on a tree (``core.fit.reanalyse_image``), part by part given the
     kept posture ``keep`` (D,): (dofs (D,), plain Eq. 5 error, objective, SA iterations,
     settled), the first four as :func:`fit_tree` returns them.
@@ -540,12 +580,17 @@ def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spa
     it found its kept minimum or something higher, or blobs another part explains (lower on
     its own objective only, or taken back by the conflict sweeps): more attempts search the
     same way. A part whose kept posture reaches twice its ε skips SA (SA stops there) and is
-    settled. ``settled`` is True when every part is (``core.fit.reanalyse_image`` settles an
+    settled. So is a part whose kept posture, refined, is below its ceiling from the
+    sequence's typical objective ``typical`` (pixels, NaN for none; :func:`typical_ceilings`):
+    it is kept as a warm start under its ceiling is, without a search. ``settled`` is True
+    when every part is (``core.fit.reanalyse_image`` settles an
     image whose attempt is not lower than the kept posture as well). A kept posture that
     reaches it only with a marker left out as hidden is searched where that marker's
     unexplained blobs meet in space (:func:`_hidden_marker_triangulated`).
     """
-    return _fit_tree(det, model, rig, tree, space, params, stream, True, off, keep[None], None,
+    ceilings = (None if not math.isfinite(typical)
+                else partial(typical_ceilings, keep, det, model, rig, params, off, typical))
+    return _fit_tree(det, model, rig, tree, space, params, stream, True, off, keep[None], ceilings,
                      keep)[:5]
 
 

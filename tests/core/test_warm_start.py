@@ -43,6 +43,7 @@ from core.treefit import (
     refit_tree,
     shared_projections,
     tree_flip_alternatives,
+    typical_ceilings,
     warm_ceilings,
 )
 
@@ -746,6 +747,33 @@ def test_a_tree_reanalysis_stops_each_parts_search_at_its_kept_level(sliding, mo
         assert settled and at_eps_settled, k
         assert angle_errors(dofs, at_eps).max() < 0.01 and angle_errors(dofs, fit).max() < 0.01, k
         assert objective <= at_eps_objective + 1e-4, k
+
+
+def test_a_tree_reanalysis_keeps_parts_at_the_typical_level_without_a_search(sliding):
+    """Given the sequence's typical objective (here the fits' median), a re-analysis of a
+    fit keeps every leg without SA, settled, where each is no worse than a typical image's;
+    a fit with leg 1 mirrored into another minimum has that leg searched again, back to
+    the fit's minimum, and is not settled. Without a typical objective every leg is
+    searched."""
+    model, rig, truth, images = sliding
+    params = FitParams(error_threshold_px=0.1)
+    space = search_space(model, Histograms.uniform(model))
+    off = np.zeros((len(rig.views), 2))
+    leg = model.tree.branches[1]
+    fits = [_one(model, rig, images[k]) for k in range(3)]
+    typical = float(np.median([objective for _, _, objective, _ in fits]))
+    for k, (fit, _, _, _) in enumerate(fits):
+        given = (images[k], model, rig, model.tree, space, params, image_stream(0, k, 2), off)
+        dofs, _, _, its, settled = refit_tree(*given, fit, typical)
+        assert its == 0 and settled, k
+        assert angle_errors(dofs, fit).max() < 0.01, k
+        assert refit_tree(*given, fit)[3] > 0, k
+        assert max(typical_ceilings(fit, images[k], model, rig, params, off, typical).values()) > 0, k
+        wrong = fit.copy()
+        wrong[leg.dofs] = (model.lower + model.upper - truth[k])[leg.dofs]
+        dofs, _, _, its, settled = refit_tree(*given, wrong, typical)
+        assert its > 0 and not settled, k
+        assert angle_errors(dofs, fit).max() < 1.0, k
 
 
 def test_a_tree_attempt_not_lower_than_the_kept_posture_settles_the_image(sliding):
