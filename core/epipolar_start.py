@@ -21,6 +21,12 @@ and only the :data:`TRIES` best supported of them, nearest the marker's place at
 posture first. The search itself is compiled (``core._epipolar_kernels.beam_search``); this
 module prepares its arrays and picks among the assignments it ends with.
 
+The root's trunk (a part without a base, free to translate: :func:`trunk_start`) has no
+base to measure distances from and candidates anywhere in the arena, so it is posed from
+three of its markers at once: every three candidates whose distances from each other the
+trunk's geometry allows (sampled as above, widened by :data:`TRUNK_SLACK_FRACTION` of the
+markers' spread), solved by inverse kinematics onto them.
+
 The result is a start for the search, never its result: it is only as good as the
 candidates, and its Eq. 5 error says whether it explains the images.
 """
@@ -38,7 +44,7 @@ from core.rig import Rig
 from core.tree import REACH_MARGIN, Part
 from core.triangulate import Candidates
 
-__all__ = ["BranchStart", "branch_start"]
+__all__ = ["BranchStart", "branch_start", "trunk_start"]
 
 BEAM = 8  # partial assignments kept after each marker
 IK_STEPS = 10
@@ -48,6 +54,10 @@ SKIP_FRACTION = 0.05  # leaving a marker unassigned costs (this × the branch's 
 SAMPLES = 512  # postures whose marker distances bound the candidates' (low-discrepancy)
 SLACK_FRACTION = 0.02  # of the branch's reach: widens the sampled distance intervals
 TRIES = 6  # candidates tried per marker and beam
+TRUNK_SLACK_FRACTION = 0.05  # of the trunk markers' spread: widens their distance intervals
+TRUNK_IK_STEPS = 20  # a free trunk may turn far from its start
+TRUNK_TRIANGLES = 4  # the trunk's marker triples tried, widest first
+MAX_TRIPLES = 1000  # candidate triples solved per trunk start, best supported first
 
 
 @dataclass(frozen=True)
@@ -117,6 +127,84 @@ def branch_start(candidates: Candidates, *, part: Part, rotation: np.ndarray, or
         return None
     least = min(e for e, _, _ in found)
     return min((f for f in found if f[0] <= least + TIE_PX), key=lambda f: f[1])[2]
+
+
+def trunk_start(candidates: Candidates, *, part: Part, q0: np.ndarray, model: KinematicModel, rig: Rig,
+                points: np.ndarray, start: np.ndarray, offsets: np.ndarray, empty_view_penalty_px: float,
+                ) -> BranchStart | None:
+    """Pose the root's trunk ``part`` (``part.base`` -1) onto ``candidates``: the posture, of
+    least Eq. 5 error over its markers, that inverse kinematics (``_kernels.refine`` in
+    target mode, :data:`TRUNK_IK_STEPS` steps from ``q0``) reaches on three candidates placed
+    as three of its markers.
+
+    The markers' triples are tried widest first (triangle area at ``q0``, at most
+    :data:`TRUNK_TRIANGLES`); a triple of candidates is tried for one where each two lie as
+    far apart as the two markers may (:func:`_distance_bounds` over the DOF ranges, widened
+    by :data:`TRUNK_SLACK_FRACTION` of the markers' spread), at most :data:`MAX_TRIPLES`
+    per triple of markers, those more views support first. A rigid trunk's distances are single lengths,
+    so few triples pass.
+
+    Parameters and the result as :func:`branch_start` (``q0`` the trunk's DOFs to start from;
+    no base frame: the trunk's kinematic arrays are in the world frame). None for a trunk
+    of fewer than three markers, or when no three candidates fit.
+    Cost: at most :data:`TRUNK_TRIANGLES` × :data:`MAX_TRIPLES` inverse kinematics of the trunk.
+    """
+    kin, markers = part.kin, len(part.markers)
+    if markers < 3 or len(candidates) < 3:
+        return None
+    lower, upper = model.lower[part.dofs], model.upper[part.dofs]
+    q = np.clip(q0, lower, upper)
+    places = _markers(q, kin)
+    spread = float(np.linalg.norm(places[:, None] - places[None], axis=2).max())
+    low, high = _distance_bounds(kin, lower, upper, TRUNK_SLACK_FRACTION * spread)
+    apart = np.linalg.norm(candidates.points[:, None] - candidates.points[None], axis=2)
+    support = candidates.n_views
+    bounds = _kernels.Bounds(lower, upper)
+    image = _kernels.Image.of(points, start, offsets, penalty=empty_view_penalty_px, fuse_px=0.0)
+    best: BranchStart | None = None
+    for trio in _widest_triples(places)[:TRUNK_TRIANGLES]:
+        for assigned in _fitting_triples(trio, apart, low, high, support):
+            goal = np.full((markers, 3), np.nan)
+            goal[list(trio)] = candidates.points[assigned]
+            posture = _kernels.refine(q, bounds, kin, rig.arrays, image, np.inf, TRUNK_IK_STEPS, goal)
+            error = float(_kernels.posture_error(posture, kin, rig.arrays, image))
+            if best is None or error < best.error:
+                best = BranchStart(posture, error, 3)
+    return best
+
+
+def _widest_triples(places: np.ndarray) -> list[tuple[int, int, int]]:
+    """Every three of the markers at ``places`` (m, 3), widest triangle first (stable)."""
+    trios = [(a, b, c) for a in range(len(places)) for b in range(a + 1, len(places))
+             for c in range(b + 1, len(places))]
+    area = [float(np.linalg.norm(np.cross(places[b] - places[a], places[c] - places[a])))
+            for a, b, c in trios]
+    return [trios[i] for i in np.argsort(-np.array(area), kind="stable")]
+
+
+def _fitting_triples(trio: tuple[int, int, int], apart: np.ndarray, low: np.ndarray, high: np.ndarray,
+                     support: np.ndarray) -> np.ndarray:
+    """(n, 3) int, n at most :data:`MAX_TRIPLES`: candidates (indices) that may be the markers
+    ``trio``, distinct, each two at a distance (``apart`` (K, K)) within the markers' interval
+    (``low``, ``high``); gathered from the pairs of the first two that more views support
+    (summed ``support`` (K,)) first, most supported triples first."""
+    a, b, c = trio
+
+    def fits(x: int, y: int) -> np.ndarray:
+        ok = (apart >= low[x, y]) & (apart <= high[x, y])
+        np.fill_diagonal(ok, False)
+        return ok
+
+    ab, ac, bc = fits(a, b), fits(a, c), fits(b, c)
+    i, j = np.nonzero(ab)
+    rows: list[tuple[int, int, int]] = []
+    for k in np.argsort(-(support[i] + support[j]), kind="stable"):
+        if len(rows) >= MAX_TRIPLES:
+            break
+        x, y = int(i[k]), int(j[k])
+        rows += [(x, y, int(z)) for z in np.flatnonzero(ac[x] & bc[y])]
+    out = np.array(rows[:MAX_TRIPLES], dtype=np.int64).reshape(-1, 3)
+    return out[np.argsort(-support[out].sum(axis=1), kind="stable")]
 
 
 def _markers(q: np.ndarray, kin: KinematicArrays) -> np.ndarray:

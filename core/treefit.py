@@ -40,9 +40,12 @@ image's postures put on another part's marker or a merged blob
 from a warm start the joint refinement takes
 :data:`WARM_JOINT_STEPS` steps: at 50-200 Hz most parts of most images skip SA (figures in
 docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
-(:func:`tree_flip_alternatives`). A branch that SA leaves above its ε (with two or more
+(:func:`tree_flip_alternatives`). A part that SA leaves above its ε (with two or more
 views) tries one more start, triangulated from the blobs (:func:`epipolar_start`,
-``core.triangulate``), refined like a warm start and kept where it ends lower. With two
+``core.triangulate``), refined like a warm start and kept where it ends lower: a branch
+posed onto the candidates within its reach, the root's trunk onto three candidates that
+lie as its markers do (a free trunk searched from the middle of its translation ranges
+can end on the wrong blobs, and every branch then hangs from the wrong place). With two
 views every branch tries it, and every SA run's minimum of it and its warm start, kept where
 it lowers the two-sided error (:func:`_two_view_starts`): there a leg on the wrong blobs can
 explain all it projects onto, and the run SA ranks lowest can be one.
@@ -69,7 +72,7 @@ from core.ambiguity import (
     flip_masks,
 )
 from core.anneal import kernel_params
-from core.epipolar_start import branch_start
+from core.epipolar_start import branch_start, trunk_start
 from core.error import Detections, nearest_detection, view_offsets
 from core.identifiability import marker_jacobian
 from core.model import KinematicModel
@@ -533,7 +536,7 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     where none reaches twice the part's ε or its ceiling in ``ceilings()`` (by part name,
     :func:`warm_ceilings` of the previous image, asked for once, where a part first needs
     it), keeping the warm start where SA ends higher.
-    A branch that SA leaves above its ε tries its triangulated start too
+    A part that SA leaves above its ε tries its triangulated start too
     (:func:`epipolar_start`), kept where it ends lower; with two views, every branch does
     (:func:`_two_view_starts`)."""
     q, error, objective, iterations, _, searched = _fit_tree(det, model, rig, tree, space, params, stream,
@@ -668,7 +671,7 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
 
         if tried is not None and lower(tried[0]):
             q[part.dofs], value = tried[0], tried[1]  # SA ended in a worse minimum than the warm start's
-        if value >= stop and part.base >= 0:
+        if value >= stop:
             if not candidates:
                 candidates.append(triangulate(det, rig=rig, offsets=off))
             proposed = epipolar_start(part, rotation, origin, candidates[0], points, start, model,
@@ -1129,15 +1132,15 @@ def epipolar_start(part: Part, rotation: np.ndarray, origin: np.ndarray, candida
                    points: np.ndarray, start: np.ndarray, model: KinematicModel, rig: Rig,
                    space: SearchSpace, params: FitParams, eps: float, off: np.ndarray,
                    unseen: np.ndarray) -> tuple[np.ndarray, float, bool] | None:
-    """A branch posed onto the image's triangulated ``candidates``
-    (``core.epipolar_start.branch_start``, from the histogram mean, its base at ``rotation``
-    (3, 3) and ``origin`` (3,)), then refined like a warm start (:func:`warm_start`) on the
-    detections ``points`` grouped at ``start``: (posture (d,), objective, reaches 2 ε), or
-    None when too few candidates lie within the branch's reach."""
-    proposed = branch_start(candidates, part=part, rotation=rotation, origin=origin,
-                            q0=space.mean[part.dofs], model=model, rig=rig, points=points,
-                            start=start, offsets=off,
-                            empty_view_penalty_px=float(params.empty_view_penalty_px))
+    """A part posed onto the image's triangulated ``candidates`` from the histogram mean (a
+    branch by ``core.epipolar_start.branch_start``, its base at ``rotation`` (3, 3) and
+    ``origin`` (3,); the root's trunk by ``core.epipolar_start.trunk_start``), then refined
+    like a warm start (:func:`warm_start`) on the detections ``points`` grouped at ``start``:
+    (posture (d,), objective, reaches 2 ε), or None when too few candidates fit the part."""
+    common = dict(part=part, q0=space.mean[part.dofs], model=model, rig=rig, points=points, start=start,
+                  offsets=off, empty_view_penalty_px=float(params.empty_view_penalty_px))
+    proposed = (trunk_start(candidates, **common) if part.base < 0
+                else branch_start(candidates, rotation=rotation, origin=origin, **common))
     if proposed is None:
         return None
     row = space.mean.copy()

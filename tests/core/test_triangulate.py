@@ -7,7 +7,7 @@ import pytest
 
 from core import _kernels, treefit
 from core.anneal import AnnealParams, search_space
-from core.epipolar_start import branch_start
+from core.epipolar_start import branch_start, trunk_start
 from core.error import Detections, view_offsets
 from core.examples import EXAMPLES
 from core.fit import FitParams
@@ -210,6 +210,50 @@ def test_branch_start_without_candidates_in_reach_is_none():
                             offsets=view_offsets(None, rig), empty_view_penalty_px=5.0) is None
 
 
+def _far_roots(model, n: int) -> np.ndarray:
+    """(n, D) postures of ``model`` (a free root first) whose roots lie near the corners of
+    their ranges, far from the ranges' middle where a search starts."""
+    q = movement(model, n, seed=2)
+    rng = np.random.default_rng(5)
+    root = model.tree.trunk.dofs
+    corner = rng.choice([0.1, 0.9], (n, len(root)))
+    q[:, root] = model.lower[root] + (model.upper[root] - model.lower[root]) * corner
+    return q
+
+
+@pytest.mark.parametrize("sample", range(4))
+def test_trunk_start_poses_a_free_root_far_from_its_start_on_its_candidates(sample):
+    """A free thorax (3 translations, 3 rotations, 3 markers) near the corners of its ranges,
+    its legs' and two ghost blobs' candidates around: posed from the ranges' middle onto the
+    three candidates its geometry allows, it lands on the truth."""
+    model, rig = insect(legs=2, root_dofs=FREE_ROOT), _distorted(3)
+    trunk = model.tree.trunk
+    q = _far_roots(model, 4)[sample]
+    det = _detections(rig, model.marker_positions(q), ghosts=2, seed=sample)
+    start = trunk_start(triangulate(det, rig=rig), part=trunk, q0=(model.lower + model.upper)[trunk.dofs] / 2,
+                        model=model, rig=rig, points=det.kernel_points, start=det.start,
+                        offsets=view_offsets(None, rig), empty_view_penalty_px=5.0)
+    assert start is not None
+    assert np.abs(start.dofs - q[trunk.dofs]).max() < 0.01
+    assert start.error < 1e-3
+
+
+def test_trunk_start_without_three_candidates_that_fit_is_none():
+    """No candidates, two, or three whose distances no three thorax markers have: None."""
+    model, rig = insect(legs=2, root_dofs=FREE_ROOT), _distorted(3)
+    trunk = model.tree.trunk
+    q = movement(model, 1)[0]
+    det = _detections(rig, model.marker_positions(q))
+    spread = Candidates(np.array([[0.0, 0, 0], [200, 0, 0], [0, 200, 0]]), np.zeros(3),
+                        np.array([[0, 1, -1]] * 3))
+    for candidates in (Candidates.empty(3), spread):
+        for k in (2, 3):
+            few = Candidates(candidates.points[:k], candidates.error_px[:k], candidates.support[:k])
+            assert trunk_start(few, part=trunk, q0=model.lower[trunk.dofs], model=model, rig=rig,
+                               points=det.kernel_points, start=det.start,
+                               offsets=view_offsets(None, rig), empty_view_penalty_px=5.0) is None
+
+
 def test_cost_is_bounded_with_many_blobs():
     rig = _distorted(3)
     rng = np.random.default_rng(2)
@@ -236,6 +280,27 @@ def test_the_fit_takes_a_triangulated_start_where_sa_ends_above_eps():
                           params=params, seed=0, chunk_size=1)
     fitted = np.array([f.dofs for f in result.fits])
     assert np.abs((fitted - truth + 180.0) % 360.0 - 180.0).max() < 0.5
+
+
+def test_the_fit_takes_a_triangulated_trunk_start_where_sa_ends_above_eps():
+    """A free thorax near the corners of its ranges, SA cut to 30 iterations, one attempt, no
+    restarts, every image cold (chunks of one): the thorax's triangulated start puts the
+    whole animal right; without it (``trunk_start`` giving nothing) SA leaves it off."""
+    model, rig = insect(legs=2, root_dofs=FREE_ROOT), _distorted(3)
+    truth = _far_roots(model, 4)
+    det = [_detections(rig, model.marker_positions(q), ghosts=2, seed=k) for k, q in enumerate(truth)]
+    params = FitParams(anneal=AnnealParams().with_iterations(30), max_attempts=1, restarts=0)
+
+    def worst() -> float:
+        result = fit_sequence(det, model=model, rig=rig, histograms=Histograms.uniform(model),
+                              params=params, seed=0, chunk_size=1)
+        fitted = np.array([f.dofs for f in result.fits])
+        return float(np.abs((fitted - truth + 180.0) % 360.0 - 180.0).max())
+
+    assert worst() < 0.5
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(treefit, "trunk_start", lambda *a, **k: None)
+        assert worst() > 5.0
 
 
 def test_with_two_views_a_leg_on_the_wrong_blobs_is_replaced_by_its_triangulated_start():
