@@ -84,7 +84,7 @@ def measure(j: int, n_views: int, attempt: bool) -> None:
     if attempt:
         params = FitParams()
         space = search_space(model, Histograms.uniform(model))
-        dofs, error, objective, _, _ = fit_image(det, model=model, rig=rig, space=space, params=params,
+        dofs, error, objective, _, _, _ = fit_image(det, model=model, rig=rig, space=space, params=params,
                                               stream=image_stream(0, 0, 1))
         fit_s = _best(lambda: fit_image(det, model=model, rig=rig, space=space, params=params,
                                         stream=image_stream(0, 0, 1)), 1)

@@ -320,7 +320,7 @@ def fit_image(
     offsets: np.ndarray | None = None,
     warm: np.ndarray | None = None,
     ceilings: Callable[[], Mapping[str, float]] | None = None,
-) -> tuple[np.ndarray, float, float, int, np.ndarray]:
+) -> tuple[np.ndarray, float, float, int, np.ndarray, np.ndarray]:
     """One attempt on one image: SA from the histogram means (paper §3.1), then refinement.
 
     ``draw_start`` starts from a posture drawn from the histograms instead
@@ -349,18 +349,19 @@ def fit_image(
     (dofs (D,), plain Eq. 5 error in pixels, minimised objective, SA iterations, searched
     (D,) bool: where SA ran, False for the DOFs of a tree's parts that a warm start placed,
     standing in for SA under twice their ε (``core.treefit._searched``); a chain's every DOF
-    where SA ran)
+    where SA ran; runs (r, D): a chain's SA runs' final postures, the first run's first,
+    (0, D) for a tree)
     """
     check_views(detections, rig)
     off = view_offsets(offsets, rig)
     if model.tree is not None:
-        return fit_tree(detections, model, rig, model.tree, space, params, stream, draw_start, off,
-                        warm, ceilings)
-    dofs, error, objective, iterations, _ = attempt_kernel(
+        return (*fit_tree(detections, model, rig, model.tree, space, params, stream, draw_start, off,
+                          warm, ceilings), np.empty((0, len(model.dofs))))
+    dofs, error, objective, iterations, runs = attempt_kernel(
         np.arange(len(model.dofs)), model.arrays, detections.kernel_points, detections.start,
         model, rig, space, params, params.anneal.eps, stream, draw_start, off,
     )
-    return dofs, float(error), float(objective), int(iterations), np.full(len(dofs), iterations > 0)
+    return dofs, float(error), float(objective), int(iterations), np.full(len(dofs), iterations > 0), runs
 
 
 def flip_geometry(model: KinematicModel, rig: Rig) -> FlipGeometry | TreeFlips:
@@ -426,7 +427,9 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     tolerance: a fit that jumped into another minimum that explains the image as well (the
     paper's Fig. 9) gets the truth as its alternative, and the choice by continuity can take
     it. A warm-started fit keeps its depth flips as alternatives, so a previous posture in a
-    wrong minimum that this image still supports can be corrected by that choice too.
+    wrong minimum that this image still supports can be corrected by that choice too. A
+    chain's other SA runs that ended in another minimum within the tolerance are
+    alternatives as well (:func:`_run_alternatives`).
     Without another minimum distinct from the best (``core.ambiguity.distinct``: a refined
     flip may land next to it), a posture at least ``core.undetermined.UNDETERMINED_DEG``
     away in a DOF the image does not determine (``core.undetermined``) is the alternative:
@@ -435,12 +438,13 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     """
     settled = False
     if keep is None:
-        dofs, error, objective, its, searched = fit_image(
+        dofs, error, objective, its, searched, runs = fit_image(
             det, model=model, rig=rig, space=space, params=params, stream=stream,
             draw_start=draw_start, offsets=offsets, warm=warm, ceilings=ceilings,
         )
     else:
         check_views(det, rig)
+        runs = np.empty((0, len(model.dofs)))
         dofs, error, objective, its, settled = refit_tree(
             det, model, rig, model.tree, space, params, stream, view_offsets(offsets, rig), keep, typical)
     fit = Candidate(dofs, error, objective)
@@ -456,11 +460,38 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
         if warm is not None:
             others += _warm_alternatives(fit, others, warm, carried, searched, det, model, rig,
                                          params, tolerance, offsets)
+        others += _run_alternatives(fit, others, runs, det, model, rig, params, tolerance, offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
     if not any(distinct(c.dofs, ranked[0].dofs, model.rotational) for c in ranked[1:]):
         witness = _undetermined_witness(ranked[0], det, model, rig, params, offsets)
         ranked += [witness] if witness is not None else []
     return ranked[0], tuple(ranked[1:]), its, settled
+
+
+def _run_alternatives(fit: Candidate, others: list[Candidate], runs: np.ndarray, det: Detections,
+                      model: KinematicModel, rig: Rig, params: FitParams, tolerance: float,
+                      offsets: np.ndarray | None) -> list[Candidate]:
+    """A chain's SA runs' final postures ``runs`` (r, D), refined on the image, that land in
+    another minimum within ``tolerance`` of the fit's objective: more than
+    :data:`~core.ambiguity.DISTINCT_DEG` from the fit, from ``others`` and from each other in
+    some rotational DOF. Minima the choice by continuity may take.
+
+    Why: SA restarts from drawn postures while its best run stays above ε, and keeps the
+    lowest. With a model a little off the animal (segment lengths measured by hand) no
+    posture reaches ε, and where a jump in the movement leaves no warm start near, another
+    run's minimum can be the truth's a fraction of a pixel above the one kept: the stick
+    insect with its model 2 % off kept a posture 24° off, ``ok``, while its second run
+    ended 1.7° from the truth (docs/BENCH_SUBJECTS.md)."""
+    rot, off = model.rotational, view_offsets(offsets, rig)
+    found: list[Candidate] = []
+    for start in runs:
+        if not all(distinct(start, c.dofs, rot) for c in (fit, *others, *found)):
+            continue
+        q, error, objective = refine_whole(start.copy(), det, model, rig, params, off)
+        if objective <= fit.objective + tolerance and all(distinct(q, c.dofs, rot)
+                                                          for c in (fit, *others, *found)):
+            found.append(Candidate(q, error, objective))
+    return found
 
 
 def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel, rig: Rig,

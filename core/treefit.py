@@ -531,7 +531,7 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
              ceilings: Callable[[], Mapping[str, float]] | None = None
              ) -> tuple[np.ndarray, float, float, int, np.ndarray]:
     """One attempt on one image, part by part: (dofs (D,), plain Eq. 5 error, objective, SA
-    iterations, searched (D,) bool), as :func:`core.fit.fit_image` returns them. Each part
+    iterations, searched (D,) bool), the first five of what :func:`core.fit.fit_image` returns. Each part
     first tries its posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
     where none reaches twice the part's ε or its ceiling in ``ceilings()`` (by part name,
     :func:`warm_ceilings` of the previous image, asked for once, where a part first needs

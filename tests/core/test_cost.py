@@ -80,7 +80,7 @@ def test_a_measured_attempt_is_below_the_estimate(model):
 
     def attempt() -> float:
         start = time.perf_counter()
-        dofs, error, objective, _, _ = fit_image(det, model=model, rig=RIG, space=space, params=params,
+        dofs, error, objective, _, _, _ = fit_image(det, model=model, rig=RIG, space=space, params=params,
                                               stream=image_stream(0, 0, 1))
         flip_alternatives(Candidate(dofs, error, objective), det, model=model, rig=RIG,
                           geometry=geometry, tolerance_px=0.5, fusion_px=0.0, empty_view_penalty_px=5.0,

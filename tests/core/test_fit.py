@@ -12,17 +12,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scenes import FAST, detections, postures
-from tree_subjects import FREE_ROOT, angle_errors, insect
+from tree_subjects import FREE_ROOT, angle_errors, insect, movement, ring_rig
 
+from core.ambiguity import Candidate, angle_gaps
+from core.anneal import search_space
 from core.error import Detections, view_error
 from core.fit import (
     FitParams,
     ImageFit,
     Status,
+    _run_alternatives,
+    fit_image,
+    image_stream,
     needs_reanalysis,
     reanalyse_image,
 )
 from core.histogram import Histograms
+from core.rig import Rig
 from core.sequence import fit_chunk, fit_sequence, plan_reanalysis, typical_objective
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
@@ -328,3 +334,41 @@ def test_an_alternative_within_distinct_deg_makes_no_image_ambiguous():
     assert (fit.alternative_deg(rot), fit.alternative_dof(rot)) == (12.0, 1)
     alone = replace(fit, alternatives=(near,))
     assert math.isnan(alone.alternative_deg(rot)) and alone.alternative_dof(rot) is None
+
+
+def test_another_sa_runs_minimum_within_the_tolerance_is_an_alternative(locust):
+    """One side view: the locust's posture and its mirror (phi 160 <-> 200, psi 15 <-> -15)
+    are two minima that explain the view alike. Given as SA runs, the mirror is offered as
+    an alternative minimum; not when it is within 5 degrees of the fit or of an alternative
+    already given, nor beyond the tolerance."""
+    model, rig = locust
+    side = Rig((rig.views[0],))
+    q = np.array([160.0, 15.0, 3.0, 20.0, 80.0])
+    mirror = np.array([200.0, -15.0, 3.0, 20.0, 80.0])
+    det = detections(model, side, q, noise=0.05, seed=1)[0]
+    params = FitParams()
+    fit = Candidate(q, view_error(q, det, model=model, rig=side), view_error(q, det, model=model, rig=side))
+    runs = np.array([q, mirror + 2.0])
+    found = _run_alternatives(fit, [], runs, det, model, side, params, 1.0, None)
+    assert len(found) == 1 and found[0].minimum
+    assert angle_gaps(found[0].dofs, mirror)[model.rotational].max() < 1.0
+    assert _run_alternatives(fit, found, runs, det, model, side, params, 1.0, None) == []
+    assert _run_alternatives(fit, [], runs, det, model, side, params, -1.0, None) == []
+
+
+def test_a_chains_fit_returns_its_sa_runs_and_a_trees_none(locust):
+    """SA that never reaches ε restarts (until a restart finds nothing lower): a chain returns
+    each run's posture, within the ranges; a tree returns none (its parts' runs stay with
+    the parts)."""
+    model, rig = locust
+    det = detections(model, rig, postures(model, 1, seed=4), noise=0.05)[0]
+    params = FitParams(anneal=replace(FitParams().anneal, eps=1e-9))
+    runs = fit_image(det, model=model, rig=rig, space=search_space(model, Histograms.uniform(model)),
+                     params=params, stream=image_stream(0, 0, 1))[5]
+    assert 2 <= len(runs) <= params.restarts + 1 and runs.shape[1] == len(model.dofs)
+    assert np.all((runs >= model.lower) & (runs <= model.upper))
+    tree, ring = insect(legs=2), ring_rig(3)
+    tree_det = detections(tree, ring, movement(tree, 1)[0])[0]
+    runs = fit_image(tree_det, model=tree, rig=ring, space=search_space(tree, Histograms.uniform(tree)),
+                     params=FitParams(), stream=image_stream(0, 0, 1))[5]
+    assert runs.shape == (0, len(tree.dofs))

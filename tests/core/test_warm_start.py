@@ -72,7 +72,7 @@ def _searched_too(model, rig, det, warm=None, ceilings=None):
     space = search_space(model, Histograms.uniform(model))
     return fit_image(det, model=model, rig=rig, space=space, params=FitParams(),
                      stream=image_stream(0, 1, 1), warm=warm,
-                     ceilings=None if ceilings is None else lambda: ceilings)
+                     ceilings=None if ceilings is None else lambda: ceilings)[:5]
 
 
 def test_a_previous_posture_that_fits_replaces_sa(legs):
@@ -166,7 +166,7 @@ def test_a_warm_start_on_blobs_the_detector_merged_stands_in_where_each_marker_k
     knee, claw = (int(m) for m in model.tree.branches[0].markers[[1, 3]])
     image = _merging(model, rig, truth[1], [(0, knee), (1, claw)], apart_px=8.0)
     space = search_space(model, Histograms.uniform(model))
-    fitted, _, _, its, _ = fit_image(image, model=model, rig=rig, space=space,
+    fitted, _, _, its, _, _ = fit_image(image, model=model, rig=rig, space=space,
                                      params=FitParams(fusion_px=8.0), stream=image_stream(0, 1, 1),
                                      warm=truth[:1])
     if cameras == 3:
@@ -838,7 +838,9 @@ def test_a_reanalysis_that_finds_a_lower_minimum_keeps_the_first_posture_within_
     both the truth and a posture 85° away in γ charge it the empty-view penalty and explain the
     seven other projections. The re-analysis (attempt 2, from a drawn start) lands in the
     other minimum, lower by 1e-8 px. Before, the truth, the first attempt's fit, was
-    dropped; it stays an alternative, for the choice by continuity to take."""
+    dropped; it stays an alternative, for the choice by continuity to take (the first
+    posture itself, or, where one of the re-analysis's SA runs ended in its minimum, that
+    run refined: ``core.fit._run_alternatives``)."""
     subject, data = stick_hidden
     model, rig, det = subject.model, subject.rig, data.detections[181]
     assert data.hidden[181, 1, 3] and data.hidden[181].sum() == 1
@@ -850,8 +852,8 @@ def test_a_reanalysis_that_finds_a_lower_minimum_keeps_the_first_posture_within_
                             seed=0, typical=objective)
     rot = model.rotational
     assert again.objective < objective and angle_errors(again.dofs[rot], q[rot]).max() > 80.0
-    kept = [a for a in again.alternatives if angle_errors(a.dofs[rot], q[rot]).max() == 0.0]
-    assert len(kept) == 1 and kept[0].minimum and kept[0].objective == objective
+    kept = [a for a in again.alternatives if angle_errors(a.dofs[rot], q[rot]).max() < 1e-3]
+    assert len(kept) == 1 and kept[0].minimum and kept[0].objective == pytest.approx(objective, abs=1e-6)
 
 
 def test_the_previous_images_alternative_is_followed_where_the_warm_start_carries_a_wrong_minimum(
