@@ -52,6 +52,7 @@ from core.treefit import (
     tree_flip_alternatives,
 )
 from core.undetermined import (
+    UNDETERMINED_DEG,
     residual_tolerance,
     scatter_error,
     typical_inflation,
@@ -472,9 +473,13 @@ def _run_alternatives(fit: Candidate, others: list[Candidate], runs: np.ndarray,
                       model: KinematicModel, rig: Rig, params: FitParams, tolerance: float,
                       offsets: np.ndarray | None) -> list[Candidate]:
     """A chain's SA runs' final postures ``runs`` (r, D), refined on the image, that land in
-    another minimum within ``tolerance`` of the fit's objective: more than
-    :data:`~core.ambiguity.DISTINCT_DEG` from the fit, from ``others`` and from each other in
-    some rotational DOF. Minima the choice by continuity may take.
+    another minimum within ``tolerance`` of the fit's objective: at least
+    ``core.undetermined.UNDETERMINED_DEG`` from the fit and more than
+    :data:`~core.ambiguity.DISTINCT_DEG` from ``others`` and from each other in some
+    rotational DOF. Minima the choice by continuity may take. Runs nearer the fit ended in
+    its valley: where the image does not determine a DOF, the witness
+    (:func:`_undetermined_witness`) says how far that valley reaches, and a run a few
+    degrees along it would stand in for it.
 
     Why: SA restarts from drawn postures while its best run stays above ε, and keeps the
     lowest. With a model a little off the animal (segment lengths measured by hand) no
@@ -484,12 +489,16 @@ def _run_alternatives(fit: Candidate, others: list[Candidate], runs: np.ndarray,
     ended 1.7° from the truth (docs/BENCH_SUBJECTS.md)."""
     rot, off = model.rotational, view_offsets(offsets, rig)
     found: list[Candidate] = []
+
+    def new(q: np.ndarray) -> bool:
+        return (angle_gaps(q, fit.dofs)[rot].max(initial=0.0) >= UNDETERMINED_DEG
+                and all(distinct(q, c.dofs, rot) for c in (*others, *found)))
+
     for start in runs:
-        if not all(distinct(start, c.dofs, rot) for c in (fit, *others, *found)):
+        if not new(start):
             continue
         q, error, objective = refine_whole(start.copy(), det, model, rig, params, off)
-        if objective <= fit.objective + tolerance and all(distinct(q, c.dofs, rot)
-                                                          for c in (fit, *others, *found)):
+        if objective <= fit.objective + tolerance and new(q):
             found.append(Candidate(q, error, objective))
     return found
 
