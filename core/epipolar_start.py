@@ -141,8 +141,8 @@ def trunk_start(candidates: Candidates, *, part: Part, q0: np.ndarray, model: Ki
     :data:`TRUNK_TRIANGLES`); a triple of candidates is tried for one where each two lie as
     far apart as the two markers may (:func:`_distance_bounds` over the DOF ranges, widened
     by :data:`TRUNK_SLACK_FRACTION` of the markers' spread), at most :data:`MAX_TRIPLES`
-    per triple of markers, those more views support first. A rigid trunk's distances are single lengths,
-    so few triples pass.
+    per triple of markers, those more views support first. A rigid trunk's distances are
+    single lengths, so few triples pass.
 
     Parameters and the result as :func:`branch_start` (``q0`` the trunk's DOFs to start from;
     no base frame: the trunk's kinematic arrays are in the world frame). None for a trunk

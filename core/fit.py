@@ -429,8 +429,9 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     paper's Fig. 9) gets the truth as its alternative, and the choice by continuity can take
     it. A warm-started fit keeps its depth flips as alternatives, so a previous posture in a
     wrong minimum that this image still supports can be corrected by that choice too. A
-    chain's other SA runs that ended in another minimum within the tolerance are
-    alternatives as well (:func:`_run_alternatives`).
+    chain's other SA runs that ended in another minimum within the tolerance, at least
+    ``core.undetermined.UNDETERMINED_DEG`` from the fit, are alternatives as well
+    (:func:`_run_alternatives`).
     Without another minimum distinct from the best (``core.ambiguity.distinct``: a refined
     flip may land next to it), a posture at least ``core.undetermined.UNDETERMINED_DEG``
     away in a DOF the image does not determine (``core.undetermined``) is the alternative:
