@@ -120,6 +120,11 @@ class Detections:
         """(V,) int64: number of detections in each view."""
         return np.diff(self.start)
 
+    @property
+    def views_seen(self) -> int:
+        """How many views have at least one detection (each compares every marker)."""
+        return int(np.count_nonzero(self.counts))
+
     def view(self, v: int) -> np.ndarray:
         return self.points[self.start[v] : self.start[v + 1]]
 

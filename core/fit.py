@@ -528,7 +528,7 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     """
     off = view_offsets(offsets, rig)
     penalty = params.empty_view_penalty_px
-    views = int(np.count_nonzero(det.counts))
+    views = det.views_seen
     unseen = np.zeros(len(model.markers), dtype=bool)
     if fit.error > penalty * (views - 1 if views >= 3 else views):  # else no marker can be unseen
         projected = rig.project(model.marker_positions(fit.dofs)) + off[:, None, :]

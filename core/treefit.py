@@ -421,8 +421,7 @@ def typical_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig:
     and is searched. Clean footage fits at a typical ~0.01 px a projection, where every
     part that reaches such a level has reached twice its ε already.
     """
-    views = int(np.count_nonzero(det.counts))
-    per_projection = typical / max(1, len(model.markers) * views)
+    per_projection = typical / max(1, len(model.markers) * det.views_seen)
     return {part.name: _ceiling(per_projection * counted, counted, len(part.dofs))
             for part, _, _, _, counted in _compared_parts(q, det, model, rig, params, off)}
 
@@ -608,7 +607,7 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
     q = space.mean.copy() if keep is None else keep.copy()
     gained: list[Part] = []  # parts whose drawn-start search ended lower than ``keep``'s
     iterations = 0
-    views_seen = int(np.count_nonzero(det.counts))
+    views_seen = det.views_seen
     shared = {} if warm is None else shared_projections(warm[0], model, rig, tree, params, off)
     candidates: list[Candidates] = []  # triangulated once, when a branch first needs them
     minima: dict[str, list[np.ndarray]] = {}  # per part, its SA runs' and warm start's postures

@@ -237,7 +237,7 @@ def undetermined_alternative(
     """
     q = fit.dofs
     rot = model.rotational
-    compared = int(np.count_nonzero(detections.counts)) * len(model.markers)
+    compared = detections.views_seen * len(model.markers)
     if not rot.any() or not math.isfinite(fit.error) or max(floor_px, residual_px) <= 0 or compared == 0:
         return None
     off = view_offsets(offsets, rig)
