@@ -1,7 +1,7 @@
 """Why images are off with real markers: a wrong basin, or the minimum itself moved?
 
     python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|freefly|rat|mouse [--images N]
-        [--soft-tissue] [--cameras 6|3|2] [--occlusion F] [--off DEG] [--fps HZ] [--seed S]
+        [--soft-tissue] [--cameras 6|3|2] [--occlusion F [--everywhere]] [--off DEG] [--fps HZ] [--seed S]
         [--huber PX] [--model-error F] [--rig-error PX]
 
 Renders and fits a subject as ``bench/animals.py`` does (same seed, same images), then
@@ -58,6 +58,8 @@ def main() -> None:
                         help="fly cameras (hexapod, freefly: default 6) or rat cameras (default 3)")
     parser.add_argument("--occlusion", type=float, default=0.0, metavar="F",
                         help="fraction of marker projections hidden, as bench/animals.py")
+    parser.add_argument("--everywhere", action="store_true",
+                        help="with --occlusion, hide each marker from every view at once")
     parser.add_argument("--off", type=float, default=10.0,
                         help="degrees: list the ok images this far off (5: the noise-free target)")
     parser.add_argument("--fps", type=float, default=None, help="the movement's frame rate")
@@ -73,7 +75,8 @@ def main() -> None:
         subject = replace(subject, fps=args.fps)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue,
                              ghosts=0 if args.soft_tissue else 2,
-                             rng=np.random.default_rng(args.seed), occlusion=args.occlusion)
+                             rng=np.random.default_rng(args.seed), occlusion=args.occlusion,
+                             everywhere=args.everywhere)
     subject = as_measured(subject, args)
     model, rig, rot = subject.model, subject.rig, subject.model.rotational
     result, _ = fit(subject, data, seed=args.seed, jobs=1)

@@ -172,7 +172,7 @@ def fit_chunk(
             det, first_sample + k, model=model, rig=rig, histograms=working, params=params,
             seed=seed, geometry=geometry, offsets=off, warm=warm,
             ceilings=ceilings if warm is not None else None,
-            carried=_carried(fits, model) if warm is not None else None,
+            carried=_carried(fits) if warm is not None else None,
         )
         if model.tree is not None:  # used only after a posture (``warm`` is None without one)
             ceilings = partial(_ceilings, fit, det, model, rig, params, off)
@@ -243,17 +243,17 @@ def _next_in_cycle(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | 
     return np.clip(out, model.lower, model.upper)
 
 
-def _carried(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:
+def _carried(fits: list[ImageFit]) -> np.ndarray | None:
     """The alternatives of the last of ``fits`` that are minima, best first, at most
-    :data:`MAX_CARRIED`, (k, D); None without any, and for a tree (``model.tree``).
+    :data:`MAX_CARRIED`, (k, D); None without any.
 
     Refined on the next image (``core.fit.first_attempt``), they give it an alternative
     where a warm start carried a wrong minimum on that both images support as well as the
-    right one. A single chain's refinement costs a fraction of its SA; a tree's, every part
-    that differs refined as a whole posture, cost the 2-camera hexapod with 10 % hidden a
-    third of its rate (docs/BENCH_SUBJECTS.md).
+    right one: a rat whose ankle and toe no camera sees fits a leg folded onto other blobs
+    lower than the truth, which is the previous image's alternative, and the next image's
+    warm start is the folded leg (docs/BENCH_SUBJECTS.md).
     """
-    if model.tree is not None or not fits:
+    if not fits:
         return None
     minima = [a.dofs for a in fits[-1].alternatives if a.minimum][:MAX_CARRIED]
     return np.array(minima) if minima else None
