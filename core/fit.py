@@ -53,6 +53,9 @@ from core.treefit import (
 )
 from core.undetermined import (
     UNDETERMINED_DEG,
+    borrowed_projections,
+    fused_projections,
+    hidden_projections,
     residual_tolerance,
     scatter_error,
     typical_inflation,
@@ -528,11 +531,13 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     """
     off = view_offsets(offsets, rig)
     penalty = params.empty_view_penalty_px
-    views = det.views_seen
     unseen = np.zeros(len(model.markers), dtype=bool)
-    if fit.error > penalty * (views - 1 if views >= 3 else views):  # else no marker can be unseen
+    if fit.error > penalty:  # else no marker can be unseen
         projected = rig.project(model.marker_positions(fit.dofs)) + off[:, None, :]
-        unseen = unseen_markers(marker_errors(projected, det), penalty)
+        distances = marker_errors(projected, det)
+        if hidden_projections(distances, penalty).any():
+            unseen = unseen_markers(distances, penalty, borrowed_projections(projected, det),
+                                    fused_projections(projected, det, params.fusion_px))
     if not unseen.any() and _witness_readings(params, det, model, fit.error) is None:
         return None
     scatter = scatter_error(fit.dofs, det, model, rig, off, penalty, params.fusion_px)

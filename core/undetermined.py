@@ -26,12 +26,12 @@ from core.ambiguity import Candidate, angle_gaps, plain_error
 from core.error import Detections, marker_errors, nearest_detection, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
-from core.treefit import MAX_LOST_SHARE, world_frames
+from core.treefit import FUSED_PX, MAX_LOST_SHARE, world_frames
 
-__all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "confidence_chi2",
-           "fused_projections", "hidden_projections", "interval_chi2", "moved_projections", "residual_shares",
-           "residual_tolerance", "scatter_error", "shared_scatter_inflation", "typical_inflation",
-           "undetermined_alternative", "unseen_markers"]
+__all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "borrowed_projections",
+           "confidence_chi2", "fused_projections", "hidden_projections", "interval_chi2", "moved_projections",
+           "residual_shares", "residual_tolerance", "scatter_error", "shared_scatter_inflation",
+           "typical_inflation", "undetermined_alternative", "unseen_markers"]
 
 # An image does not determine a DOF when a posture this far from its fit in that DOF (degrees,
 # the issue's "more than 10 degrees off the truth") explains it within its tolerance.
@@ -81,12 +81,20 @@ def hidden_projections(distances: np.ndarray, penalty: float) -> np.ndarray:
     return far
 
 
-def unseen_markers(distances: np.ndarray, penalty: float) -> np.ndarray:
+def unseen_markers(distances: np.ndarray, penalty: float, borrowed: np.ndarray | None = None,
+                   fused: np.ndarray | None = None) -> np.ndarray:
     """(M,) bool: the markers that no camera sees in this image, or one alone of three or
-    more: their projection looks hidden (:func:`hidden_projections` of ``distances`` (V, M)
-    px, NaN in a view without blobs) in every view with blobs, or in all but one where three
-    or more have blobs. The image then does not place the DOFs only they place (a claw's
-    tarsus): :func:`undetermined_alternative` leaves them out.
+    more. The image then does not place the DOFs only they place (a claw's tarsus):
+    :func:`undetermined_alternative` leaves them out.
+
+    A projection sees its marker where it lies on a blob: not hidden
+    (:func:`hidden_projections` of ``distances`` (V, M) px, NaN in a view without blobs) and
+    not on another marker's blob (``borrowed`` (V, M) bool, :func:`borrowed_projections`).
+    A marker is unseen where one of its projections is hidden and not fused (``fused`` (V,
+    M) bool, :func:`fused_projections`: big markers whose joints touch fuse in every view,
+    the merged blob's centroid far from each), and it is seen in no view with blobs, in
+    one alone where three or more have blobs, or only where it is fused (on no blob of its
+    own). ``borrowed`` and ``fused`` are none where not given.
 
     Why one of three: a marker hidden from every camera is charged its distance to the
     nearest blob, and a posture that puts it on some other blob in one view (a ghost, 3 px
@@ -94,10 +102,48 @@ def unseen_markers(distances: np.ndarray, penalty: float) -> np.ndarray:
     none saw was placed that way, its metatarsus 44° off and ``ok``. A marker that two
     cameras see is placed by both; with two views, one alone is how the paper's locust is
     filmed.
+
+    Why another marker's blob does not see it: a human's finger marker hidden from all six
+    cameras was placed 3-4 px from the wrist marker's blob in two of them (the objective
+    reads the two as fused there), its wrist flexion 69° off at its range limit, ``ok``, with
+    no witness. Why fused views alone do not: a stick insect's claw hidden from both
+    cameras was placed exactly on the coxa's blob in one of them, γ 111° off, ``ok``, and its
+    only alternative as far off. A marker fused in some views and on its own blob in
+    another is seen in all of them (bigger markers fuse often).
     """
     views = np.isfinite(distances).any(axis=1)
-    seen = np.count_nonzero(~hidden_projections(distances, penalty)[views], axis=0)
-    return seen < (2 if np.count_nonzero(views) >= 3 else 1) if views.any() else np.zeros(len(seen), bool)
+    hidden = hidden_projections(distances, penalty)
+    none = np.zeros_like(hidden)
+    fused = none if fused is None else fused
+    on_blob = (~hidden & ~(none if borrowed is None else borrowed))[views]
+    seen = np.where((on_blob & ~fused[views]).any(axis=0), np.count_nonzero(on_blob, axis=0), 0)
+    if not views.any():
+        return np.zeros(len(seen), bool)
+    return (seen < (2 if np.count_nonzero(views) >= 3 else 1)) & (hidden & ~fused).any(axis=0)
+
+
+def borrowed_projections(projected: np.ndarray, detections: Detections) -> np.ndarray:
+    """(V, M) bool: the projections ``projected`` (V, M, 2) whose nearest blob another
+    projection lies nearer to, where the blob is not the two of them fused (their midpoint
+    farther than ``core.treefit.FUSED_PX`` from it): a marker on another marker's blob.
+    False in a view without blobs.
+
+    >>> det = Detections.from_views([[[0.0, 0.0], [10.0, 0.0]]])
+    >>> borrowed_projections(np.array([[[0.1, 0.0], [3.0, 0.0], [9.0, 0.0], [11.0, 0.0]]]), det).tolist()
+    [[False, True, False, False]]
+    """
+    out = np.zeros(projected.shape[:2], dtype=bool)
+    for v in range(projected.shape[0]):
+        points = detections.view(v)
+        if not len(points):
+            continue
+        nearest, d2 = nearest_detection(projected[v], points)
+        # (M, M): projection j lies on projection i's nearest blob, nearer to it
+        shared = (nearest[:, None] == nearest[None, :]) & (d2[None, :] < d2[:, None])
+        i, j = np.nonzero(shared)
+        midpoint = 0.5 * (projected[v, i] + projected[v, j]) - points[nearest[i], :2]
+        out[v, i[np.einsum("ij,ij->i", midpoint, midpoint) > FUSED_PX ** 2]] = True
+    return out
 
 
 def scatter_error(q: np.ndarray, detections: Detections, model: KinematicModel, rig: Rig,
