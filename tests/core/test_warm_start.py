@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
@@ -856,6 +857,21 @@ def test_a_reanalysis_that_finds_a_lower_minimum_keeps_the_first_posture_within_
     assert len(kept) == 1 and kept[0].minimum and kept[0].objective == pytest.approx(objective, abs=1e-6)
 
 
+def _chunk(subject, data: Rendered, first: int, last: int
+           ) -> tuple[list[ImageFit], Callable[[int, np.ndarray], float]]:
+    """Images ``first`` to ``last`` - 1 of ``data`` fitted as one chunk, and how far a
+    posture (D,) lies from image t's truth: its largest rotational DOF error, degrees."""
+    model, rot = subject.model, subject.model.rotational
+    fits = fit_chunk(data.detections[first:last], model=model, rig=subject.rig,
+                     histograms=Histograms.uniform(model, prior_weight=100.0),
+                     params=fit_params(data)[0], seed=0, first_sample=first).fits
+
+    def off(t: int, dofs: np.ndarray) -> float:
+        return float(angle_errors(dofs[rot], data.truth[t][rot]).max())
+
+    return fits, off
+
+
 def test_the_previous_images_alternative_is_followed_where_the_warm_start_carries_a_wrong_minimum(
         stick_hidden):
     """Images 247-249 of :func:`stick_hidden` as one chunk. At 248 the tibia marker is hidden
@@ -865,15 +881,7 @@ def test_the_previous_images_alternative_is_followed_where_the_warm_start_carrie
     image's alternative, refined on this image, is now one, within 2° of the truth. It is
     reported, not offered to the choice by continuity. (Images 274-276 showed the same until
     refine's Jacobian became exact: 276 is now fitted right.)"""
-    subject, data = stick_hidden
-    model, rot = subject.model, subject.model.rotational
-    fits = fit_chunk(data.detections[247:250], model=model, rig=subject.rig,
-                     histograms=Histograms.uniform(model, prior_weight=100.0),
-                     params=fit_params(data)[0], seed=0, first_sample=247).fits
-
-    def off(t: int, dofs: np.ndarray) -> float:
-        return float(angle_errors(dofs[rot], data.truth[t][rot]).max())
-
+    fits, off = _chunk(*stick_hidden, 247, 250)
     assert off(248, fits[1].dofs) > 30.0 and fits[1].status is Status.OK
     assert off(249, fits[2].dofs) > 30.0
     right = [a for a in fits[2].alternatives if off(249, a.dofs) < 2.0]
@@ -948,14 +956,7 @@ def test_a_trees_previous_alternative_is_followed_where_the_warm_start_carries_a
     subject = load("rat", None)
     data = render_and_detect(subject, 60, soft=False, ghosts=2, rng=np.random.default_rng(1),
                              occlusion=0.1, everywhere=True)
-    model, rot = subject.model, subject.model.rotational
-    fits = fit_chunk(data.detections[56:60], model=model, rig=subject.rig,
-                     histograms=Histograms.uniform(model, prior_weight=100.0),
-                     params=fit_params(data)[0], seed=0, first_sample=56).fits
-
-    def off(t: int, dofs: np.ndarray) -> float:
-        return float(angle_errors(dofs[rot], data.truth[t][rot]).max())
-
+    fits, off = _chunk(subject, data, 56, 60)
     assert data.hidden[58:60, :, [5, 7]].all()
     assert off(58, fits[2].dofs) > 30.0 and min(off(58, a.dofs) for a in fits[2].alternatives) < 1.0
     assert off(59, fits[3].dofs) > 30.0 and fits[3].status is Status.OK
