@@ -2,7 +2,7 @@
 
     python bench/animals.py [--subject hexapod|freefly|biped|fullbody|stick|locust|rat|mouse|spider|all]
         [--images N] [--cameras 6|4|3|2] [--soft-tissue] [--ghosts N] [--occlusion F [--everywhere]]
-        [--seed S] [--jobs 1]
+        [--lost-claw] [--seed S] [--jobs 1]
         [--threshold auto|otsu|100] [--model-error F] [--rig-error PX]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
@@ -22,7 +22,9 @@ state and drawn from the run's generator after the images' noise generators are 
 the images differ from those of F = 0 by the hidden blobs only. With ``--everywhere`` the
 chain is one per marker and hides it from every view at once (a claw tucked under the body,
 a marker that fell off): the DOFs it alone places are then not determined, and the figures
-say whether such images are flagged.
+say whether such images are flagged. With ``--lost-claw`` the first branch's last marker (a
+claw or a toe in most subjects) is missing from every view of every image, as a marker
+that fell off before the trial (:func:`lost_marker`).
 With ``--model-error F`` the fit is given the subject's model with every segment length and
 marker placement off by a relative N(0, F) (a model measured by hand), and with
 ``--rig-error PX`` its rig with every view's image shifted by PX pixels (a calibration's
@@ -55,6 +57,7 @@ from core.detect import DetectorParams, detect, marker_diameter
 from core.error import Detections, fusion_distance
 from core.fit import FitParams, ImageFit, Status
 from core.histogram import Histograms
+from core.model import KinematicModel
 from core.results import SampleClock, write_angles_csv
 from core.sequence import SequenceResult, fit_sequence
 from core.synth import render_frames
@@ -88,11 +91,12 @@ class Rendered:
 def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
                       rng: np.random.Generator, occlusion: float = 0.0, everywhere: bool = False,
                       detector: DetectorParams = DetectorParams(),
-                      marker_px: float = MARKER_DIAMETER_PX) -> Rendered:
+                      marker_px: float = MARKER_DIAMETER_PX, lost_claw: bool = False) -> Rendered:
     """Render ``n`` images of the subject's movement in every camera, then detect them (timed).
 
     ``occlusion``: the fraction of (image, view, marker) hidden (:func:`occlusion_mask`), each
     marker from every view at once with ``everywhere``.
+    ``lost_claw``: :func:`lost_marker` hidden from every view of every image too.
     ``detector``: the detection settings (``mocap fit``'s defaults unless given).
     ``marker_px``: the markers' imaged diameter, pixels.
     """
@@ -109,6 +113,9 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
         hidden = occlusion_mask((n, 1 if everywhere else views, len(model.markers)), occlusion,
                                 mean_run, rng)
         hidden = np.repeat(hidden, views, axis=1) if everywhere else hidden
+    if lost_claw:
+        hidden = np.zeros((n, len(subject.rig.views), len(model.markers)), bool) if hidden is None else hidden
+        hidden[:, :, lost_marker(subject.model)] = True
     frames = [
         render_frames(model, subject.rig, truth, rng=r, video=k, frame_size=subject.size_of(k),
                       marker_diameter_px=marker_px, ghosts_per_view=ghosts,
@@ -121,6 +128,13 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
         detections.append(detect(list(image), rig=subject.rig, params=detector))
         seconds += time.perf_counter() - t0
     return Rendered(truth, detections, seconds, hidden)
+
+
+def lost_marker(model: KinematicModel) -> int:
+    """The index of the last marker of ``model.tree``'s first branch, or of a single chain:
+    a claw or a toe in most subjects (the spider's abdomen tip), a marker a lab finds gone
+    and one that alone places a DOF in most subjects."""
+    return int(model.tree.branches[0].markers[-1]) if model.tree is not None else len(model.markers) - 1
 
 
 def occlusion_mask(shape: tuple[int, int, int], fraction: float, mean_run: float,
@@ -316,12 +330,13 @@ def run(name: str, args: argparse.Namespace) -> None:
     label = (name + (f" ({cameras} cameras)" if cameras else "")
              + (f" at {args.fps:g} Hz" if args.fps else "")
              + (" + soft tissue" if args.soft_tissue else "")
+             + (f" + {subject.model.markers[lost_marker(subject.model)].name} lost" if args.lost_claw else "")
              + (f" + model off {100 * args.model_error:g} %" if args.model_error else "")
              + (f" + rig off {args.rig_error:g} px" if args.rig_error else ""))
     rng = np.random.default_rng(args.seed)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts,
                              rng=rng, occlusion=args.occlusion, everywhere=args.everywhere,
-                             detector=args.detector, marker_px=args.marker_px)
+                             detector=args.detector, marker_px=args.marker_px, lost_claw=args.lost_claw)
     if data.hidden is not None:
         h = data.hidden
         print(f"\n{label}: hidden {int(h.sum())} of {h.size} marker projections "
@@ -335,7 +350,8 @@ def run(name: str, args: argparse.Namespace) -> None:
            + (f"-{args.fps:g}hz" if args.fps else "")
            + (f"-model{100 * args.model_error:g}" if args.model_error else "")
            + (f"-rig{args.rig_error:g}" if args.rig_error else "")
-           + (f"-marker{args.marker_px:g}" if args.marker_px != MARKER_DIAMETER_PX else ""))
+           + (f"-marker{args.marker_px:g}" if args.marker_px != MARKER_DIAMETER_PX else "")
+           + ("-lostclaw" if args.lost_claw else ""))
     OUT.mkdir(parents=True, exist_ok=True)
     csv_path = OUT / f"animals-{tag}.csv"
     write_angles_csv(csv_path, subject.model, result.fits, SampleClock(subject.fps))
@@ -375,6 +391,8 @@ def main() -> None:
                              f"{OCCLUSION_RUN_S:g} s per view and marker (default 0)")
     parser.add_argument("--everywhere", action="store_true",
                         help="with --occlusion, hide each marker from every view at once")
+    parser.add_argument("--lost-claw", action="store_true",
+                        help="the first branch's last marker (a claw, a toe) is missing from every image")
     parser.add_argument("--fps", type=float, default=None,
                         help="frame rate of the movement (default: the subject's own, 50-250 Hz)")
     parser.add_argument("--seed", type=int, default=0)

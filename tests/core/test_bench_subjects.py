@@ -199,6 +199,26 @@ def test_occlusion_everywhere_hides_a_marker_from_every_view_at_once():
         assert det.counts.tolist() == (markers - h.sum(axis=1)).tolist()
 
 
+def test_a_lost_claw_is_missing_from_every_view_of_every_image():
+    """``--lost-claw``: the first branch's last marker (the hexapod's front claw) has no blob
+    in any image: one blob fewer than the same images with it, in every view but those where
+    it fused with another marker; and with ``--occlusion`` both hide."""
+    from bench.animals import lost_marker, render_and_detect
+
+    subject = load("hexapod", 3)
+    claw = lost_marker(subject.model)
+    assert subject.model.markers[claw].name == "LF_claw"
+    data = render_and_detect(subject, 6, soft=False, ghosts=0, rng=np.random.default_rng(2), lost_claw=True)
+    assert data.hidden[:, :, claw].all() and data.hidden.sum() == data.hidden[:, :, claw].sum()
+    plain = render_and_detect(subject, 6, soft=False, ghosts=0, rng=np.random.default_rng(2))
+    fewer = np.array([p.counts - d.counts for p, d in zip(plain.detections, data.detections, strict=True)])
+    assert set(fewer.ravel().tolist()) <= {0, 1} and fewer.mean() > 0.8
+    both = render_and_detect(subject, 40, soft=False, ghosts=0, rng=np.random.default_rng(2),
+                             occlusion=0.2, lost_claw=True).hidden
+    assert both[:, :, claw].all() and both.sum() > both[:, :, claw].sum()
+    assert lost_marker(load("locust").model) == len(load("locust").model.markers) - 1
+
+
 @pytest.mark.parametrize("subject", ["locust", "hexapod", "spider"])
 def test_a_calibrated_rig_moves_every_projection_by_the_asked_shift(subject):
     """bench/imperfect.py's rig error: every view's image (affine, pinhole with distortion)
