@@ -99,6 +99,7 @@ WARM_JOINT_STEPS = 2  # joint refinement of parts that all came from warm starts
 WARM_EPS_FACTOR = 2.0  # a warm start stands in for SA within this many times the part's ε
 HIDDEN_SEEN_VIEWS = 3  # unexplained blobs of this many views meeting in space: a marker not hidden
 MAX_LOST_SHARE = 0.25  # of a part's projections, at most this share may look hidden in a warm start
+SLIDE_FACTOR = 2.0  # a warm start under this many times its ceiling missed it by sliding markers
 
 
 def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
@@ -489,12 +490,42 @@ def _charged_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray
     return float(_kernels.posture_error(q, kin, rig.arrays, image._replace(lost_px=image.penalty)))
 
 
-def _reanalysis_stop(kept: np.ndarray, eps: float, kin, points: np.ndarray, start: np.ndarray, rig: Rig,
-                     params: FitParams, off: np.ndarray) -> float:
-    """SA's stop (pixels) for a part in :func:`refit_tree`: its kept posture ``kept`` (d,)
-    posed by ``kin``, in the objective SA compares with its stop (:func:`_charged_objective`),
-    or its ε ``eps`` where that is higher."""
+def _search_stop(kept: np.ndarray, eps: float, kin, points: np.ndarray, start: np.ndarray, rig: Rig,
+                 params: FitParams, off: np.ndarray) -> float:
+    """SA's stop (pixels) for a part whose warm start did not stand in (in :func:`refit_tree`,
+    its kept posture): that posture ``kept`` (d,), refined and posed by ``kin``, in the
+    objective SA compares with its stop (:func:`_charged_objective`), or its ε ``eps`` where
+    that is higher.
+
+    A search that gets as low as the warm start has found its minimum or one as low, and
+    running on to its patience and restarting rarely finds a lower one. Under sliding skin
+    markers no part reaches its ε: with ε alone, every part whose warm start missed its
+    ceiling ran SA to its patience and restarted, to end within a pixel of the warm start
+    (the whole body's right leg, 37 of 60 images). In a first attempt this stop is used only
+    where the warm start missed its ceiling as a slide does (:func:`_missed_by_a_slide`)."""
     return max(eps, _charged_objective(kept, kin, points, start, rig, params, off))
+
+
+def _missed_by_a_slide(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, unseen: np.ndarray,
+                       rig: Rig, params: FitParams, off: np.ndarray, ceiling: float) -> bool:
+    """Whether a part's warm start ``q`` (d,), posed by ``kin`` on the detections ``points``
+    grouped at ``start`` (``unseen`` (V, m) left out), missed its ``ceiling`` (pixels per
+    compared projection, :func:`warm_ceilings`) as sliding skin markers make it: no
+    projection looks hidden (:func:`_lost`) and its level (:func:`_ceiling_level`) is under
+    :data:`SLIDE_FACTOR` times the ceiling. Its SA then stops once as low as it
+    (:func:`_search_stop`).
+
+    Why not every warm start that missed: a leg whose warm start lies in another basin, or
+    whose marker is hidden, is pixels off in several views, and its SA, stopped at that
+    level, ended in a worse minimum than SA run down to ε (the free fly with markers hidden
+    from every camera: median DOF RMSE 1.25 → 2.74°; the 2-camera hexapod with 10 %
+    hidden, one image more beyond 5°)."""
+    if not math.isfinite(ceiling):
+        return False
+    unseen = _in_seen_views(unseen, start)
+    image = _image(points, start, params, off, unseen)
+    limit = SLIDE_FACTOR * ceiling * _compared(unseen, start, len(kin.marker_joint))
+    return not _lost(q, kin, rig, image).any() and _ceiling_level(q, kin, rig, image, params)[0] < limit
 
 
 def _in_seen_views(unseen: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -534,8 +565,10 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     first tries its posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
     where none reaches twice the part's ε or its ceiling in ``ceilings()`` (by part name,
     :func:`warm_ceilings` of the previous image, asked for once, where a part first needs
-    it), keeping the warm start where SA ends higher.
-    A part that SA leaves above its ε tries its triangulated start too
+    it), keeping the warm start where SA ends higher; where the best warm start missed its
+    ceiling as sliding markers make it miss (:func:`_missed_by_a_slide`), SA stops once as
+    low as it (:func:`_search_stop`).
+    A part that SA leaves above its ε, and above that stop, tries its triangulated start too
     (:func:`epipolar_start`), kept where it ends lower; with two views, every branch does
     (:func:`_two_view_starts`)."""
     q, error, objective, iterations, _, searched = _fit_tree(det, model, rig, tree, space, params, stream,
@@ -561,7 +594,7 @@ def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spa
 
     A part's SA (its restarts too) stops below the kept part's level, the kept posture
     refined in the objective SA compares with its stop, or below its ε where that is higher
-    (:func:`_reanalysis_stop`): a drawn-start search that gets as low as the kept part has
+    (:func:`_search_stop`, as in :func:`fit_tree`): a drawn-start search that gets as low as the kept part has
     found its minimum or one as low, and running on to its patience and restarting rarely
     finds a lower one. Under sliding skin markers no part reaches its ε, so with ε alone
     every part's search would run to its patience and restart in every re-analysis. The
@@ -650,8 +683,10 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             done[part.dofs] = False
             return False
         placed.pop(part.name, None)
-        stop = eps if keep is None or tried is None else _reanalysis_stop(tried[0], eps, kin, points, start,
-                                                                          rig, params, off)
+        at_level = tried is not None and (keep is not None or (
+            ceiling is not None and _missed_by_a_slide(tried[0], kin, points, start, unseen, rig, params, off,
+                                                       ceiling())))
+        stop = _search_stop(tried[0], eps, kin, points, start, rig, params, off) if at_level else eps
         q[part.dofs], _, _, its, runs = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
                                                        params, stop, stream, draw_start, off)
         iterations += its

@@ -741,7 +741,7 @@ def test_a_tree_reanalysis_stops_each_parts_search_at_its_kept_level(sliding, mo
         given = (images[k], model, rig, model.tree, space, params)
         dofs, _, objective, its, settled = refit_tree(*given, image_stream(0, k, 2), off, fit)
         with monkeypatch.context() as patch:
-            patch.setattr(treefit, "_reanalysis_stop", lambda kept, eps, *_: eps)  # the stop is ε alone
+            patch.setattr(treefit, "_search_stop", lambda kept, eps, *_: eps)  # the stop is ε alone
             at_eps, _, at_eps_objective, at_eps_its, at_eps_settled = refit_tree(
                 *given, image_stream(0, k, 2), off, fit)
         assert 0 < its < at_eps_its, k
@@ -961,3 +961,23 @@ def test_a_trees_previous_alternative_is_followed_where_the_warm_start_carries_a
     assert off(58, fits[2].dofs) > 30.0 and min(off(58, a.dofs) for a in fits[2].alternatives) < 1.0
     assert off(59, fits[3].dofs) > 30.0 and fits[3].status is Status.OK
     assert min(off(59, a.dofs) for a in fits[3].alternatives) < 10.0
+
+
+def test_a_warm_start_that_missed_its_ceiling_by_a_slide_stops_sa_at_its_level(sliding, monkeypatch):
+    """Image 1 of :func:`sliding`, warm-started from image 0's fit. Under ceilings 0.55 times
+    image 0's, a leg's warm start misses its own by less than twice it, as a rising slide
+    does: SA stops once as low as the warm start, runs fewer iterations than down to ε, and
+    ends where that search does. Under ceilings 0.3 times as high, the miss is a wrong
+    basin's, and SA runs down to ε."""
+    model, rig, _, images = sliding
+    previous = _one(model, rig, images[0])[0]
+    ceilings = _ceilings_of(model, rig, images[0], previous)
+    near = {name: 0.55 * level for name, level in ceilings.items()}
+    far = {name: 0.3 * level for name, level in ceilings.items()}
+    q, _, _, its = _one(model, rig, images[1], warm=previous[None], ceilings=near)
+    with monkeypatch.context() as patch:
+        patch.setattr(treefit, "_missed_by_a_slide", lambda *_: False)
+        at_eps, _, _, at_eps_its = _one(model, rig, images[1], warm=previous[None], ceilings=near)
+    _, _, _, far_its = _one(model, rig, images[1], warm=previous[None], ceilings=far)
+    assert 0 < its < at_eps_its and far_its == at_eps_its
+    assert angle_errors(q, at_eps).max() < 0.5
