@@ -212,8 +212,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
         if best is None or value < best[1]:
             best = (q, value, False)
     if best is not None and ceiling is not None and views:
-        limit = ceiling() * _compared(unseen, start, len(kin.marker_joint))
-        best = (best[0], best[1], bool(_ceiling_level(best[0], kin, rig, image, params)[0] < limit))
+        best = (best[0], best[1], _under_ceiling(best[0], kin, rig, image, params, ceiling()))
     return best
 
 
@@ -522,10 +521,18 @@ def _missed_by_a_slide(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray
     hidden: 76.7 → 68.3 % of images within 5°; docs/BENCH_SUBJECTS.md)."""
     if not math.isfinite(ceiling):
         return False
-    unseen = _in_seen_views(unseen, start)
-    image = _image(points, start, params, off, unseen)
-    limit = SLIDE_FACTOR * ceiling * _compared(unseen, start, len(kin.marker_joint))
-    return not _lost(q, kin, rig, image).any() and _ceiling_level(q, kin, rig, image, params)[0] < limit
+    image = _image(points, start, params, off, _in_seen_views(unseen, start))
+    return not _lost(q, kin, rig, image).any() and _under_ceiling(q, kin, rig, image, params,
+                                                                  SLIDE_FACTOR * ceiling)
+
+
+def _under_ceiling(q: np.ndarray, kin, rig: Rig, image: _kernels.Image, params: FitParams,
+                   per_projection: float) -> bool:
+    """Whether a part's posture ``q`` (d,), posed by ``kin``, has its level on ``image``
+    (:func:`_ceiling_level`) under ``per_projection`` pixels per compared projection (its
+    projections in views with detections, less those ``image.unseen`` leaves out)."""
+    limit = per_projection * _compared(image.unseen, image.start, len(kin.marker_joint))
+    return bool(_ceiling_level(q, kin, rig, image, params)[0] < limit)
 
 
 def _in_seen_views(unseen: np.ndarray, start: np.ndarray) -> np.ndarray:
