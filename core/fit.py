@@ -54,8 +54,10 @@ from core.treefit import (
 from core.undetermined import (
     UNDETERMINED_DEG,
     borrowed_projections,
+    crossed_markers,
     fused_projections,
     hidden_projections,
+    marker_lineage,
     residual_tolerance,
     scatter_error,
     typical_inflation,
@@ -537,7 +539,9 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
         distances = marker_errors(projected, det)
         if hidden_projections(distances, penalty).any():
             unseen = unseen_markers(distances, penalty, borrowed_projections(projected, det),
-                                    fused_projections(projected, det, params.fusion_px))
+                                    fused_projections(projected, det, params.fusion_px),
+                                    crossed_markers(projected, det, params.fusion_px,
+                                                    marker_lineage(model)))
     if not unseen.any() and _witness_readings(params, det, model, fit.error) is None:
         return None
     scatter = scatter_error(fit.dofs, det, model, rig, off, penalty, params.fusion_px)

@@ -23,15 +23,17 @@ import numpy as np
 
 from core import _kernels
 from core.ambiguity import Candidate, angle_gaps, plain_error
-from core.error import Detections, marker_errors, nearest_detection, view_offsets
+from core.error import FUSION_DIAMETERS, Detections, marker_errors, nearest_detection, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
+from core.tree import _subtrees
 from core.treefit import FUSED_PX, MAX_LOST_SHARE, world_frames
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "borrowed_projections",
-           "confidence_chi2", "fused_projections", "hidden_projections", "interval_chi2", "moved_projections",
-           "residual_shares", "residual_tolerance", "scatter_error", "shared_scatter_inflation",
-           "typical_inflation", "undetermined_alternative", "unseen_markers"]
+           "confidence_chi2", "crossed_markers", "fused_projections", "hidden_projections",
+           "interval_chi2", "marker_lineage", "moved_projections", "residual_shares",
+           "residual_tolerance", "scatter_error", "shared_scatter_inflation", "typical_inflation",
+           "undetermined_alternative", "unseen_markers"]
 
 # An image does not determine a DOF when a posture this far from its fit in that DOF (degrees,
 # the issue's "more than 10 degrees off the truth") explains it within its tolerance.
@@ -82,7 +84,7 @@ def hidden_projections(distances: np.ndarray, penalty: float) -> np.ndarray:
 
 
 def unseen_markers(distances: np.ndarray, penalty: float, borrowed: np.ndarray | None = None,
-                   fused: np.ndarray | None = None) -> np.ndarray:
+                   fused: np.ndarray | None = None, crossed: np.ndarray | None = None) -> np.ndarray:
     """(M,) bool: the markers that no camera sees in this image, or one alone of three or
     more. The image then does not place the DOFs only they place (a claw's tarsus):
     :func:`undetermined_alternative` leaves them out.
@@ -94,7 +96,9 @@ def unseen_markers(distances: np.ndarray, penalty: float, borrowed: np.ndarray |
     M) bool, :func:`fused_projections`: big markers whose joints touch fuse in every view,
     the merged blob's centroid far from each), and it is seen in no view with blobs, in
     one alone where three or more have blobs, or only where it is fused (on no blob of its
-    own). ``borrowed`` and ``fused`` are none where not given.
+    own). A marker ``crossed`` (M,) bool (:func:`crossed_markers`: fused with another limb's
+    marker in every view) is unseen with no projection hidden. ``borrowed``, ``fused`` and
+    ``crossed`` are none where not given.
 
     Why one of three: a marker hidden from every camera is charged its distance to the
     nearest blob, and a posture that puts it on some other blob in one view (a ghost, 3 px
@@ -119,7 +123,8 @@ def unseen_markers(distances: np.ndarray, penalty: float, borrowed: np.ndarray |
     seen = np.where((on_blob & ~fused[views]).any(axis=0), np.count_nonzero(on_blob, axis=0), 0)
     if not views.any():
         return np.zeros(len(seen), bool)
-    return (seen < (2 if np.count_nonzero(views) >= 3 else 1)) & (hidden & ~fused).any(axis=0)
+    crossed = np.zeros(len(seen), bool) if crossed is None else crossed
+    return (seen < (2 if np.count_nonzero(views) >= 3 else 1)) & ((hidden & ~fused).any(axis=0) | crossed)
 
 
 def borrowed_projections(projected: np.ndarray, detections: Detections) -> np.ndarray:
@@ -195,10 +200,51 @@ def fused_projections(projected: np.ndarray, detections: Detections, fusion_px: 
 def _fused_in_view(projected: np.ndarray, nearest: np.ndarray, fusion_px: float) -> np.ndarray:
     """:func:`fused_projections` of one view: ``projected`` (M, 2), each projection's
     nearest blob ``nearest`` (M,)."""
+    return _fused_pairs(projected, nearest, fusion_px).any(axis=1)
+
+
+def _fused_pairs(projected: np.ndarray, nearest: np.ndarray, fusion_px: float) -> np.ndarray:
+    """(M, M) bool, symmetric: projections ``projected`` (M, 2) of one view closer than
+    ``fusion_px`` to each other on one blob (``nearest`` (M,), each one's nearest blob)."""
     gap = projected[:, None, :] - projected[None, :, :]
     near = np.einsum("ijk,ijk->ij", gap, gap) < fusion_px * fusion_px
     np.fill_diagonal(near, False)
-    return (near & (nearest[:, None] == nearest[None, :])).any(axis=1)
+    return near & (nearest[:, None] == nearest[None, :])
+
+
+def crossed_markers(projected: np.ndarray, detections: Detections, fusion_px: float,
+                    lineage: np.ndarray) -> np.ndarray:
+    """(M,) bool: the markers at one point with a marker of another limb (outside their
+    ``lineage`` (M, M) bool, :func:`marker_lineage`): on one blob with it, less than half a
+    marker's diameter away (``fusion_px`` / ``core.error.FUSION_DIAMETERS`` is the
+    diameter), in every view with blobs, two or more. Two real markers cannot lie that
+    close in two views (each is a marker's diameter across); the images cannot tell one
+    marker there from two, so they place neither limb's DOFs that only it places.
+
+    Why: a rat whose right ankle and toe no camera saw was fitted with its right leg folded
+    onto its left, the two ankles and the two toes 0.03 px apart in all three views; no
+    projection of theirs looked hidden, and hip flexion was 35° off, ``ok``, with no
+    alternative. Why half a diameter, not ``fusion_px``: 9 px markers on two legs' knees
+    fuse into one blob in every view of clean images, 10-15 px apart. Why other limbs only:
+    a model may place two markers of one limb that close.
+    """
+    views = [v for v in range(projected.shape[0]) if len(detections.view(v))]
+    if len(views) < 2:
+        return np.zeros(projected.shape[1], bool)
+    crossed = ~lineage
+    for v in views:
+        nearest = nearest_detection(projected[v], detections.view(v))[0]
+        crossed = crossed & _fused_pairs(projected[v], nearest, 0.5 * fusion_px / FUSION_DIAMETERS)
+    return crossed.any(axis=1)
+
+
+def marker_lineage(model: KinematicModel) -> np.ndarray:
+    """(M, M) bool: True where one marker's joint is the other's or lies above it in the
+    tree (one limb), False for markers of two limbs (the left and right ankle)."""
+    kin = model.arrays
+    below = _subtrees(kin.parent)
+    joint = kin.marker_joint
+    return below[joint][:, joint] | below[joint][:, joint].T
 
 
 def residual_tolerance(error_px: float, compared: int, n_dofs: int, tested_dofs: int,
