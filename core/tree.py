@@ -17,7 +17,10 @@ is four parts of 3-6 DOFs, not one of 18. The parts come in fitting order, paren
 children; each knows its base, the joint whose world frame the parts before it have fixed.
 
 The decomposition is read from the model alone. A single chain (the locust leg)
-has no split, so it stays one part and is fitted exactly as before. The root's trunk
+has no split, so it stays one part and is fitted exactly as before, unless it is long: a
+chain of more than :data:`MAX_PART_DOFS` DOFs (a tail, a spine of many vertebrae), alone
+on a fixed root or hanging as a branch, is cut into segments fitted one after another,
+each given the one above, where their markers fix them (:func:`_segments`). The root's trunk
 with DOFs is fitted first only when its own markers can fix its pose (at least three,
 or one for a trunk that only translates): otherwise the whole tree is fitted at
 once. A branch's own trunk hangs from a fixed base, so counting cannot say it: it is
@@ -45,6 +48,12 @@ from core.model import KinematicArrays, KinematicModel, _topological_order
 __all__ = ["Part", "Tree", "decompose"]
 
 REACH_MARGIN = 1.25  # a branch's projected reach is widened by this factor
+# A chain (a branch, or a model on a fixed root that does not split) with more DOFs than
+# this is cut into segments of at least SEGMENT_DOFS, each fitted given the one above
+# (_segments). SA over one chain of 16 DOFs still fits every image within 5 deg; of 24 it
+# slows fourfold and misses (docs/BENCH_SUBJECTS.md, bench/chain.py).
+MAX_PART_DOFS = 16
+SEGMENT_DOFS = 4
 FIX_POSTURES = 4  # postures at which a branch's own trunk must be fixed by its markers
 # Least singular value of a branch trunk's Jacobian (reach per radian): a 1 degree change in
 # its least determined direction moves its markers by 0.1 x reach x pi / 180 or more
@@ -166,7 +175,7 @@ def decompose(model: KinematicModel) -> Tree | None:
     topo = _Topology.of(model)
     split, kids = topo.split(0)
     if len(kids) < 2:
-        return None
+        return _root_chain(model, topo)
     in_branch = topo.below[kids].any(axis=0)
     trunk_part = _trunk(model, np.flatnonzero(~in_branch), topo.dof_joint)
     if trunk_part is False:
@@ -186,7 +195,7 @@ def _hanging(model: KinematicModel, topo: _Topology, base: int, top: int) -> lis
     whole = [_branch(model, topo, base, np.flatnonzero(topo.below[top]))]
     split, kids = topo.split(top)
     if len(kids) < 2:
-        return whole
+        return _segments(model, topo, base, top) or whole
     own = np.flatnonzero(topo.below[top] & ~topo.below[kids].any(axis=0))
     parts = []
     if np.isin(topo.dof_joint, own).any():
@@ -197,6 +206,55 @@ def _hanging(model: KinematicModel, topo: _Topology, base: int, top: int) -> lis
     for c in kids:
         parts += _hanging(model, topo, split, c)
     return parts
+
+
+def _root_chain(model: KinematicModel, topo: _Topology) -> Tree | None:
+    """A model that never splits, as parts: None (fitted whole, as the paper's leg) unless
+    it has more than :data:`MAX_PART_DOFS` DOFs, its root's own joint has none (a fixed
+    body), and the chain below it cuts into segments (:func:`_segments`)."""
+    if len(model.dofs) <= MAX_PART_DOFS or np.any(topo.dof_joint == 0):
+        return None
+    kids = [c for c in topo.children[0] if topo.carrying[c]]
+    parts = _segments(model, topo, 0, kids[0]) if len(kids) == 1 else None
+    return Tree(tuple(parts)) if parts else None
+
+
+def _segments(model: KinematicModel, topo: _Topology, base: int, top: int) -> list[Part] | None:
+    """A chain hanging from joint ``base`` from joint ``top`` (no split below) with more than
+    :data:`MAX_PART_DOFS` DOFs, cut into segments fitted one after another: each the
+    shortest run of the chain's joints, from where the one above ends, that has at least
+    :data:`SEGMENT_DOFS` DOFs and whose markers fix them given its base (:func:`_fixes`),
+    the last one taking the rest (at least :data:`SEGMENT_DOFS` DOFs; nothing hangs from
+    it, so it need not fix them). None where the chain has no more DOFs than
+    :data:`MAX_PART_DOFS` or no segment fixes its DOFs.
+
+    Why: SA over one chain's DOFs at once slows and misses as the chain grows: a tail of 12
+    joints, 24 DOFs, fitted 9.7 images per CPU second, one image 9.9° off; in six
+    segments 155 with every image within 1° (``bench/chain.py``). A segment's markers are
+    those of its joints and those at the origin of the joint below its end, which only its
+    DOFs move (:func:`_part_arrays`). Its cost: a segment whose end marker one camera alone
+    sees is placed by that view alone, and the segments below cannot turn it back.
+    """
+    path = [top]
+    while kids := [c for c in topo.children[path[-1]] if topo.carrying[c]]:
+        path.append(kids[0])
+    if np.count_nonzero(np.isin(topo.dof_joint, np.flatnonzero(topo.below[top]))) <= MAX_PART_DOFS:
+        return None
+    parts: list[Part] = []
+    start, at = 0, base
+    for end in range(1, len(path)):
+        joints = np.flatnonzero(topo.below[path[start]] & ~topo.below[path[end]])
+        if np.count_nonzero(np.isin(topo.dof_joint, joints)) < SEGMENT_DOFS:
+            continue
+        if np.count_nonzero(np.isin(topo.dof_joint, np.flatnonzero(topo.below[path[end]]))) < SEGMENT_DOFS:
+            break
+        segment = _branch(model, topo, at, joints, below=path[end], above=path[start] if parts else -1)
+        if _fixes(segment, model):
+            parts.append(segment)
+            start, at = end, path[end - 1]
+    if not parts:
+        return None
+    return [*parts, _branch(model, topo, at, np.flatnonzero(topo.below[path[start]]), above=path[start])]
 
 
 def _subtrees(parent: np.ndarray) -> np.ndarray:
@@ -230,11 +288,18 @@ def _trunk(model: KinematicModel, joints: np.ndarray, dof_joint: np.ndarray) -> 
     return Part(_name(model, int(joints[0])), joints, none, dofs, markers, -1, kin, np.inf)
 
 
-def _branch(model: KinematicModel, topo: _Topology, base: int, joints: np.ndarray) -> Part:
-    """The joints ``joints`` hanging from joint ``base``, as a part with its base first."""
+def _branch(model: KinematicModel, topo: _Topology, base: int, joints: np.ndarray,
+            below: int = -1, above: int = -1) -> Part:
+    """The joints ``joints`` hanging from joint ``base``, as a part with its base first. A
+    chain's segment (:func:`_segments`) takes the markers at the origin of ``below``, the
+    joint under its end, and leaves those at the origin of ``above``, its top joint, to the
+    segment above."""
     dofs = np.flatnonzero(np.isin(topo.dof_joint, joints))
     marker_joint = model.arrays.marker_joint
-    markers = np.flatnonzero(np.isin(marker_joint, joints))
+    at_origin = ~model.arrays.marker_pos.any(axis=1)
+    owned = (np.isin(marker_joint, joints) & ~((marker_joint == above) & at_origin)
+             | (marker_joint == below) & at_origin)
+    markers = np.flatnonzero(owned)
     kin = _part_arrays(model.arrays, joints, dofs, markers, base=base)
     others = np.delete(marker_joint, markers)
     rotating = np.isin(joints, topo.dof_joint[model.rotational])
@@ -247,15 +312,16 @@ def _fixes(part: Part, model: KinematicModel) -> bool:
     """Whether the markers of ``part`` fix its DOFs given its base frame: at each of
     :data:`FIX_POSTURES` postures (fixed draws through the middle 80 % of the DOF ranges), the
     Jacobian of its marker positions (3m, d) (``core.identifiability.marker_jacobian``:
-    rotations per radian in units of the part's reach, translations per model unit) has no
-    singular value below :data:`FIX_SINGULAR`.
+    rotations per radian in units of the part's reach about its top joint, translations per
+    model unit) has no singular value below :data:`FIX_SINGULAR`. About its top joint, not
+    its base: a tail's first joint 14 mm behind the thorax turns markers 4-8 mm from it.
 
     Counting markers cannot say it for a chain of several joints: a rotation about the
     line through the base origin and a lone marker moves nothing, and two joints that each
     rotate three ways are not fixed by three markers on the second. The root's trunk keeps
     its count (:func:`_trunk`): nothing fixes its base.
     """
-    d, reach = len(part.dofs), part.reach
+    d, reach = len(part.dofs), _reach(part.kin, top=1)
     if d == 0 or reach <= 0.0 or 3 * len(part.markers) < d:
         return False
     lower, upper = model.lower[part.dofs], model.upper[part.dofs]
@@ -289,18 +355,24 @@ def _part_arrays(full: KinematicArrays, joints: np.ndarray, dofs: np.ndarray, ma
         parent[0] = -1
         offset[0], rest[0], identity[0] = 0.0, np.eye(3), True
         rot_dof[0], trans_dof[0] = -1, -1
-    marker_joint = np.array([local[int(full.marker_joint[m])] for m in markers], dtype=np.int64)
+    # a marker at the origin of the joint below a segment's end sits there on its parent
+    joint = full.marker_joint[markers]
+    outside = np.array([int(j) not in local for j in joint], dtype=bool)
+    position = full.marker_pos[markers].copy().reshape(-1, 3)
+    position[outside] = full.offset[joint[outside]]
+    joint = np.where(outside, full.parent[joint], joint)
+    marker_joint = np.array([local[int(j)] for j in joint], dtype=np.int64)
     return KinematicArrays(parent, offset, rest, identity, rot_dof.astype(np.int64),
-                           trans_dof.astype(np.int64), marker_joint,
-                           full.marker_pos[markers].copy().reshape(-1, 3))
+                           trans_dof.astype(np.int64), marker_joint, position)
 
 
-def _reach(kin: KinematicArrays) -> float:
-    """Upper bound on how far any marker of a branch lies from its base origin (model units):
-    the longest chain of offsets from the base, plus the marker's own offset."""
+def _reach(kin: KinematicArrays, top: int = 0) -> float:
+    """Upper bound on how far any marker of a branch lies from its base origin (model units),
+    or from the origin of row ``top`` (1: the top joint under the base): the longest chain
+    of offsets from there, plus the marker's own offset."""
     J = len(kin.parent)
     dist = np.zeros(J)
-    for k in range(1, J):
+    for k in range(top + 1, J):
         dist[k] = dist[kin.parent[k]] + float(np.linalg.norm(kin.offset[k]))
     marker = dist[kin.marker_joint] + np.linalg.norm(kin.marker_pos, axis=1)
     return float(marker.max(initial=0.0))

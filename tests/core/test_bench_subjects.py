@@ -19,6 +19,7 @@ from core.rig import Rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
+from bench.chain import tail
 from bench.subjects import CAMERAS, HEXAPOD_CAMERAS, NAMES, camera_choice, load
 
 SUBJECTS = Path(__file__).resolve().parents[2] / "bench" / "subjects"
@@ -80,6 +81,20 @@ def test_fullbody_tree_splits_twice():
                          + [(n, None) for n in NAMES if n not in CAMERAS])
 def test_movement_projects_inside_every_image(name, cameras):
     subject = load(name, cameras)
+    truth = _moves_inside(subject)
+    if name in ("hexapod", "freefly"):  # walking is smooth (the others jump on purpose: kicks, new passes)
+        assert np.abs(np.diff(truth, axis=0)).max() < 30.0
+
+
+@pytest.mark.parametrize("segments", [2, 4, 8, 12, 16, 24])
+def test_a_tail_swings_inside_every_image(segments):
+    """``bench/chain.py``'s tails: the same 80 mm bent by the same 90° whatever the count."""
+    _moves_inside(tail(segments))
+
+
+def _moves_inside(subject) -> np.ndarray:
+    """150 images of ``subject``'s movement (returned): within the DOF ranges, every marker
+    (the unmodelled ones too) MARGIN_PX inside every view's image."""
     truth = subject.trajectory(150, np.random.default_rng(5))
     model = subject.with_unmodelled_markers()
     assert len(model.markers) == len(subject.model.markers) + len(subject.unmodelled)
@@ -92,8 +107,7 @@ def test_movement_projects_inside_every_image(name, cameras):
         assert np.all(np.isfinite(proj[:, v]))
         assert u.min() >= x + MARGIN_PX and u.max() <= x + w - MARGIN_PX, view.name
         assert vv.min() >= y + MARGIN_PX and vv.max() <= y + h - MARGIN_PX, view.name
-    if name in ("hexapod", "freefly"):  # walking is smooth (the others jump on purpose: kicks, new passes)
-        assert np.abs(np.diff(truth, axis=0)).max() < 30.0
+    return truth
 
 
 def test_free_fly_walks_as_the_tethered_one_on_a_moving_thorax():

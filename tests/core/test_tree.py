@@ -3,13 +3,14 @@ the fit part by part."""
 
 from __future__ import annotations
 
+import itertools
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-from tree_subjects import FREE_ROOT, angle_errors, detections, insect, movement, ring_rig, vertebrate
+from tree_subjects import FREE_ROOT, angle_errors, detections, insect, movement, ring_rig, tail, vertebrate
 
 from core import _kernels
 from core.error import Detections
@@ -19,7 +20,7 @@ from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 from core.sequence import fit_sequence
-from core.tree import _dof_joints, _subtrees
+from core.tree import MAX_PART_DOFS, SEGMENT_DOFS, _dof_joints, _subtrees
 from core.treefit import _rigid_trunk, search_floor, two_sided_error
 
 BENCH = Path(__file__).resolve().parents[2] / "bench" / "subjects"
@@ -53,6 +54,30 @@ def test_a_free_root_with_three_markers_is_a_trunk_fitted_first():
 
 def test_a_free_root_its_markers_cannot_fix_makes_the_tree_one_part():
     assert insect(legs=2, root_dofs=FREE_ROOT, thorax_markers=2).tree is None
+
+
+@pytest.mark.parametrize("legs", [0, 2], ids=["alone", "beside two legs"])
+def test_a_long_chain_is_cut_into_segments_each_hanging_from_the_one_above(legs):
+    """A tail of 12 joints (24 DOFs, a marker at each one's end): segments of
+    SEGMENT_DOFS DOFs, each a run of the chain's joints from where the one above ends, with
+    the markers of its joints and the one at the origin of the joint below its end; every
+    tail marker in one segment."""
+    model = tail(12, legs=legs)
+    segments = [p for p in model.tree.parts if p.name.startswith("t")]
+    assert [len(p.dofs) for p in segments] == [SEGMENT_DOFS] * (24 // SEGMENT_DOFS)
+    tail_markers = [m for m, marker in enumerate(model.markers) if marker.name.startswith("tail")]
+    owned = np.concatenate([p.markers for p in segments])
+    assert sorted(owned.tolist()) == tail_markers
+    for above, below in itertools.pairwise(segments):
+        assert below.base == above.joints[-1]
+    legs_parts = [p.name for p in model.tree.parts if not p.name.startswith("t")]
+    assert legs_parts == [f"leg{k}_coxa" for k in range(legs)]
+
+
+def test_a_chain_of_no_more_than_max_part_dofs_stays_one_part():
+    assert len(tail(MAX_PART_DOFS // 2).dofs) == MAX_PART_DOFS
+    assert tail(MAX_PART_DOFS // 2).tree is None
+    assert [len(p.dofs) for p in tail(MAX_PART_DOFS // 2, legs=2).tree.parts] == [MAX_PART_DOFS, 5, 5]
 
 
 @pytest.mark.parametrize("model", [insect(legs=3), insect(legs=2, root_dofs=FREE_ROOT),
@@ -130,8 +155,8 @@ def test_the_search_floor_is_the_smallest_part_eps_or_eps_for_a_chain():
     assert search_floor(chain, wider, 2) == 2.0
 
 
-@pytest.mark.parametrize("model", [insect(legs=3, root_dofs=FREE_ROOT), vertebrate(root_dofs=FREE_ROOT)],
-                         ids=["insect", "nested"])
+@pytest.mark.parametrize("model", [insect(legs=3, root_dofs=FREE_ROOT), vertebrate(root_dofs=FREE_ROOT),
+                                   tail(12, legs=2)], ids=["insect", "nested", "tail"])
 def test_a_part_posed_at_its_base_puts_its_markers_where_the_whole_model_does(model):
     """The part's arrays, with its base at the frame the whole posture gives it, are the
     model's own kinematics."""
@@ -182,6 +207,15 @@ def test_a_tree_that_splits_twice_fits_part_by_part(root_dofs):
     err = angle_errors(fitted, truth)
     assert err[:, ~model.rotational].max(initial=0.0) < 0.05
     assert err[:, model.rotational].max() < 1.0
+    assert all(f.status.value == "ok" for f in fits)
+
+
+def test_a_long_chain_fits_segment_by_segment():
+    """A tail of 12 joints (24 DOFs) in six segments: every DOF within a degree."""
+    model, rig = tail(12), ring_rig(3, distance=200.0)
+    truth = movement(model, 12, seed=1)
+    fitted, fits = _fit(model, rig, truth)
+    assert angle_errors(fitted, truth).max() < 1.0
     assert all(f.status.value == "ok" for f in fits)
 
 

@@ -39,6 +39,27 @@ def insect(legs: int = 2, root_dofs: str = "", thorax_markers: int = 3,
     return KinematicModel.from_xml("\n".join([*out, "</model>"]))
 
 
+def tail(segments: int, legs: int = 0) -> KinematicModel:
+    """A fixed thorax (3 markers) with a tail of ``segments`` joints behind it (4 mm apart,
+    yaw ±30° and pitch ±20° each, a marker at each one's end: at the origin of the joint
+    below) and ``legs`` of the insect's legs."""
+    out = ['<model name="tail" units="mm">', '<joint name="thorax"></joint>']
+    parent = "thorax"
+    for k in range(segments):
+        out.append(f'<joint name="t{k}" parent="{parent}"><offset x="{-4 if k else -14}" y="0" z="0"/>'
+                   f'<dof axis="z" name="t{k}_yaw" min="-30" max="30"/>'
+                   f'<dof axis="y" name="t{k}_pitch" min="-20" max="20"/></joint>')
+        parent = f"t{k}"
+    out.append(f'<joint name="tip" parent="{parent}"><offset x="-4" y="0" z="0"/></joint>')
+    ends = [f"t{k}" for k in range(1, segments)] + ["tip"]
+    out += [f'<marker name="tail{k}" joint="{j}" x="0" y="0" z="0"/>' for k, j in enumerate(ends)]
+    for k in range(legs):
+        out += _leg(f"leg{k}", "thorax", 12.0 - 12.0 * (k // 2), 3.0 if k % 2 == 0 else -3.0)
+    out += [f'<marker name="T{i}" joint="thorax" x="{x}" y="{y}" z="{z}"/>'
+            for i, (x, y, z) in enumerate([(14, 0, 1), (-10, 0, 1), (0, 2, 3)])]
+    return KinematicModel.from_xml("\n".join([*out, "</model>"]))
+
+
 SPINE_MARKERS = ((12.0, 0.0, 1.0), (8.0, 3.0, 2.0))
 
 
