@@ -96,8 +96,8 @@ def unseen_markers(distances: np.ndarray, penalty: float, borrowed: np.ndarray |
     M) bool, :func:`fused_projections`: big markers whose joints touch fuse in every view,
     the merged blob's centroid far from each), and it is seen in no view with blobs, in
     one alone where three or more have blobs, or only where it is fused (on no blob of its
-    own). A marker ``crossed`` (M,) bool (:func:`crossed_markers`: fused with another limb's
-    marker in every view) is unseen with no projection hidden. ``borrowed``, ``fused`` and
+    own). A marker ``crossed`` (M,) bool (:func:`crossed_markers`: at one point with another
+    limb's marker in every view) is unseen with no projection hidden. ``borrowed``, ``fused`` and
     ``crossed`` are none where not given.
 
     Why one of three: a marker hidden from every camera is charged its distance to the
