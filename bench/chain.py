@@ -1,20 +1,23 @@
-"""Many-joint chains: a tail of N segments fitted as one part (paper §4's "larger number of joints").
+"""Many-joint chains: a tail of N joints (paper §4's "larger number of joints").
 
     python bench/chain.py [--segments 4 8 12 16] [--images 40] [--seed 0] [--ghosts 2]
         [--soft-tissue] [--occlusion F]
 
-A chain has no split, so ``core.tree`` keeps it one part and SA searches all its DOFs at
-once; the whole-animal subjects (``bench/animals.py``) split into parts of 3-7 DOFs, so they
-do not show how SA scales along one chain. The subject: a mouse-sized tail, 80 mm in N
-segments of 80 / N mm, each joint a yaw and a pitch, one marker at each segment's end, on
-a fixed body with three markers; three pinhole cameras 30° above it, 640×480, about 3.3 px
-per mm. It swings in a travelling wave, 2 Hz, a quarter cycle along the tail, the whole
-tail bending by up to 90° of yaw and 45° of pitch: each joint by 1 / N of that, within a
-range 2.5 times as wide either way. Filmed at 100 Hz, rendered with 5 px markers
-and ``--ghosts`` ghost blobs per view, detected and fitted as ``bench/animals.py`` does;
-``--soft-tissue`` and ``--occlusion`` are its conditions (no unmodelled marker).
+The whole-animal subjects (``bench/animals.py``) split into parts of 2-7 DOFs, so they do
+not show how the fit scales along one chain: ``core.tree`` keeps a chain of up to
+``MAX_PART_DOFS`` DOFs one part, searched by SA at once, and cuts a longer one into
+segments fitted one after another (``core.tree._segments``).
+
+The subject: a mouse-sized tail, 80 mm in N segments of 80 / N mm, each joint a yaw and a
+pitch, one marker at each segment's end, on a fixed body with three markers; three pinhole
+cameras 30° above it, 640×480, about 3.3 px per mm. It swings in a travelling wave, 2 Hz,
+a quarter cycle along the tail, the whole tail bending by up to 90° of yaw and 45° of
+pitch: each joint by 1 / N of that, within a range 2.5 times as wide either way. Filmed at
+100 Hz, rendered with 5 px markers and ``--ghosts`` ghost blobs per view, detected and
+fitted as ``bench/animals.py`` does; ``--soft-tissue`` and ``--occlusion`` are its
+conditions (no unmodelled marker).
 Prints ``bench/animals.py``'s table per N; every image's fit goes to
-``bench/out/chain-<N>.csv``.
+``bench/out/chain-<N>[-soft][-occ<percent>].csv``.
 """
 
 from __future__ import annotations
