@@ -223,7 +223,11 @@ def _segments(model: KinematicModel, topo: _Topology, base: int, top: int) -> li
     """A chain hanging from joint ``base`` from joint ``top`` (no split below) with more than
     :data:`MAX_PART_DOFS` DOFs, cut into segments fitted one after another: each the
     shortest run of the chain's joints, from where the one above ends, that has at least
-    :data:`SEGMENT_DOFS` DOFs and whose markers fix them given its base (:func:`_fixes`),
+    :data:`SEGMENT_DOFS` DOFs and whose markers fix them given its base (:func:`_fixes`, its
+    least singular value allowed :data:`FIX_SINGULAR` over its number of joints with DOFs:
+    along a chain of equal links it falls as the run grows, 0.57, 0.15, 0.085 for one, two
+    and three 2-DOF joints of ``bench/chain.py``'s tail, and a run that failed the plain
+    threshold only failed it more as it grew, leaving one part of up to 22 DOFs),
     the last one taking the rest (at least :data:`SEGMENT_DOFS` DOFs; nothing hangs from
     it, so it need not fix them). None where the chain has no more DOFs than
     :data:`MAX_PART_DOFS` or no segment fixes its DOFs.
@@ -249,7 +253,7 @@ def _segments(model: KinematicModel, topo: _Topology, base: int, top: int) -> li
         if np.count_nonzero(np.isin(topo.dof_joint, np.flatnonzero(topo.below[path[end]]))) < SEGMENT_DOFS:
             break
         segment = _branch(model, topo, at, joints, below=path[end], above=path[start] if parts else -1)
-        if _fixes(segment, model):
+        if _fixes(segment, model, FIX_SINGULAR / len(np.unique(topo.dof_joint[segment.dofs]))):
             parts.append(segment)
             start, at = end, path[end - 1]
     if not parts:
@@ -308,7 +312,7 @@ def _branch(model: KinematicModel, topo: _Topology, base: int, joints: np.ndarra
     return Part(_name(model, int(joints[0])), joints, flips, dofs, markers, base, kin, _reach(kin))
 
 
-def _fixes(part: Part, model: KinematicModel) -> bool:
+def _fixes(part: Part, model: KinematicModel, singular: float = FIX_SINGULAR) -> bool:
     """Whether the markers of ``part`` fix its DOFs given its base frame: at each of
     :data:`FIX_POSTURES` postures (fixed draws through the middle 80 % of the DOF ranges), the
     Jacobian of its marker positions (3m, d) (``core.identifiability.marker_jacobian``:
@@ -332,7 +336,7 @@ def _fixes(part: Part, model: KinematicModel) -> bool:
 
     for q in lower + unit * (upper - lower):
         jac = marker_jacobian(positions, q, model.rotational[part.dofs], reach)  # (3m, d)
-        if np.linalg.svd(jac, compute_uv=False)[-1] < FIX_SINGULAR:
+        if np.linalg.svd(jac, compute_uv=False)[-1] < singular:
             return False
     return True
 

@@ -10,7 +10,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tree_subjects import FREE_ROOT, angle_errors, detections, insect, movement, ring_rig, tail, vertebrate
+from tree_subjects import (
+    FREE_ROOT,
+    angle_errors,
+    backbone,
+    detections,
+    insect,
+    movement,
+    ring_rig,
+    tail,
+    vertebrate,
+)
 
 from core import _kernels
 from core.error import Detections
@@ -72,6 +82,21 @@ def test_a_long_chain_is_cut_into_segments_each_hanging_from_the_one_above(legs)
         assert below.base == above.joints[-1]
     legs_parts = [p.name for p in model.tree.parts if not p.name.startswith("t")]
     assert legs_parts == [f"leg{k}_coxa" for k in range(legs)]
+
+
+def test_a_backbone_of_three_way_joints_is_cut_into_segments_of_two_vertebrae():
+    """Eight vertebrae of 3 DOFs (24), two markers off the axis of each: segments of two
+    vertebrae (6 DOFs, 4 markers), each fixed by its markers."""
+    tree = backbone(8).tree
+    assert [(len(p.dofs), len(p.markers)) for p in tree.parts] == [(6, 4)] * 4
+
+
+def test_a_chain_of_hinges_is_cut_into_runs_of_four():
+    """Twenty 1-DOF joints, a marker at each one's end. Along a chain of equal links the least
+    singular value falls as the run grows (1.0, 0.21, 0.11, 0.073 for one to four hinges
+    here); held to the plain threshold (0.1), no run of four passed, and the chain stayed
+    one part of 20 DOFs."""
+    assert [len(p.dofs) for p in tail(20, axes="z").tree.parts] == [SEGMENT_DOFS] * (20 // SEGMENT_DOFS)
 
 
 def test_a_chain_of_no_more_than_max_part_dofs_stays_one_part():
@@ -156,7 +181,8 @@ def test_the_search_floor_is_the_smallest_part_eps_or_eps_for_a_chain():
 
 
 @pytest.mark.parametrize("model", [insect(legs=3, root_dofs=FREE_ROOT), vertebrate(root_dofs=FREE_ROOT),
-                                   tail(12, legs=2)], ids=["insect", "nested", "tail"])
+                                   tail(12, legs=2), backbone(8)],
+                         ids=["insect", "nested", "tail", "backbone"])
 def test_a_part_posed_at_its_base_puts_its_markers_where_the_whole_model_does(model):
     """The part's arrays, with its base at the frame the whole posture gives it, are the
     model's own kinematics."""

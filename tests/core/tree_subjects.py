@@ -39,16 +39,17 @@ def insect(legs: int = 2, root_dofs: str = "", thorax_markers: int = 3,
     return KinematicModel.from_xml("\n".join([*out, "</model>"]))
 
 
-def tail(segments: int, legs: int = 0) -> KinematicModel:
+def tail(segments: int, legs: int = 0, axes: str = "zy") -> KinematicModel:
     """A fixed thorax (3 markers) with a tail of ``segments`` joints behind it (4 mm apart,
-    yaw ±30° and pitch ±20° each, a marker at each one's end: at the origin of the joint
-    below) and ``legs`` of the insect's legs."""
+    yaw ±30° and pitch ±20° each, or those of ``axes``; a marker at each one's end: at the
+    origin of the joint below) and ``legs`` of the insect's legs."""
     out = ['<model name="tail" units="mm">', '<joint name="thorax"></joint>']
     parent = "thorax"
     for k in range(segments):
+        dofs = {"z": f'<dof axis="z" name="t{k}_yaw" min="-30" max="30"/>',
+                "y": f'<dof axis="y" name="t{k}_pitch" min="-20" max="20"/>'}
         out.append(f'<joint name="t{k}" parent="{parent}"><offset x="{-4 if k else -14}" y="0" z="0"/>'
-                   f'<dof axis="z" name="t{k}_yaw" min="-30" max="30"/>'
-                   f'<dof axis="y" name="t{k}_pitch" min="-20" max="20"/></joint>')
+                   + "".join(dofs[a] for a in axes) + "</joint>")
         parent = f"t{k}"
     out.append(f'<joint name="tip" parent="{parent}"><offset x="-4" y="0" z="0"/></joint>')
     ends = [f"t{k}" for k in range(1, segments)] + ["tip"]
@@ -57,6 +58,23 @@ def tail(segments: int, legs: int = 0) -> KinematicModel:
         out += _leg(f"leg{k}", "thorax", 12.0 - 12.0 * (k // 2), 3.0 if k % 2 == 0 else -3.0)
     out += [f'<marker name="T{i}" joint="thorax" x="{x}" y="{y}" z="{z}"/>'
             for i, (x, y, z) in enumerate([(14, 0, 1), (-10, 0, 1), (0, 2, 3)])]
+    return KinematicModel.from_xml("\n".join([*out, "</model>"]))
+
+
+def backbone(vertebrae: int) -> KinematicModel:
+    """A fixed pelvis (3 markers) with a chain of ``vertebrae`` joints 5 mm apart, each
+    turning three ways (±15°) and carrying two markers off its axis, 1.5 mm to either side."""
+    out = ['<model name="backbone" units="mm">', '<joint name="pelvis"></joint>']
+    parent = "pelvis"
+    for k in range(vertebrae):
+        out.append(f'<joint name="v{k}" parent="{parent}"><offset x="5" y="0" z="0"/>'
+                   + "".join(f'<dof axis="{a}" name="v{k}_{a}" min="-15" max="15"/>' for a in "zyx")
+                   + "</joint>")
+        out += [f'<marker name="v{k}{side}" joint="v{k}" x="2.5" y="{1.5 * sign}" z="1"/>'
+                for side, sign in (("L", 1), ("R", -1))]
+        parent = f"v{k}"
+    out += [f'<marker name="P{i}" joint="pelvis" x="{x}" y="{y}" z="{z}"/>'
+            for i, (x, y, z) in enumerate([(-10, 0, 1), (0, 3, 2), (0, -3, 2)])]
     return KinematicModel.from_xml("\n".join([*out, "</model>"]))
 
 
