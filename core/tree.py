@@ -19,8 +19,8 @@ children; each knows its base, the joint whose world frame the parts before it h
 The decomposition is read from the model alone. A single chain (the locust leg)
 has no split, so it stays one part and is fitted exactly as before, unless it is long: a
 chain of more than :data:`MAX_PART_DOFS` DOFs (a tail, a spine of many vertebrae), alone
-on a fixed root or hanging as a branch, is cut into segments fitted one after another,
-each given the one above, where their markers fix them (:func:`_segments`). The root's trunk
+on a fixed root, hanging as a branch or a branch's own trunk, is cut into segments fitted
+one after another, each given the one above, where their markers fix them (:func:`_segments`). The root's trunk
 with DOFs is fitted first only when its own markers can fix its pose (at least three,
 or one for a trunk that only translates): otherwise the whole tree is fitted at
 once. A branch's own trunk hangs from a fixed base, so counting cannot say it: it is
@@ -189,20 +189,23 @@ def decompose(model: KinematicModel) -> Tree | None:
 def _hanging(model: KinematicModel, topo: _Topology, base: int, top: int) -> list[Part]:
     """The parts, in fitting order, of the subtree from joint ``top`` hanging from joint
     ``base``: the subtree whole (one branch) unless it splits again and its own trunk (the
-    joints above that split) either has no DOFs or has markers that fix its DOFs given the
-    base (:func:`_fixes`); then that trunk (if it has DOFs) followed by each sub-branch's
-    parts, hanging from the split."""
+    joints above that split) either has no DOFs, or has markers that fix its DOFs given the
+    base (:func:`_fits`), or is a long chain cut into segments (:func:`_segments`); then
+    that trunk (if it has DOFs) followed by each sub-branch's parts, hanging from the split.
+    Where it never splits, a long chain is cut into segments too."""
     whole = [_branch(model, topo, base, np.flatnonzero(topo.below[top]))]
     split, kids = topo.split(top)
     if len(kids) < 2:
         return _segments(model, topo, base, top) or whole
-    own = np.flatnonzero(topo.below[top] & ~topo.below[kids].any(axis=0))
+    region = topo.below[top] & ~topo.below[kids].any(axis=0)
+    own = np.flatnonzero(region)
     parts = []
     if np.isin(topo.dof_joint, own).any():
+        segments = _segments(model, topo, base, top, region)
         trunk = _branch(model, topo, base, own)
-        if not _fixes(trunk, model):
+        if segments is None and not _fits(trunk, model, topo):
             return whole
-        parts.append(trunk)
+        parts += segments or [trunk]
     for c in kids:
         parts += _hanging(model, topo, split, c)
     return parts
@@ -219,18 +222,17 @@ def _root_chain(model: KinematicModel, topo: _Topology) -> Tree | None:
     return Tree(tuple(parts)) if parts else None
 
 
-def _segments(model: KinematicModel, topo: _Topology, base: int, top: int) -> list[Part] | None:
-    """A chain hanging from joint ``base`` from joint ``top`` (no split below) with more than
-    :data:`MAX_PART_DOFS` DOFs, cut into segments fitted one after another: each the
+def _segments(model: KinematicModel, topo: _Topology, base: int, top: int,
+              region: np.ndarray | None = None) -> list[Part] | None:
+    """A chain hanging from joint ``base`` from joint ``top`` with more than
+    :data:`MAX_PART_DOFS` DOFs, cut into segments fitted one after another: the whole
+    subtree of ``top`` where it never splits, or a branch's own trunk, the joints ``region``
+    (J,) bool above its split, from which its sub-branches then hang. Each segment is the
     shortest run of the chain's joints, from where the one above ends, that has at least
-    :data:`SEGMENT_DOFS` DOFs and whose markers fix them given its base (:func:`_fixes`, its
-    least singular value allowed :data:`FIX_SINGULAR` over its number of joints with DOFs:
-    along a chain of equal links it falls as the run grows, 0.57, 0.15, 0.085 for one, two
-    and three 2-DOF joints of ``bench/chain.py``'s tail, and a run that failed the plain
-    threshold only failed it more as it grew, leaving one part of up to 22 DOFs),
-    the last one taking the rest (at least :data:`SEGMENT_DOFS` DOFs; nothing hangs from
-    it, so it need not fix them). None where the chain has no more DOFs than
-    :data:`MAX_PART_DOFS` or no segment fixes its DOFs.
+    :data:`SEGMENT_DOFS` DOFs and whose markers fix them given its base (:func:`_fits`); the
+    last one takes the rest (at least :data:`SEGMENT_DOFS` DOFs), and must fix them too
+    where sub-branches hang from it. None where the chain has no more DOFs than
+    :data:`MAX_PART_DOFS` or it cannot be cut so.
 
     Why: SA over one chain's DOFs at once slows and misses as the chain grows: a tail of 12
     joints, 24 DOFs, fitted 9.7 images per CPU second, one image 9.9° off; in six
@@ -239,26 +241,45 @@ def _segments(model: KinematicModel, topo: _Topology, base: int, top: int) -> li
     DOFs move (:func:`_part_arrays`). Its cost: a segment whose end marker one camera alone
     sees is placed by that view alone, and the segments below cannot turn it back.
     """
+    region = topo.below[top] if region is None else region
     path = [top]
-    while kids := [c for c in topo.children[path[-1]] if topo.carrying[c]]:
+    while kids := [c for c in topo.children[path[-1]] if topo.carrying[c] and region[c]]:
         path.append(kids[0])
-    if np.count_nonzero(np.isin(topo.dof_joint, np.flatnonzero(topo.below[top]))) <= MAX_PART_DOFS:
+
+    def dofs_in(joints: np.ndarray) -> int:
+        return int(np.count_nonzero(np.isin(topo.dof_joint, np.flatnonzero(joints & region))))
+
+    if dofs_in(topo.below[top]) <= MAX_PART_DOFS:
         return None
     parts: list[Part] = []
     start, at = 0, base
     for end in range(1, len(path)):
-        joints = np.flatnonzero(topo.below[path[start]] & ~topo.below[path[end]])
-        if np.count_nonzero(np.isin(topo.dof_joint, joints)) < SEGMENT_DOFS:
+        joints = topo.below[path[start]] & ~topo.below[path[end]]
+        if dofs_in(joints) < SEGMENT_DOFS:
             continue
-        if np.count_nonzero(np.isin(topo.dof_joint, np.flatnonzero(topo.below[path[end]]))) < SEGMENT_DOFS:
+        if dofs_in(topo.below[path[end]]) < SEGMENT_DOFS:
             break
-        segment = _branch(model, topo, at, joints, below=path[end], above=path[start] if parts else -1)
-        if _fixes(segment, model, FIX_SINGULAR / len(np.unique(topo.dof_joint[segment.dofs]))):
+        segment = _branch(model, topo, at, np.flatnonzero(joints & region), below=path[end],
+                          above=path[start] if parts else -1)
+        if _fits(segment, model, topo):
             parts.append(segment)
             start, at = end, path[end - 1]
     if not parts:
         return None
-    return [*parts, _branch(model, topo, at, np.flatnonzero(topo.below[path[start]]), above=path[start])]
+    last = _branch(model, topo, at, np.flatnonzero(topo.below[path[start]] & region), above=path[start])
+    if not region[topo.below[top]].all() and not _fits(last, model, topo):
+        return None
+    return [*parts, last]
+
+
+def _fits(segment: Part, model: KinematicModel, topo: _Topology) -> bool:
+    """Whether the markers of a chain's run ``segment`` fix its DOFs given its base:
+    :func:`_fixes` with the least singular value allowed :data:`FIX_SINGULAR` over its
+    number of joints with DOFs. Along a chain of equal links that value falls as the run
+    grows (0.57, 0.15, 0.085 for one, two and three 2-DOF joints of ``bench/chain.py``'s
+    tail), and a run that failed the plain threshold only failed it more as it grew,
+    leaving one part of up to 22 DOFs."""
+    return _fixes(segment, model, FIX_SINGULAR / len(np.unique(topo.dof_joint[segment.dofs])))
 
 
 def _subtrees(parent: np.ndarray) -> np.ndarray:

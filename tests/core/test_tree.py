@@ -30,7 +30,7 @@ from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 from core.sequence import fit_sequence
-from core.tree import MAX_PART_DOFS, SEGMENT_DOFS, _dof_joints, _subtrees
+from core.tree import MAX_PART_DOFS, SEGMENT_DOFS, _dof_joints, _name, _subtrees
 from core.treefit import _rigid_trunk, search_floor, two_sided_error
 
 BENCH = Path(__file__).resolve().parents[2] / "bench" / "subjects"
@@ -97,6 +97,24 @@ def test_a_chain_of_hinges_is_cut_into_runs_of_four():
     here); held to the plain threshold (0.1), no run of four passed, and the chain stayed
     one part of 20 DOFs."""
     assert [len(p.dofs) for p in tail(20, axes="z").tree.parts] == [SEGMENT_DOFS] * (20 // SEGMENT_DOFS)
+
+
+def test_a_long_spine_is_cut_into_segments_and_the_arms_hang_from_its_last_vertebra():
+    """Legs on the pelvis, eight vertebrae of 3 DOFs (24), arms on the last: the spine, the
+    arms' own trunk, is cut into segments of two vertebrae, and the arms hang from the last."""
+    model = backbone(8, limbs=True)
+    parts = {p.name: p for p in model.tree.parts}
+    assert [p.name for p in model.tree.parts] == ["leg0_coxa", "leg1_coxa", "v0", "v2", "v4", "v6",
+                                                  "arm0_coxa", "arm1_coxa"]
+    assert [len(parts[v].dofs) for v in ("v0", "v2", "v4", "v6")] == [6, 6, 6, 6]
+    assert _name(model, parts["arm0_coxa"].base) == _name(model, parts["arm1_coxa"].base) == "v7"
+    assert _name(model, parts["v2"].base) == "v1"
+
+
+def test_a_spine_of_four_vertebrae_carrying_arms_is_one_part_fixed_by_its_markers():
+    """Four vertebrae (12 DOFs) are not cut, but their eight markers fix them as a run (each
+    vertebra's own two): one part, the arms after it, not one part of 22 DOFs."""
+    assert [len(p.dofs) for p in backbone(4, limbs=True).tree.parts] == [5, 5, 12, 5, 5]
 
 
 def test_a_chain_of_no_more_than_max_part_dofs_stays_one_part():
@@ -181,7 +199,7 @@ def test_the_search_floor_is_the_smallest_part_eps_or_eps_for_a_chain():
 
 
 @pytest.mark.parametrize("model", [insect(legs=3, root_dofs=FREE_ROOT), vertebrate(root_dofs=FREE_ROOT),
-                                   tail(12, legs=2), backbone(8)],
+                                   tail(12, legs=2), backbone(8, limbs=True)],
                          ids=["insect", "nested", "tail", "backbone"])
 def test_a_part_posed_at_its_base_puts_its_markers_where_the_whole_model_does(model):
     """The part's arrays, with its base at the frame the whole posture gives it, are the

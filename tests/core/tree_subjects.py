@@ -61,10 +61,13 @@ def tail(segments: int, legs: int = 0, axes: str = "zy") -> KinematicModel:
     return KinematicModel.from_xml("\n".join([*out, "</model>"]))
 
 
-def backbone(vertebrae: int) -> KinematicModel:
+def backbone(vertebrae: int, limbs: bool = False) -> KinematicModel:
     """A fixed pelvis (3 markers) with a chain of ``vertebrae`` joints 5 mm apart, each
-    turning three ways (±15°) and carrying two markers off its axis, 1.5 mm to either side."""
+    turning three ways (±15°) and carrying two markers off its axis, 1.5 mm to either side;
+    with ``limbs``, two of the insect's legs on the pelvis and two on the last vertebra."""
     out = ['<model name="backbone" units="mm">', '<joint name="pelvis"></joint>']
+    if limbs:
+        out += _leg("leg0", "pelvis", -3.0, 3.0) + _leg("leg1", "pelvis", -3.0, -3.0)
     parent = "pelvis"
     for k in range(vertebrae):
         out.append(f'<joint name="v{k}" parent="{parent}"><offset x="5" y="0" z="0"/>'
@@ -73,6 +76,8 @@ def backbone(vertebrae: int) -> KinematicModel:
         out += [f'<marker name="v{k}{side}" joint="v{k}" x="2.5" y="{1.5 * sign}" z="1"/>'
                 for side, sign in (("L", 1), ("R", -1))]
         parent = f"v{k}"
+    if limbs:
+        out += _leg("arm0", parent, 0.0, 3.0) + _leg("arm1", parent, 0.0, -3.0)
     out += [f'<marker name="P{i}" joint="pelvis" x="{x}" y="{y}" z="{z}"/>'
             for i, (x, y, z) in enumerate([(-10, 0, 1), (0, 3, 2), (0, -3, 2)])]
     return KinematicModel.from_xml("\n".join([*out, "</model>"]))
