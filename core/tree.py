@@ -20,10 +20,10 @@ The decomposition is read from the model alone. A single chain (the locust leg)
 has no split, so it stays one part and is fitted exactly as before, unless it is long: a
 chain of more than :data:`MAX_PART_DOFS` DOFs (a tail, a spine of many vertebrae), alone
 on a fixed root, hanging as a branch or a branch's own trunk, is cut into segments fitted
-one after another, each given the one above, where their markers fix them (:func:`_segments`). The root's trunk
-with DOFs is fitted first only when its own markers can fix its pose (at least three,
-or one for a trunk that only translates): otherwise the whole tree is fitted at
-once. A branch's own trunk hangs from a fixed base, so counting cannot say it: it is
+one after another, each given the one above, where their markers fix them
+(:func:`_segments`). The root's trunk with DOFs is fitted first only when its own markers
+can fix its pose (at least three, or one for a trunk that only translates): otherwise the
+whole tree is fitted at once. A branch's own trunk hangs from a fixed base, so counting cannot say it: it is
 split off only where its markers fix its DOFs (:func:`_fixes`, a rank test of their
 Jacobian; a rotation about a fixed point needs two markers not on one line through
 it), else the branch is fitted whole. A branch's own trunk without DOFs is not a part
@@ -202,10 +202,11 @@ def _hanging(model: KinematicModel, topo: _Topology, base: int, top: int) -> lis
     parts = []
     if np.isin(topo.dof_joint, own).any():
         segments = _segments(model, topo, base, top, region)
-        trunk = _branch(model, topo, base, own)
-        if segments is None and not _fits(trunk, model, topo):
-            return whole
-        parts += segments or [trunk]
+        if segments is None:
+            segments = [_branch(model, topo, base, own)]
+            if not _fits(segments[0], model, topo):
+                return whole
+        parts += segments
     for c in kids:
         parts += _hanging(model, topo, split, c)
     return parts
