@@ -23,10 +23,10 @@ on a fixed root, hanging as a branch or a branch's own trunk, is cut into segmen
 one after another, each given the one above, where their markers fix them
 (:func:`_segments`). The root's trunk with DOFs is fitted first only when its own markers
 can fix its pose (at least three, or one for a trunk that only translates): otherwise the
-whole tree is fitted at once. A branch's own trunk hangs from a fixed base, so counting cannot say it: it is
-split off only where its markers fix its DOFs (:func:`_fixes`, a rank test of their
-Jacobian; a rotation about a fixed point needs two markers not on one line through
-it), else the branch is fitted whole. A branch's own trunk without DOFs is not a part
+whole tree is fitted at once. A branch's own trunk hangs from a fixed base, so counting
+cannot say it: it is split off only where its markers fix its DOFs (:func:`_fits`, a rank
+test of their Jacobian; a rotation about a fixed point needs two markers not on one line
+through it), else the branch is fitted whole. A branch's own trunk without DOFs is not a part
 (its markers ride on the base); its sub-branches hang from its split.
 
 A branch sees only the detections within its reach (the sphere its joints and
