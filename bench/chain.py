@@ -1,7 +1,7 @@
 """Many-joint chains: a tail of N joints (paper §4's "larger number of joints").
 
     python bench/chain.py [--segments 4 8 12 16] [--images 40] [--seed 0] [--ghosts 2]
-        [--soft-tissue] [--occlusion F]
+        [--soft-tissue] [--occlusion F] [--limbs]
 
 The whole-animal subjects (``bench/animals.py``) split into parts of 2-7 DOFs, so they do
 not show how the fit scales along one chain: ``core.tree`` keeps a chain of up to
@@ -15,9 +15,12 @@ a quarter cycle along the tail, the whole tail bending by up to 90° of yaw and 
 pitch: each joint by 1 / N of that, within a range 2.5 times as wide either way. Filmed at
 100 Hz, rendered with 5 px markers and ``--ghosts`` ghost blobs per view, detected and
 fitted as ``bench/animals.py`` does; ``--soft-tissue`` and ``--occlusion`` are its
-conditions (no unmodelled marker).
+conditions (no unmodelled marker). With ``--limbs`` the chain is a spine: two hind limbs
+on the body and two forelimbs on its last joint (hip 3 DOFs, knee, ankle; markers on the
+thigh, knee, ankle and toe), each DOF swinging at 2 Hz through 10-90 % of its range; the
+spine is then a branch's own trunk, and the forelimbs hang from it.
 Prints ``bench/animals.py``'s table per N; every image's fit goes to
-``bench/out/chain-<N>[-soft][-occ<percent>].csv``.
+``bench/out/chain-<N>[-limbs][-soft][-occ<percent>].csv``.
 """
 
 from __future__ import annotations
@@ -46,8 +49,31 @@ RANGE = 2.5  # a joint's range is this many times its amplitude either way
 PHASE_ALONG = np.pi / 2  # phase lag from the first joint to the last
 
 
-def tail_xml(segments: int) -> str:
-    """A fixed body (markers at x = -10 and 0 mm) with a tail of ``segments`` joints along +x."""
+LIMB_MM = (15.0, 17.0, 8.0)  # thigh, shank, foot
+
+
+def limb_xml(name: str, parent: str, x: float, z: float) -> tuple[list[str], list[str]]:
+    """A limb hanging down (-y) from (x, 0, z) of joint ``parent``: its joints and markers."""
+    thigh, shank, foot = LIMB_MM
+    joints = [
+        f'<joint name="{name}_hip" parent="{parent}"><offset x="{x:g}" y="0" z="{z:g}"/>'
+        f'<rest z="-90"/><dof axis="z" name="{name}_flex" min="-40" max="40"/>'
+        f'<dof axis="y" name="{name}_rot" min="-20" max="20"/>'
+        f'<dof axis="x" name="{name}_abd" min="-20" max="20"/></joint>',
+        f'<joint name="{name}_knee" parent="{name}_hip"><offset x="{thigh:g}" y="0" z="0"/>'
+        f'<dof axis="z" name="{name}_knee" min="-100" max="-10"/></joint>',
+        f'<joint name="{name}_ankle" parent="{name}_knee"><offset x="{shank:g}" y="0" z="0"/>'
+        f'<dof axis="z" name="{name}_ankle" min="20" max="90"/></joint>',
+        f'<joint name="{name}_toe" parent="{name}_ankle"><offset x="{foot:g}" y="0" z="0"/></joint>',
+    ]
+    markers = [f'<marker name="{name}_thigh" joint="{name}_hip" x="{thigh / 2:g}" y="2" z="0"/>'] + [
+        f'<marker name="{name}_{j}" joint="{name}_{j}" x="0" y="0" z="0"/>' for j in ("knee", "ankle", "toe")]
+    return joints, markers
+
+
+def tail_xml(segments: int, limbs: bool = False) -> str:
+    """A fixed body (markers at x = -10 and 0 mm) with a tail of ``segments`` joints along +x;
+    with ``limbs``, a spine: hind limbs on the body, forelimbs on its end."""
     length = TAIL_MM / segments
     yaw, pitch = RANGE * YAW_DEG / segments, RANGE * PITCH_DEG / segments
     joints = ['<joint name="body"/>']
@@ -64,31 +90,44 @@ def tail_xml(segments: int) -> str:
     markers += ['<marker name="B0" joint="body" x="-10" y="2" z="0"/>',
                 '<marker name="B1" joint="body" x="0" y="3" z="-3"/>',
                 '<marker name="B2" joint="body" x="0" y="3" z="3"/>']
+    for name, at, x in (("LH", "body", -5.0), ("RH", "body", -5.0), ("LF", "tip", 0.0), ("RF", "tip", 0.0)):
+        if limbs:
+            limb_joints, limb_markers = limb_xml(name, at, x, -6.0 if name[0] == "L" else 6.0)
+            joints += limb_joints
+            markers += limb_markers
     return "\n".join(['<model name="tail" units="mm">', *joints, *markers, "</model>"])
 
 
-def tail_rig() -> Rig:
-    """Three cameras 120° apart, 30° above the point 30 mm along the tail, 300 mm from it."""
-    target = (30.0, 0.0, 0.0)
-    radius, height = 300.0 * np.cos(np.radians(30)), 300.0 * np.sin(np.radians(30))
+def tail_rig(limbs: bool = False) -> Rig:
+    """Three cameras 120° apart, 30° above the point 30 mm along the tail, 300 mm from it;
+    for a spine with limbs, above a point 15 mm lower, at 0.9 times the focal length."""
+    target = (30.0, -15.0 if limbs else 0.0, 0.0)
+    radius, height = 300.0 * np.cos(np.radians(30)), 300.0 * np.sin(np.radians(30)) + target[1]
     return Rig.from_dict(ring(["c0", "c1", "c2"], [90, 210, 330], radius=radius, height=height,
-                             target=target, f=1000.0, size=SIZE, dist=(0, 0, 0, 0, 0)))
+                             target=target, f=900.0 if limbs else 1000.0, size=SIZE, dist=(0, 0, 0, 0, 0)))
 
 
 def wave(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
-    """(n, D) a travelling wave: yaw and pitch of joint k lag k / (N - 1) of a quarter cycle."""
-    segments = len(subject.model.dofs) // 2
+    """(n, D) a travelling wave: yaw and pitch of joint k lag k / (N - 1) of a quarter cycle;
+    a limb's DOFs swing through 10-90 % of their ranges at the same rate, each its own phase."""
+    model = subject.model
+    yaw = np.array([d.name.startswith("yaw") for d in model.dofs])
+    pitch = np.array([d.name.startswith("pitch") for d in model.dofs])
+    segments = int(yaw.sum())
     t = np.arange(n)[:, None] / subject.fps + rng.uniform(0, 1 / WAVE_HZ)
     lag = PHASE_ALONG * np.arange(segments)[None, :] / max(segments - 1, 1)
-    q = np.empty((n, 2 * segments))
-    q[:, 0::2] = YAW_DEG / segments * np.sin(2 * np.pi * WAVE_HZ * t - lag)
-    q[:, 1::2] = PITCH_DEG / segments * np.sin(2 * np.pi * WAVE_HZ * t - lag + np.pi / 3)
+    phase = rng.uniform(0, 2 * np.pi, len(model.dofs))
+    q = model.lower + (model.upper - model.lower) * (0.5 + 0.4 * np.sin(2 * np.pi * WAVE_HZ * t + phase))
+    q[:, yaw] = YAW_DEG / segments * np.sin(2 * np.pi * WAVE_HZ * t - lag)
+    q[:, pitch] = PITCH_DEG / segments * np.sin(2 * np.pi * WAVE_HZ * t - lag + np.pi / 3)
     return q
 
 
-def tail(segments: int) -> Subject:
-    return Subject(f"tail-{segments}", KinematicModel.from_xml(tail_xml(segments)), tail_rig(),
-                   (SIZE,) * 3, FPS, wave, ())
+def tail(segments: int, limbs: bool = False) -> Subject:
+    """The tail of ``segments`` joints, or with ``limbs`` the spine, as a benchmark subject."""
+    model = KinematicModel.from_xml(tail_xml(segments, limbs))
+    return Subject(f"{'spine' if limbs else 'tail'}-{segments}", model, tail_rig(limbs), (SIZE,) * 3, FPS,
+                   wave, ())
 
 
 def main() -> None:
@@ -99,21 +138,24 @@ def main() -> None:
     parser.add_argument("--ghosts", type=int, default=None, help="default 2, or 0 with --soft-tissue")
     parser.add_argument("--soft-tissue", action="store_true")
     parser.add_argument("--occlusion", type=float, default=0.0, metavar="F")
+    parser.add_argument("--limbs", action="store_true", help="a spine with hind limbs and forelimbs")
     args = parser.parse_args()
     if args.ghosts is None:
         args.ghosts = 0 if args.soft_tissue else 2
     if args.images < 1 or args.ghosts < 0 or min(args.segments) < 2 or not 0 <= args.occlusion <= 0.5:
         parser.error("--images must be >= 1, --ghosts >= 0, --segments >= 2, --occlusion in [0, 0.5]")
     for segments in args.segments:
-        subject = tail(segments)
+        subject = tail(segments, args.limbs)
         data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts,
                                  rng=np.random.default_rng(args.seed), occlusion=args.occlusion)
         result, timing = fit(subject, data, seed=args.seed, jobs=1)
         OUT.mkdir(parents=True, exist_ok=True)
-        csv_path = OUT / (f"chain-{segments}" + ("-soft" if args.soft_tissue else "")
+        csv_path = OUT / (f"chain-{segments}" + ("-limbs" if args.limbs else "")
+                          + ("-soft" if args.soft_tissue else "")
                           + (f"-occ{round(100 * args.occlusion)}" if args.occlusion else "") + ".csv")
         write_angles_csv(csv_path, subject.model, result.fits, SampleClock(subject.fps))
-        label = (f"tail of {segments} segments" + (" + soft tissue" if args.soft_tissue else "")
+        label = (f"{'spine' if args.limbs else 'tail'} of {segments} segments"
+                 + (" with limbs" if args.limbs else "") + (" + soft tissue" if args.soft_tissue else "")
                  + (f" + {100 * args.occlusion:g} % hidden" if args.occlusion else ""))
         report(subject, label, data, result, timing, csv_path, soft=args.soft_tissue)
 

@@ -86,10 +86,12 @@ def test_movement_projects_inside_every_image(name, cameras):
         assert np.abs(np.diff(truth, axis=0)).max() < 30.0
 
 
+@pytest.mark.parametrize("limbs", [False, True], ids=["tail", "spine with limbs"])
 @pytest.mark.parametrize("segments", [2, 4, 8, 12, 16, 24])
-def test_a_tail_swings_inside_every_image(segments):
-    """``bench/chain.py``'s tails: the same 80 mm bent by the same 90° whatever the count."""
-    _moves_inside(tail(segments))
+def test_a_tail_swings_inside_every_image(segments, limbs):
+    """``bench/chain.py``'s tails and spines: the same 80 mm bent by the same 90° whatever
+    the count, the limbs swinging below."""
+    _moves_inside(tail(segments, limbs))
 
 
 def _moves_inside(subject) -> np.ndarray:
