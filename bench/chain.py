@@ -47,9 +47,7 @@ WAVE_HZ = 2.0
 YAW_DEG, PITCH_DEG = 90.0, 45.0  # the whole tail's bend: the sum of its joints' amplitudes
 RANGE = 2.5  # a joint's range is this many times its amplitude either way
 PHASE_ALONG = np.pi / 2  # phase lag from the first joint to the last
-
-
-LIMB_MM = (15.0, 17.0, 8.0)  # thigh, shank, foot
+LIMB_MM = (15.0, 17.0, 8.0)  # a limb's thigh, shank and foot (--limbs)
 
 
 def limb_xml(name: str, parent: str, x: float, z: float) -> tuple[list[str], list[str]]:
