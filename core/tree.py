@@ -24,7 +24,7 @@ one after another, each given the one above, where their markers fix them
 (:func:`_segments`). The root's trunk with DOFs is fitted first only when its own markers
 can fix its pose (at least three, or one for a trunk that only translates): otherwise the
 whole tree is fitted at once. A branch's own trunk hangs from a fixed base, so counting
-cannot say it: it is split off only where its markers fix its DOFs (:func:`_fits`, a rank
+cannot say it: it is split off only where its markers fix its DOFs (:func:`_fixes`, a rank
 test of their Jacobian; a rotation about a fixed point needs two markers not on one line
 through it), else the branch is fitted whole. A branch's own trunk without DOFs is not a part
 (its markers ride on the base); its sub-branches hang from its split.
@@ -190,7 +190,7 @@ def _hanging(model: KinematicModel, topo: _Topology, base: int, top: int) -> lis
     """The parts, in fitting order, of the subtree from joint ``top`` hanging from joint
     ``base``: the subtree whole (one branch) unless it splits again and its own trunk (the
     joints above that split) either has no DOFs, or has markers that fix its DOFs given the
-    base (:func:`_fits`), or is a long chain cut into segments (:func:`_segments`); then
+    base (:func:`_fixes`), or is a long chain cut into segments (:func:`_segments`); then
     that trunk (if it has DOFs) followed by each sub-branch's parts, hanging from the split.
     Where it never splits, a long chain is cut into segments too."""
     whole = [_branch(model, topo, base, np.flatnonzero(topo.below[top]))]
@@ -204,7 +204,7 @@ def _hanging(model: KinematicModel, topo: _Topology, base: int, top: int) -> lis
         segments = _segments(model, topo, base, top, region)
         if segments is None:
             segments = [_branch(model, topo, base, own)]
-            if not _fits(segments[0], model, topo):
+            if not _fixes(segments[0], model, topo):
                 return whole
         parts += segments
     for c in kids:
@@ -230,7 +230,7 @@ def _segments(model: KinematicModel, topo: _Topology, base: int, top: int,
     subtree of ``top`` where it never splits, or a branch's own trunk, the joints ``region``
     (J,) bool above its split, from which its sub-branches then hang. Each segment is the
     shortest run of the chain's joints, from where the one above ends, that has at least
-    :data:`SEGMENT_DOFS` DOFs and whose markers fix them given its base (:func:`_fits`); the
+    :data:`SEGMENT_DOFS` DOFs and whose markers fix them given its base (:func:`_fixes`); the
     last one takes the rest (at least :data:`SEGMENT_DOFS` DOFs), and must fix them too
     where sub-branches hang from it. None where the chain has no more DOFs than
     :data:`MAX_PART_DOFS` or it cannot be cut so.
@@ -262,25 +262,15 @@ def _segments(model: KinematicModel, topo: _Topology, base: int, top: int,
             break
         segment = _branch(model, topo, at, np.flatnonzero(joints & region), below=path[end],
                           above=path[start] if parts else -1)
-        if _fits(segment, model, topo):
+        if _fixes(segment, model, topo):
             parts.append(segment)
             start, at = end, path[end - 1]
     if not parts:
         return None
     last = _branch(model, topo, at, np.flatnonzero(topo.below[path[start]] & region), above=path[start])
-    if not region[topo.below[top]].all() and not _fits(last, model, topo):
+    if not region[topo.below[top]].all() and not _fixes(last, model, topo):
         return None
     return [*parts, last]
-
-
-def _fits(segment: Part, model: KinematicModel, topo: _Topology) -> bool:
-    """Whether the markers of a chain's run ``segment`` fix its DOFs given its base:
-    :func:`_fixes` with the least singular value allowed :data:`FIX_SINGULAR` over its
-    number of joints with DOFs. Along a chain of equal links that value falls as the run
-    grows (0.57, 0.15, 0.085 for one, two and three 2-DOF joints of ``bench/chain.py``'s
-    tail), and a run that failed the plain threshold only failed it more as it grew,
-    leaving one part of up to 22 DOFs."""
-    return _fixes(segment, model, FIX_SINGULAR / len(np.unique(topo.dof_joint[segment.dofs])))
 
 
 def _subtrees(parent: np.ndarray) -> np.ndarray:
@@ -334,13 +324,19 @@ def _branch(model: KinematicModel, topo: _Topology, base: int, joints: np.ndarra
     return Part(_name(model, int(joints[0])), joints, flips, dofs, markers, base, kin, _reach(kin))
 
 
-def _fixes(part: Part, model: KinematicModel, singular: float = FIX_SINGULAR) -> bool:
-    """Whether the markers of ``part`` fix its DOFs given its base frame: at each of
-    :data:`FIX_POSTURES` postures (fixed draws through the middle 80 % of the DOF ranges), the
-    Jacobian of its marker positions (3m, d) (``core.identifiability.marker_jacobian``:
-    rotations per radian in units of the part's reach about its top joint, translations per
-    model unit) has no singular value below :data:`FIX_SINGULAR`. About its top joint, not
-    its base: a tail's first joint 14 mm behind the thorax turns markers 4-8 mm from it.
+def _fixes(part: Part, model: KinematicModel, topo: _Topology) -> bool:
+    """Whether the markers of ``part`` (a branch's own trunk, or a run of a chain) fix its
+    DOFs given its base frame: at each of :data:`FIX_POSTURES` postures (fixed draws
+    through the middle 80 % of the DOF ranges), the Jacobian of its marker positions (3m, d)
+    (``core.identifiability.marker_jacobian``: rotations per radian in units of the part's
+    reach about its top joint, translations per model unit) has no singular value below
+    :data:`FIX_SINGULAR` over its number of joints with DOFs.
+
+    About its top joint, not its base: a tail's first joint 14 mm behind the thorax turns
+    markers 4-8 mm from it. Over its joints: along a chain of equal links the least singular
+    value falls as the run grows (0.57, 0.15, 0.085 for one, two and three 2-DOF joints of
+    ``bench/chain.py``'s tail), and a run that failed the plain threshold only failed it
+    more as it grew, leaving one part of up to 22 DOFs.
 
     Counting markers cannot say it for a chain of several joints: a rotation about the
     line through the base origin and a lone marker moves nothing, and two joints that each
@@ -350,6 +346,7 @@ def _fixes(part: Part, model: KinematicModel, singular: float = FIX_SINGULAR) ->
     d, reach = len(part.dofs), _reach(part.kin, top=1)
     if d == 0 or reach <= 0.0 or 3 * len(part.markers) < d:
         return False
+    singular = FIX_SINGULAR / len(np.unique(topo.dof_joint[part.dofs]))
     lower, upper = model.lower[part.dofs], model.upper[part.dofs]
     unit = np.random.default_rng(0).uniform(0.1, 0.9, (FIX_POSTURES, d))
 
