@@ -150,13 +150,19 @@ class _Topology:
         carrying = below[:, has_marker].any(axis=1) & below[:, has_dof].any(axis=1)
         return cls(children, below, carrying, dof_joint)
 
-    def split(self, top: int) -> tuple[int, list[int]]:
+    def walk(self, top: int) -> tuple[list[int], list[int]]:
         """Walking down from joint ``top`` while a joint has a single carrying child: the
-        joint where that stops, and its carrying children (two or more at a split)."""
-        split = top
-        while len(kids := [c for c in self.children[split] if self.carrying[c]]) == 1:
-            split = kids[0]
-        return split, kids
+        joints walked, ``top`` first, and the carrying children of the last (none at a
+        chain's end, two or more at a split)."""
+        path = [top]
+        while len(kids := [c for c in self.children[path[-1]] if self.carrying[c]]) == 1:
+            path.append(kids[0])
+        return path, kids
+
+    def split(self, top: int) -> tuple[int, list[int]]:
+        """The joint where :meth:`walk` from ``top`` stops, and its carrying children."""
+        path, kids = self.walk(top)
+        return path[-1], kids
 
 
 def decompose(model: KinematicModel) -> Tree | None:
@@ -218,8 +224,8 @@ def _root_chain(model: KinematicModel, topo: _Topology) -> Tree | None:
     body), and the chain below it cuts into segments (:func:`_segments`)."""
     if len(model.dofs) <= MAX_PART_DOFS or np.any(topo.dof_joint == 0):
         return None
-    kids = [c for c in topo.children[0] if topo.carrying[c]]
-    parts = _segments(model, topo, 0, kids[0]) if len(kids) == 1 else None
+    path = topo.walk(0)[0]
+    parts = _segments(model, topo, 0, path[1]) if len(path) > 1 else None
     return Tree(tuple(parts)) if parts else None
 
 
@@ -243,9 +249,7 @@ def _segments(model: KinematicModel, topo: _Topology, base: int, top: int,
     sees is placed by that view alone, and the segments below cannot turn it back.
     """
     region = topo.below[top] if region is None else region
-    path = [top]
-    while kids := [c for c in topo.children[path[-1]] if topo.carrying[c] and region[c]]:
-        path.append(kids[0])
+    path = topo.walk(top)[0]  # to the chain's end, or to the split under a branch's own trunk
 
     def dofs_in(joints: np.ndarray) -> int:
         return int(np.count_nonzero(np.isin(topo.dof_joint, np.flatnonzero(joints & region))))
