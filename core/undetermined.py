@@ -243,9 +243,8 @@ def marker_lineage(model: KinematicModel) -> np.ndarray:
     """(M, M) bool: True where one marker's joint is the other's or lies above it in the
     tree (one limb), False for markers of two limbs (the left and right ankle)."""
     kin = model.arrays
-    below = _subtrees(kin.parent)
-    joint = kin.marker_joint
-    return below[joint][:, joint] | below[joint][:, joint].T
+    above = _subtrees(kin.parent)[np.ix_(kin.marker_joint, kin.marker_joint)]  # m's joint at or above n's
+    return above | above.T
 
 
 def residual_tolerance(error_px: float, compared: int, n_dofs: int, tested_dofs: int,
