@@ -1149,24 +1149,56 @@ def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig:
     marker hidden from each camera, or two from one, a leg on other blobs scores lower,
     and another of its runs often ended at the right one. The margin: SA ranked its minima
     in its own objective, and under sliding skin markers their two-sided errors differ by
-    a few pixels whichever is right."""
+    a few pixels whichever is right.
+
+    A branch is posed onto the candidates only where one of them may move it
+    (:func:`_concerned_branches`): a leg on wrong blobs leaves its right ones unexplained,
+    while a leg that explains its blobs would be posed back where it is, at 2-3 ms a
+    branch."""
     in_reach = reach.any(axis=0)
     cap = params.empty_view_penalty_px
     score = two_sided_error(q, det, model, rig, off, in_reach, cap)
-    for part, keep in zip(tree.branches, reach, strict=True):
-        points, start = _subset(det, keep)
-        rotation, origin = _base_frame(q, model, part)
-        proposed = epipolar_start(part, rotation, origin, candidates, points, start,
-                                  model, rig, space, params, _part_eps(part, params, 2), off,
-                                  shared.get(part.name, _kernels.NO_UNSEEN))
+    concerned = _concerned_branches(q, det, model, rig, tree, off, candidates, reach)
+    for part, keep, offered in zip(tree.branches, reach, concerned, strict=True):
         starts = [(p, cap) for p in minima.get(part.name, ())]  # (posture, margin)
-        if proposed is not None:
-            starts.append((proposed[0], 0.0))
+        if offered:
+            points, start = _subset(det, keep)
+            rotation, origin = _base_frame(q, model, part)
+            proposed = epipolar_start(part, rotation, origin, candidates, points, start,
+                                      model, rig, space, params, _part_eps(part, params, 2), off,
+                                      shared.get(part.name, _kernels.NO_UNSEEN))
+            if proposed is not None:
+                starts.append((proposed[0], 0.0))
         for posture, margin in starts:
             trial = q.copy()
             trial[part.dofs] = posture
             if (new := two_sided_error(trial, det, model, rig, off, in_reach, cap)) < score - margin:
                 q[:], score = trial, new
+
+
+def _concerned_branches(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
+                        off: np.ndarray, candidates: Candidates, reach: np.ndarray) -> np.ndarray:
+    """(B,) bool: the branches that triangulated ``candidates`` may move, ``q`` (D,) as it
+    is: those with a marker projection that no blob of its view explains (none within
+    :data:`CLAIM_PX`: hidden, or the branch off its blobs), and those a candidate concerns.
+    A candidate concerns a branch where it has a blob that no marker projection explains,
+    every blob in the branch's reach (``reach`` (B, N)), and its other blobs unexplained too
+    or explained by the branch's own markers."""
+    claiming, owner = _claiming(q, det, model, rig, tree, off)
+    by_branch = _claims_of(claiming, owner, len(tree.branches), len(det.points))  # (B, N)
+    proj = rig.project(model.marker_positions(q)) + off[:, None, :]  # (V, M, 2)
+    explained = np.zeros(len(det.points), dtype=bool)
+    for v in np.flatnonzero(_seen_views(det.start)):
+        a, b = det.start[v], det.start[v + 1]
+        explained[a:b] = nearest_detection(det.points[a:b], proj[v])[1] <= CLAIM_PX ** 2
+    support = candidates.support
+    blob, real = np.maximum(support, 0), support >= 0  # (K, V)
+    open_ = (~explained[blob] & real).any(axis=1)  # (K,)
+    inside = (reach[:, blob] | ~real).all(axis=2)  # (B, K)
+    mine = (by_branch[:, blob] | ~explained[blob] | ~real).all(axis=2)  # (B, K)
+    unclaimed = (claiming < 0)[_seen_views(det.start)]  # (seen V, M)
+    off_blobs = np.array([unclaimed[:, part.markers].any() for part in tree.branches], dtype=bool)
+    return off_blobs | (open_ & inside & mine).any(axis=1)
 
 
 def epipolar_start(part: Part, rotation: np.ndarray, origin: np.ndarray, candidates: Candidates,

@@ -325,6 +325,45 @@ def test_with_two_views_a_leg_on_the_wrong_blobs_is_replaced_by_its_triangulated
     assert np.abs(q[leg1.dofs] - q_true[leg1.dofs]).max() < 1e-6
 
 
+def _two_view_start_calls(q: np.ndarray, det: Detections, model, rig: Rig) -> list[str]:
+    """The branches ``_two_view_starts`` poses onto the triangulated candidates, from ``q``."""
+    tree, off, called, pose = model.tree, view_offsets(None, rig), [], treefit.epipolar_start
+    space = search_space(model, Histograms.uniform(model))
+    reach = treefit._reaches(q, det, model, rig, list(tree.branches), off)
+
+    def counted(part, *args, **kwargs):
+        called.append(part.name)
+        return pose(part, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(treefit, "epipolar_start", counted)
+        treefit._two_view_starts(q.copy(), det, model, rig, tree, space, FitParams(), off, reach,
+                                 triangulate(det, rig=rig), {}, {})
+    return called
+
+
+def test_with_two_views_only_a_leg_that_leaves_a_candidate_unexplained_is_posed_onto_candidates():
+    """Every blob explained (the right posture, no ghosts): no leg is posed onto the
+    candidates. Leg 0 posed as in another image leaves its blobs unexplained: it is. So is
+    a leg in whose reach lies a candidate of unexplained blobs only (a ghost seen by both
+    cameras), and a leg with a marker projection on no blob (its claw hidden from a camera)."""
+    model, rig = insect(legs=2), _distorted(2)
+    truth = movement(model, 20, seed=4)
+    q_true = truth[0]
+    leg0 = model.tree.branches[0]
+    points = model.marker_positions(q_true)
+    assert _two_view_start_calls(q_true, _detections(rig, points), model, rig) == []
+    wrong = q_true.copy()
+    wrong[leg0.dofs] = truth[10][leg0.dofs]
+    assert leg0.name in _two_view_start_calls(wrong, _detections(rig, points), model, rig)
+    claw = model.marker_positions(truth[10])[leg0.markers[-1]]
+    with_ghost = _detections(rig, np.vstack([points, claw + 0.3]))
+    assert leg0.name in _two_view_start_calls(q_true, with_ghost, model, rig)
+    views = list(rig.project(points))
+    views[0] = np.delete(views[0], leg0.markers[-1], axis=0)  # leg 0's claw hidden from camera 0
+    assert _two_view_start_calls(q_true, Detections.from_views(views), model, rig) == [leg0.name]
+
+
 def test_with_two_views_the_sa_minimum_that_leaves_fewest_blobs_unexplained_is_kept():
     """No triangulated start (no candidates): leg 0, posed as in another image, takes the one
     of its SA minima that explains its own blobs; leg 1, right, keeps its posture over a
