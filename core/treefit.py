@@ -907,8 +907,8 @@ def _hidden_marker_triangulated(posture: np.ndarray, part: Part, points: np.ndar
     left out as hidden in :data:`HIDDEN_SEEN_VIEWS` or more views (``hidden`` (V, m)), has
     a 3D point there after all: blobs of that many of those views among ``points`` (N, 3)
     grouped at ``start`` (V + 1,) (the part's reach) that no marker projection explains
-    (none within the fusion distance, at least :data:`CLAIM_PX`) and that meet in space
-    (``core.triangulate``).
+    (none within half the fusion distance, at least :data:`CLAIM_PX`: where a fusion of two
+    markers puts its blob) and that meet in space (``core.triangulate``).
 
     A marker hidden from a camera leaves no blob in its view. Unexplained blobs of three
     such views that meet in space are most likely the marker itself, with the part in
@@ -925,7 +925,7 @@ def _hidden_marker_triangulated(posture: np.ndarray, part: Part, points: np.ndar
     at = posture.copy()
     at[part.dofs] = q
     proj = rig.project(model.marker_positions(at)) + off[:, None, :]  # (V, M, 2)
-    near2 = max(float(params.fusion_px), CLAIM_PX) ** 2
+    near2 = max(0.5 * float(params.fusion_px), CLAIM_PX) ** 2
     unexplained = []
     for v in range(len(start) - 1):
         blobs = points[start[v]:start[v + 1], :2]  # each blob's nearest projection, roles swapped
