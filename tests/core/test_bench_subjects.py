@@ -20,6 +20,7 @@ from core.rig import Rig
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from bench.chain import tail
+from bench.random_trees import filmed, random_model
 from bench.subjects import CAMERAS, HEXAPOD_CAMERAS, NAMES, camera_choice, load
 
 SUBJECTS = Path(__file__).resolve().parents[2] / "bench" / "subjects"
@@ -92,6 +93,24 @@ def test_a_tail_swings_inside_every_image(segments, limbs):
     """``bench/chain.py``'s tails and spines: the same 80 mm bent by the same 90° whatever
     the count, the limbs swinging below."""
     _moves_inside(tail(segments, limbs))
+
+
+@pytest.mark.parametrize("markers", [1, 2])
+@pytest.mark.parametrize("seed", range(4))
+def test_a_random_tree_moves_inside_every_image(seed, markers):
+    """``bench/random_trees.py``'s models: a root with three markers and one to six branches
+    of two to four joints, ``markers`` markers per segment; with two, at most two DOFs per
+    joint after a branch's first. Filmed by two and by three cameras, inside every image."""
+    model = random_model(np.random.default_rng([seed, 0]), markers)
+    joints = {m.joint for m in model.markers} - {"root"}
+    assert 1 <= sum(j.endswith("j0") for j in joints) <= 6
+    assert sum(m.joint == "root" for m in model.markers) == 3
+    assert len(model.markers) == 3 + markers * len(joints)
+    if markers == 2:
+        later = [d for d in model.dofs if not d.joint.endswith("j0")]
+        assert all(sum(d.joint == j for d in later) <= 2 for j in joints)
+    for cameras in (2, 3):
+        _moves_inside(filmed(model, cameras, 100.0))
 
 
 def _moves_inside(subject) -> np.ndarray:

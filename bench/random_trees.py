@@ -1,0 +1,172 @@
+"""Random kinematic trees: does the engine hold on animals it was not built around?
+
+    python bench/random_trees.py [--models 8] [--images 40] [--seed 0] [--cameras 3]
+        [--markers 1|2] [--occlusion F] [--fps 100]
+
+The subjects of ``bench/animals.py`` are nine animals; labs bring others. Each model here
+is drawn at random: a root with three markers, fixed or (two models in five) free with
+three translations and three rotations; one to six branches spread around it, each a
+chain of two to four joints of one to three Euler DOFs on random axes (the first joint two
+or three), ranges of 15-60° either way, segments of 4-12 mm.
+
+``--markers 1``: one marker per segment, on its axis half the time. Such a model leaves
+rolls undetermined in every posture, so its images are mostly ambiguous; what counts is
+that none more than 10° off is reported ``ok`` without an alternative.
+``--markers 2``: two markers per segment, off its axis, and at most two DOFs per joint
+after a branch's first: a model whose images should determine it, so its accuracy counts
+too.
+
+The cameras stand on a ring 35° above the root, 250 mm away (800×600 px, f = 1400 px:
+about 5.6 px per mm); the movement is ``core.synth.natural_movements`` at ``--fps``. The
+images are rendered, detected and fitted as ``bench/animals.py`` does (5 px markers, 2
+ghost blobs per view, ``--occlusion`` as there). Prints one line per model (DOFs, the
+parts ``core.tree`` fits, the worst image, the share of images with every DOF within 5°,
+``ok`` images more than 10° off without an alternative, statuses, fit images per CPU
+second) and the totals.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.animals import OUT, ambiguous_flags, angle_errors, fit, render_and_detect
+from bench.subjects import Subject
+from bench.subjects.build import ring
+from core.fit import Status
+from core.model import KinematicModel
+from core.results import SampleClock, write_angles_csv
+from core.rig import Rig
+from core.synth import natural_movements
+
+SIZE = (800, 600)
+FREE_ROOT_SHARE = 0.4
+FREE_ROOT = ('<dof axis="tx" name="tx" min="-10" max="10"/><dof axis="ty" name="ty" min="-10" max="10"/>'
+             '<dof axis="tz" name="tz" min="-5" max="5"/><dof axis="z" name="rz" min="-40" max="40"/>'
+             '<dof axis="y" name="ry" min="-15" max="15"/><dof axis="x" name="rx" min="-15" max="15"/>')
+ROOT_MARKERS = ((12.0, 0.0, 2.0), (-12.0, 0.0, 2.0), (0.0, 4.0, 4.0))  # mm
+BRANCH_RADIUS_MM = 8.0  # where the branches leave the root
+
+
+def random_model(rng: np.random.Generator, markers: int) -> KinematicModel:
+    """A random tree (module docstring) with ``markers`` (1 or 2) markers per segment."""
+    root = FREE_ROOT if rng.random() < FREE_ROOT_SHARE else ""
+    joints = ['<model name="random" units="mm">', f'<joint name="root">{root}</joint>']
+    marks = [f'<marker name="R{i}" joint="root" x="{x:g}" y="{y:g}" z="{z:g}"/>'
+             for i, (x, y, z) in enumerate(ROOT_MARKERS)]
+    branches = int(rng.integers(1, 7))
+    for b in range(branches):
+        heading = 2 * np.pi * b / branches + rng.normal(0.0, 0.2)
+        parent = "root"
+        for j in range(int(rng.integers(2, 5))):
+            name = f"b{b}j{j}"
+            joints.append(_joint(rng, name, parent, heading if j == 0 else None, markers))
+            marks += _segment_markers(rng, name, markers)
+            parent = name
+    return KinematicModel.from_xml("\n".join([*joints, *marks, "</model>"]))
+
+
+def _joint(rng: np.random.Generator, name: str, parent: str, heading: float | None, markers: int) -> str:
+    """One joint: a branch's first (``heading``, radians about z) at the root's edge, else
+    at the end of its parent's 4-12 mm segment; its DOFs on distinct random axes."""
+    if heading is not None:
+        n_dofs = int(rng.choice([2, 3])) if markers == 1 else 3
+        x, y = BRANCH_RADIUS_MM * np.cos(heading), BRANCH_RADIUS_MM * np.sin(heading)
+        place = f'<offset x="{x:.1f}" y="{y:.1f}" z="0"/><rest z="{np.degrees(heading):.0f}"/>'
+    else:
+        n_dofs = int(rng.choice([1, 1, 2, 2, 3])) if markers == 1 else int(rng.choice([1, 2]))
+        place = f'<offset x="{rng.uniform(4.0, 12.0):.1f}" y="0" z="0"/>'
+    dofs = "".join(f'<dof axis="{axis}" name="{name}_{axis}" min="{-rng.uniform(15, 60):.0f}" '
+                   f'max="{rng.uniform(15, 60):.0f}"/>' for axis in rng.permutation(["x", "y", "z"])[:n_dofs])
+    return f'<joint name="{name}" parent="{parent}">{place}{dofs}</joint>'
+
+
+def _segment_markers(rng: np.random.Generator, joint: str, markers: int) -> list[str]:
+    """The markers of the segment that ``joint`` moves (it runs along its x axis)."""
+    length = rng.uniform(4.0, 12.0)
+    if markers == 1 and rng.random() < 0.5:
+        at = [(length, 0.0, 0.0)]  # on the axis: the segment's roll is not seen
+    else:
+        at = [(length * rng.uniform(0.4, 1.0), rng.normal(0.0, 1.5), rng.normal(0.0, 1.5))]
+    if markers == 2:
+        at.append((0.4 * length, rng.choice([-1.0, 1.0]) * rng.uniform(1.5, 3.0), rng.normal(0.0, 1.0)))
+    return [f'<marker name="{joint}_m{k}" joint="{joint}" x="{x:.1f}" y="{y:.1f}" z="{z:.1f}"/>'
+            for k, (x, y, z) in enumerate(at)]
+
+
+def ring_rig(cameras: int) -> Rig:
+    """``cameras`` pinhole cameras on a ring 35° above the origin, 250 mm from it."""
+    elevation = np.radians(35.0)
+    azimuths = list(np.linspace(0.0, 360.0, cameras, endpoint=False) + 20.0)
+    return Rig.from_dict(ring([f"c{k}" for k in range(cameras)], azimuths, radius=250.0 * np.cos(elevation),
+                              height=250.0 * np.sin(elevation), target=(0.0, 0.0, 0.0), f=1400.0,
+                              size=SIZE, dist=(0, 0, 0, 0, 0)))
+
+
+def _natural(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
+    return natural_movements(subject.model, subject.rig, n, rng=rng, fps=subject.fps, frame_size=SIZE)
+
+
+def filmed(model: KinematicModel, cameras: int, fps: float) -> Subject:
+    """``model`` filmed by :func:`ring_rig` at ``fps``, moving naturally."""
+    return Subject("random", model, ring_rig(cameras), (SIZE,) * cameras, fps, _natural, ())
+
+
+def run_model(model: KinematicModel, args: argparse.Namespace, rng: np.random.Generator) -> dict:
+    """Render, detect and fit ``args.images`` images of ``model``; the figures of its line."""
+    subject = filmed(model, args.cameras, args.fps)
+    data = render_and_detect(subject, args.images, soft=False, ghosts=2, rng=rng, occlusion=args.occlusion)
+    result, timing = fit(subject, data, seed=args.seed, jobs=1)
+    csv_path = OUT / "random-tree.csv"
+    OUT.mkdir(parents=True, exist_ok=True)
+    write_angles_csv(csv_path, model, result.fits, SampleClock(subject.fps))
+    fitted = np.array([f.dofs for f in result.fits])
+    worst = np.abs(angle_errors(model, fitted, data.truth)[:, model.rotational]).max(axis=1)
+    ok = np.array([f.status is Status.OK for f in result.fits])
+    flagged = ambiguous_flags(result, csv_path)[0]
+    return {"worst": worst, "ok": ok, "flagged": flagged, "cpu": timing["cpu"],
+            "parts": [len(p.dofs) for p in model.tree.parts] if model.tree else [len(model.dofs)]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--models", type=int, default=8)
+    parser.add_argument("--images", type=int, default=40)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--cameras", type=int, default=3)
+    parser.add_argument("--markers", type=int, choices=(1, 2), default=2, help="markers per segment")
+    parser.add_argument("--occlusion", type=float, default=0.0, metavar="F")
+    parser.add_argument("--fps", type=float, default=100.0)
+    args = parser.parse_args()
+    if args.models < 1 or args.images < 1 or args.cameras < 2 or not 0 <= args.occlusion <= 0.5:
+        parser.error("--models and --images must be >= 1, --cameras >= 2, --occlusion in [0, 0.5]")
+    print(f"bench/random_trees.py: seed {args.seed}, {args.models} models, {args.images} images each, "
+          f"{args.cameras} cameras, {args.markers} marker(s) per segment, {100 * args.occlusion:g} % hidden")
+    totals = {"images": 0, "within": 0, "bad": 0, "cpu": 0.0}
+    for k in range(args.models):
+        rng = np.random.default_rng([args.seed, k])
+        model = random_model(rng, args.markers)
+        r = run_model(model, args, rng)
+        bad = np.flatnonzero(r["ok"] & ~r["flagged"] & (r["worst"] > 10.0))
+        n = len(r["worst"])
+        print(f"model {k}: {len(model.dofs)} DOFs, parts {r['parts']}; worst image "
+              f"{r['worst'].max():.1f} deg, {100 * np.mean(r['worst'] <= 5.0):.0f} % within 5 deg; "
+              f"ok > 10 deg off without an "
+              f"alternative: {len(bad)} {bad.tolist()}; over threshold {int(np.sum(~r['ok']))}, "
+              f"ambiguous {int(r['flagged'].sum())}; {n / r['cpu']:.0f} images per CPU s", flush=True)
+        totals["images"] += n
+        totals["within"] += int(np.sum(r["worst"] <= 5.0))
+        totals["bad"] += len(bad)
+        totals["cpu"] += r["cpu"]
+    print(f"all: {totals['images']} images, {100 * totals['within'] / totals['images']:.1f} % within 5 deg, "
+          f"{totals['bad']} ok > 10 deg off without an alternative (target 0), "
+          f"{totals['images'] / totals['cpu']:.1f} images per CPU s")
+
+
+if __name__ == "__main__":
+    main()
