@@ -172,7 +172,7 @@ def fit_chunk(
             det, first_sample + k, model=model, rig=rig, histograms=working, params=params,
             seed=seed, geometry=geometry, offsets=off, warm=warm,
             ceilings=ceilings if warm is not None else None,
-            carried=_carried(fits) if warm is not None else None,
+            carried=_carried(fits, model) if warm is not None else None,
         )
         if model.tree is not None:  # used only after a posture (``warm`` is None without one)
             ceilings = partial(_ceilings, fit, det, model, rig, params, off)
@@ -243,20 +243,32 @@ def _next_in_cycle(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | 
     return np.clip(out, model.lower, model.upper)
 
 
-def _carried(fits: list[ImageFit]) -> np.ndarray | None:
-    """The alternatives of the last of ``fits`` that are minima, best first, at most
-    :data:`MAX_CARRIED`, (k, D); None without any.
+def _carried(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:
+    """The alternatives of the last of ``fits`` that are minima, best first, then, in a
+    model with DOFs its markers determine in no posture (``model.identifiability``), its
+    witnesses of those DOFs; at most :data:`MAX_CARRIED`, (k, D); None without any.
 
     Refined on the next image (``core.fit.first_attempt``), they give it an alternative
     where a warm start carried a wrong minimum on that both images support as well as the
     right one: a rat whose ankle and toe no camera sees fits a leg folded onto other blobs
     lower than the truth, which is the previous image's alternative, and the next image's
     warm start is the folded leg (docs/BENCH_SUBJECTS.md).
+
+    A witness (``Candidate.minimum`` False) lies in a flat valley that such a model has in
+    every image. Where a fusion moved the fit off it into a separate, higher minimum, the
+    witness search from the fit finds nothing within the tolerance: a random tree's joint of
+    three DOFs with one marker (``bench/random_trees.py --markers 1``, seed 0, model 0) was
+    30-47° off, ``ok``, without an alternative in images 34-39, while the previous witness,
+    refined, lies in the valley, lower than the fit. Carried in other models too, witnesses
+    kept images flagged that had nothing undetermined (the 4-camera spider with 10 % hidden:
+    4 → 56 ambiguous images).
     """
     if not fits:
         return None
-    minima = [a.dofs for a in fits[-1].alternatives if a.minimum][:MAX_CARRIED]
-    return np.array(minima) if minima else None
+    undetermined = bool(model.identifiability.undetermined)
+    alternatives = [a for a in fits[-1].alternatives if a.minimum or undetermined]
+    carried = [a.dofs for a in sorted(alternatives, key=lambda a: not a.minimum)][:MAX_CARRIED]
+    return np.array(carried) if carried else None
 
 
 def _ceilings(fit: ImageFit, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
