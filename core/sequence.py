@@ -255,13 +255,11 @@ def _carried(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:
     warm start is the folded leg (docs/BENCH_SUBJECTS.md).
 
     A witness (``Candidate.minimum`` False) lies in a flat valley that such a model has in
-    every image. Where a fusion moved the fit off it into a separate, higher minimum, the
-    witness search from the fit finds nothing within the tolerance: a random tree's joint of
-    three DOFs with one marker (``bench/random_trees.py --markers 1``, seed 0, model 0) was
-    30-47° off, ``ok``, without an alternative in images 34-39, while the previous witness,
-    refined, lies in the valley, lower than the fit. Carried in other models too, witnesses
-    kept images flagged that had nothing undetermined (the 4-camera spider with 10 % hidden:
-    4 → 56 ambiguous images).
+    every image. Where a fusion moves the fit off it into a separate, higher minimum, the
+    witness search from the fit finds nothing within the tolerance, and the previous
+    witness, refined, is the image's alternative (docs/BENCH_SUBJECTS.md, random trees).
+    Not in other models: there a witness carried on keeps images flagged that have nothing
+    undetermined.
     """
     if not fits:
         return None
