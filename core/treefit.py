@@ -57,6 +57,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from functools import partial
+from itertools import pairwise
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -925,11 +926,8 @@ def _hidden_marker_triangulated(posture: np.ndarray, part: Part, points: np.ndar
     at = posture.copy()
     at[part.dofs] = q
     proj = rig.project(model.marker_positions(at)) + off[:, None, :]  # (V, M, 2)
-    near2 = max(0.5 * float(params.fusion_px), CLAIM_PX) ** 2
-    unexplained = []
-    for v in range(len(start) - 1):
-        blobs = points[start[v]:start[v + 1], :2]  # each blob's nearest projection, roles swapped
-        unexplained.append(blobs[nearest_detection(blobs, proj[v])[1] > near2] if len(blobs) else blobs)
+    explained = _explained_blobs(proj, points, start, max(0.5 * float(params.fusion_px), CLAIM_PX))
+    unexplained = [points[a:b, :2][~explained[a:b]] for a, b in pairwise(start)]
     for m in markers:
         views = [u if hidden[v, m] else u[:0] for v, u in enumerate(unexplained)]
         found = triangulate(Detections.from_views(views), rig=rig, offsets=off)
@@ -1009,6 +1007,16 @@ def _explained_without(part: Part, q: np.ndarray, left_out: np.ndarray, det: Det
     tried = warm_start(part.dofs, kin, points, start, q[None], model, rig, params,
                        _part_eps(part, params, views_seen), off, left_out)
     return tried is not None and tried[2]
+
+
+def _explained_blobs(proj: np.ndarray, points: np.ndarray, start: np.ndarray, radius: float) -> np.ndarray:
+    """(N,) bool: the detections ``points`` (N, 2 or more: u, v first) grouped at ``start``
+    with a marker projection ``proj`` (V, M, 2) of their view within ``radius`` px."""
+    out = np.zeros(len(points), dtype=bool)
+    for v in np.flatnonzero(_seen_views(start)):
+        a, b = start[v], start[v + 1]
+        out[a:b] = nearest_detection(points[a:b, :2], proj[v])[1] <= radius * radius
+    return out
 
 
 def _on_merged_blobs(proj: np.ndarray, points: np.ndarray, start: np.ndarray, radius: float) -> np.ndarray:
@@ -1187,10 +1195,7 @@ def _concerned_branches(q: np.ndarray, det: Detections, model: KinematicModel, r
     claiming, owner = _claiming(q, det, model, rig, tree, off)
     by_branch = _claims_of(claiming, owner, len(tree.branches), len(det.points))  # (B, N)
     proj = rig.project(model.marker_positions(q)) + off[:, None, :]  # (V, M, 2)
-    explained = np.zeros(len(det.points), dtype=bool)
-    for v in np.flatnonzero(_seen_views(det.start)):
-        a, b = det.start[v], det.start[v + 1]
-        explained[a:b] = nearest_detection(det.points[a:b], proj[v])[1] <= CLAIM_PX ** 2
+    explained = _explained_blobs(proj, det.points, det.start, CLAIM_PX)
     support = candidates.support
     blob, real = np.maximum(support, 0), support >= 0  # (K, V)
     open_ = (~explained[blob] & real).any(axis=1)  # (K,)
