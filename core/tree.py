@@ -50,8 +50,8 @@ __all__ = ["Part", "Tree", "decompose"]
 REACH_MARGIN = 1.25  # a branch's projected reach is widened by this factor
 # A chain (a branch, or a model on a fixed root that does not split) with more DOFs than
 # this is cut into segments of at least SEGMENT_DOFS, each fitted given the one above
-# (_segments). SA over one chain of 16 DOFs still fits every image within 5 deg; of 24 it
-# slows fourfold and misses (docs/BENCH_SUBJECTS.md, bench/chain.py).
+# (_segments): SA over one longer chain slows and misses (docs/BENCH_SUBJECTS.md,
+# bench/chain.py).
 MAX_PART_DOFS = 16
 SEGMENT_DOFS = 4
 FIX_POSTURES = 4  # postures at which a branch's own trunk must be fixed by its markers
@@ -241,9 +241,8 @@ def _segments(model: KinematicModel, topo: _Topology, base: int, top: int,
     where sub-branches hang from it. None where the chain has no more DOFs than
     :data:`MAX_PART_DOFS` or it cannot be cut so.
 
-    Why: SA over one chain's DOFs at once slows and misses as the chain grows: a tail of 12
-    joints, 24 DOFs, fitted 9.7 images per CPU second, one image 9.9° off; in six
-    segments 155 with every image within 1° (``bench/chain.py``). A segment's markers are
+    Why: SA over one chain's DOFs at once slows and misses as the chain grows
+    (``bench/chain.py``, docs/BENCH_SUBJECTS.md). A segment's markers are
     those of its joints and those at the origin of the joint below its end, which only its
     DOFs move (:func:`_part_arrays`). Its cost: a segment whose end marker one camera alone
     sees is placed by that view alone, and the segments below cannot turn it back.
@@ -336,11 +335,11 @@ def _fixes(part: Part, model: KinematicModel, topo: _Topology) -> bool:
     reach about its top joint, translations per model unit) has no singular value below
     :data:`FIX_SINGULAR` over its number of joints with DOFs.
 
-    About its top joint, not its base: a tail's first joint 14 mm behind the thorax turns
-    markers 4-8 mm from it. Over its joints: along a chain of equal links the least singular
-    value falls as the run grows (0.57, 0.15, 0.085 for one, two and three 2-DOF joints of
-    ``bench/chain.py``'s tail), and a run that failed the plain threshold only failed it
-    more as it grew, leaving one part of up to 22 DOFs.
+    About its top joint, not its base: a chain's first joint may lie far from its base and
+    turn markers near itself. Over its joints: along a chain of equal links the least
+    singular value falls as the run grows, so a run that failed the plain threshold would
+    only fail it more as it grew, and the chain would stay one part (docs/BENCH_SUBJECTS.md,
+    "long chains cut into segments").
 
     Counting markers cannot say it for a chain of several joints: a rotation about the
     line through the base origin and a lone marker moves nothing, and two joints that each
