@@ -391,6 +391,7 @@ def first_attempt(
     warm: np.ndarray | None = None,
     ceilings: Callable[[], Mapping[str, float]] | None = None,
     carried: np.ndarray | None = None,
+    previous: float = math.nan,
 ) -> ImageFit:
     """Image ``sample``'s first fit (attempt 1, stream :func:`image_stream` ``(seed, sample,
     1)``) under ``histograms``, with its alternatives; ``no_detections`` without any point.
@@ -402,6 +403,8 @@ def first_attempt(
     carried : (k, D) the previous image's alternatives, optional: refined on this image,
         the best that scores within the tolerance is reported as an alternative
         (:func:`_warm_alternatives`).
+    previous : the objective (px) of the image the warm starts come from: a warm-started fit
+        far above it is searched again without them (:func:`_warm_then_cold`).
     """
     counts = tuple(det.counts.tolist())
     if not any(counts):
@@ -409,7 +412,7 @@ def first_attempt(
         return ImageFit(sample, nan, math.nan, math.nan, 0, Status.NO_DETECTIONS, 0, counts)
     best, alternatives, its, _ = _attempt(
         det, model, rig, search_space(model, histograms), params, image_stream(seed, sample, 1),
-        False, offsets, geometry, warm, ceilings, carried=carried,
+        False, offsets, geometry, warm, ceilings, carried=carried, previous=previous,
     )
     status = image_status(best.error, counts, len(model.markers), params)
     charged = hidden_charge(best.dofs, det, model, rig, params, view_offsets(offsets, rig))
@@ -418,7 +421,7 @@ def first_attempt(
 
 
 def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None,
-             ceilings=None, keep=None, carried=None, typical=math.nan):
+             ceilings=None, keep=None, carried=None, typical=math.nan, previous=math.nan):
     """fit_image, then its alternatives: (best candidate, the others, SA iterations, settled).
 
     ``keep`` (D,), a tree's kept posture, makes the attempt a re-analysis part by part
@@ -445,10 +448,8 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     """
     settled = False
     if keep is None:
-        dofs, error, objective, its, searched, runs = fit_image(
-            det, model=model, rig=rig, space=space, params=params, stream=stream,
-            draw_start=draw_start, offsets=offsets, warm=warm, ceilings=ceilings,
-        )
+        dofs, error, objective, its, searched, runs = _warm_then_cold(
+            det, model, rig, space, params, stream, draw_start, offsets, warm, ceilings, previous)
     else:
         check_views(det, rig)
         runs = np.empty((0, len(model.dofs)))
@@ -473,6 +474,37 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
         witness = _undetermined_witness(ranked[0], det, model, rig, params, offsets)
         ranked += [witness] if witness is not None else []
     return ranked[0], tuple(ranked[1:]), its, settled
+
+
+def _warm_then_cold(det: Detections, model: KinematicModel, rig: Rig, space: SearchSpace,
+                    params: FitParams, stream: np.ndarray, draw_start: bool, offsets: np.ndarray | None,
+                    warm: np.ndarray | None, ceilings: Callable[[], Mapping[str, float]] | None,
+                    previous: float) -> tuple[np.ndarray, float, float, int, np.ndarray, np.ndarray]:
+    """:func:`fit_image` from the warm starts ``warm``; where a tree's fit ends over the error
+    threshold and more than ``params.outlier_factor`` times ``previous`` (the objective of
+    the image the warm starts come from; NaN: unknown), :func:`fit_image` again without
+    them, the lower objective kept (SA iterations summed). The warm start is one more start,
+    not a replacement for the search. Not where the previous image scored about as high:
+    under sliding skin markers most images are over the threshold, and their warm starts
+    are right.
+
+    Why: where the animal jumps between images, a free root's warm start, refined, can
+    stand its three markers on three other blobs at its ε; every branch then hangs from a
+    wrong base and SA leaves each far above its own, and re-analysis, part by part given
+    the kept posture, never searches a root that its own markers explain. A random tree
+    seen by two cameras was left 50-100° off, over the threshold, in its next 20 images,
+    whose cold fits were right (docs/BENCH_SUBJECTS.md, random trees)."""
+    fitted = fit_image(det, model=model, rig=rig, space=space, params=params, stream=stream,
+                       draw_start=draw_start, offsets=offsets, warm=warm, ceilings=ceilings)
+    counts = tuple(det.counts.tolist())
+    if (warm is None or model.tree is None  # a chain's fit runs SA whatever the warm starts
+            or image_status(fitted[1], counts, len(model.markers), params) is Status.OK
+            or fitted[2] <= params.outlier_factor * previous):
+        return fitted
+    cold = fit_image(det, model=model, rig=rig, space=space, params=params, stream=stream,
+                     draw_start=draw_start, offsets=offsets)
+    kept = cold if cold[2] < fitted[2] else fitted
+    return (*kept[:3], fitted[3] + cold[3], *kept[4:])
 
 
 def _run_alternatives(fit: Candidate, others: list[Candidate], runs: np.ndarray, det: Detections,

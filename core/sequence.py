@@ -173,6 +173,7 @@ def fit_chunk(
             seed=seed, geometry=geometry, offsets=off, warm=warm,
             ceilings=ceilings if warm is not None else None,
             carried=_carried(fits, model) if warm is not None else None,
+            previous=fits[-1].objective if warm is not None else math.nan,
         )
         if model.tree is not None:  # used only after a posture (``warm`` is None without one)
             ceilings = partial(_ceilings, fit, det, model, rig, params, off)
