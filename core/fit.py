@@ -404,7 +404,7 @@ def first_attempt(
         the best that scores within the tolerance is reported as an alternative
         (:func:`_warm_alternatives`).
     previous : the objective (px) of the image the warm starts come from: a warm-started fit
-        far above it is searched again without them (:func:`_warm_then_cold`).
+        far above it is searched again without them (:func:`_warm_then_cold`); NaN: never.
     """
     counts = tuple(det.counts.tolist())
     if not any(counts):
@@ -480,13 +480,13 @@ def _warm_then_cold(det: Detections, model: KinematicModel, rig: Rig, space: Sea
                     params: FitParams, stream: np.ndarray, draw_start: bool, offsets: np.ndarray | None,
                     warm: np.ndarray | None, ceilings: Callable[[], Mapping[str, float]] | None,
                     previous: float) -> tuple[np.ndarray, float, float, int, np.ndarray, np.ndarray]:
-    """:func:`fit_image` from the warm starts ``warm``; where a tree's fit ends over the error
-    threshold and more than ``params.outlier_factor`` times ``previous`` (the objective of
-    the image the warm starts come from; NaN: unknown), :func:`fit_image` again without
-    them, the lower objective kept (SA iterations summed). The warm start is one more start,
-    not a replacement for the search. Not where the previous image scored about as high:
-    under sliding skin markers most images are over the threshold, and their warm starts
-    are right.
+    """:func:`fit_image` from the warm starts ``warm``; where a tree's fit ends more than the
+    error threshold (``params.error_threshold_px`` per compared projection) above
+    ``previous``, the objective of the image the warm starts come from, :func:`fit_image`
+    again without them, the lower objective kept (SA iterations summed). The warm start is
+    one more start, not a replacement for the search. Measured from the previous image, not
+    from zero: under sliding skin markers, or with a marker hidden in every image, most
+    images are over the threshold, and their warm starts are right.
 
     Why: where the animal jumps between images, a free root's warm start, refined, can
     stand its three markers on three other blobs at its ε; every branch then hangs from a
@@ -496,10 +496,9 @@ def _warm_then_cold(det: Detections, model: KinematicModel, rig: Rig, space: Sea
     whose cold fits were right (docs/BENCH_SUBJECTS.md, random trees)."""
     fitted = fit_image(det, model=model, rig=rig, space=space, params=params, stream=stream,
                        draw_start=draw_start, offsets=offsets, warm=warm, ceilings=ceilings)
-    counts = tuple(det.counts.tolist())
-    if (warm is None or model.tree is None  # a chain's fit runs SA whatever the warm starts
-            or image_status(fitted[1], counts, len(model.markers), params) is Status.OK
-            or fitted[2] <= params.outlier_factor * previous):
+    limit = params.error_threshold_px * _compared(tuple(det.counts.tolist()), len(model.markers))
+    # A chain's fit runs SA whatever the warm starts.
+    if warm is None or model.tree is None or not fitted[2] > previous + limit:
         return fitted
     cold = fit_image(det, model=model, rig=rig, space=space, params=params, stream=stream,
                      draw_start=draw_start, offsets=offsets)
