@@ -579,20 +579,29 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     readings = _witness_readings(params, det, model, scatter)
     if readings is None and not unseen.any():
         return None
-    _, residual = readings or witness_tolerance(params, det, model, scatter)
+    _, residual, inflate = readings or (*witness_tolerance(params, det, model, scatter), True)
     return undetermined_alternative(
         fit, det, model=model, rig=rig, floor_px=params.alternative_tolerance_px,
-        residual_px=residual, fusion_px=params.fusion_px, empty_view_penalty_px=penalty,
-        huber_px=params.anneal.huber_px, offsets=offsets, unseen=unseen,
+        residual_px=residual, inflate=inflate or bool(unseen.any()), fusion_px=params.fusion_px,
+        empty_view_penalty_px=penalty, huber_px=params.anneal.huber_px, offsets=offsets,
+        unseen=unseen,
     )
 
 
 def _witness_readings(params: FitParams, det: Detections, model: KinematicModel,
-                      scatter: float) -> tuple[float, float] | None:
+                      scatter: float) -> tuple[float, float, bool] | None:
     """:func:`witness_tolerance` of an image of residual ``scatter`` (px) where the
-    undetermined-DOF witness is looked for in it, else None: the search is on, and the
-    residual, read as the markers' own 3D scatter, widens the tolerance beyond the fixed
-    floor, or the model has DOFs that no posture determines.
+    undetermined-DOF witness is looked for in it, and whether its residual is read as 3D
+    scatter (below); else None. The search is on where the residual, read as the markers'
+    own 3D scatter, widens the tolerance beyond the fixed floor, or the model has DOFs that
+    no posture determines; and in a tree seen in two views, read on the floor alone.
+
+    Two views: a marker's depth then rests on one pair of rays, and a branch can turn along
+    them through a valley that stays within the floor with no residual at all; a third view
+    pins it. A random tree with two cameras was left 10-13° off, ``ok``, without an
+    alternative in four clean images (docs/BENCH_SUBJECTS.md, random trees). Not in a single
+    chain: its SA runs that end elsewhere in the valley are its alternatives
+    (:func:`_run_alternatives`), and the search would double its cost.
 
     As 3D scatter because the witness widens each DOF's tolerance so
     (``core.undetermined.shared_scatter_inflation``, about
@@ -603,8 +612,10 @@ def _witness_readings(params: FitParams, det: Detections, model: KinematicModel,
     floor, residual = witness_tolerance(params, det, model, scatter)
     compared = _compared(tuple(det.counts.tolist()), len(model.markers))
     widened = residual * typical_inflation(compared, len(model.markers), len(model.dofs))
-    searched = floor > 0 and (widened > floor or bool(model.identifiability.undetermined))
-    return (floor, residual) if searched else None
+    scattered = widened > floor or bool(model.identifiability.undetermined)
+    if floor > 0 and (scattered or (det.views_seen == 2 and model.tree is not None)):
+        return floor, residual, scattered
+    return None
 
 
 def witness_tolerance(params: FitParams, det: Detections, model: KinematicModel,

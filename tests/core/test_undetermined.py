@@ -15,6 +15,8 @@ import pytest
 from tree_subjects import detections, insect, movement, ring_rig
 
 from bench.animals import angle_errors, fit_params, render_and_detect
+from bench.animals import fit as bench_fit
+from bench.random_trees import filmed, random_model
 from bench.subjects import load
 from bench.witness import slid_detections, witnesses
 from core.ambiguity import Candidate, angle_gaps, plain_error
@@ -562,3 +564,25 @@ def test_noise_free_mouse_images_are_ambiguous_only_with_a_distinct_alternative(
     near = [f for f in result.fits if any(angle_gaps(a.dofs, f.dofs)[rot].max() <= DISTINCT_DEG
                                           for a in f.alternatives)]
     assert near  # such flips are still there, for the choice by continuity
+
+
+def test_a_branch_two_views_barely_place_is_not_far_off_unflagged():
+    """``bench/random_trees.py --cameras 2``, seed 4, model 4 (a fixed root, four branches, 29
+    DOFs; clean images): in images 3-6 one branch turns 10-13° from the truth through a
+    valley within the tolerance (the fit scores 1.21-1.39 px, the truth refined 1.25-1.33).
+    The residual did not turn the witness search on, and refined on that branch alone a
+    step along the valley stayed 2 px above it: its markers fuse with another branch's.
+    With two views the search runs, and the whole model follows: every image more than 10°
+    off has an alternative."""
+    rng = np.random.default_rng([4, 4])
+    model = random_model(rng, 2)
+    subject = filmed(model, 2, 100.0)
+    data = render_and_detect(subject, 8, soft=False, ghosts=2, rng=rng)
+    result, _ = bench_fit(subject, data, seed=4, jobs=1)
+    rot = model.rotational
+    fitted = np.array([f.dofs for f in result.fits])
+    worst = np.abs(angle_errors(model, fitted, data.truth)[:, rot]).max(axis=1)
+    flagged = np.array([math.isfinite(f.alternative_deg(rot)) or f.status is not Status.OK
+                        for f in result.fits])
+    assert (worst > 10.0).sum() >= 3
+    assert not np.any((worst > 10.0) & ~flagged), np.flatnonzero((worst > 10.0) & ~flagged)
