@@ -305,9 +305,9 @@ def undetermined_alternative(
     its flat valley is curved, and a straight step of 10° in a pelvis tilt that the hips
     follow leaves it by tens of pixels. A tree's step is refined on d's part alone, then,
     seen in two views and still beyond the tolerance, on the whole model: there a branch's
-    valley can need its neighbours to follow (a random tree's branch whose markers fuse with
-    another's: 1.96 px above the fit refined on its part, 0.04 px on the whole model); with
-    three or more views, refined so, the sliding-skin subjects fitted ×0.48-0.86 as fast.
+    valley can need its neighbours to follow (a branch whose markers fuse with another's),
+    and with three or more views the whole-model refinement of every sliding-skin image's
+    steps cost up to half the rate (docs/BENCH_SUBJECTS.md, random trees, stop 47).
     DOFs whose linearised rise at the first step is above :data:`_SCREEN` tolerances are
     not tried (most DOFs of a clean image: the search costs a Jacobian and a few errors).
     Of the postures within the tolerance, the one farthest from the fit.
