@@ -496,9 +496,10 @@ def _warm_then_cold(det: Detections, model: KinematicModel, rig: Rig, space: Sea
     whose cold fits were right (docs/BENCH_SUBJECTS.md, random trees)."""
     fitted = fit_image(det, model=model, rig=rig, space=space, params=params, stream=stream,
                        draw_start=draw_start, offsets=offsets, warm=warm, ceilings=ceilings)
+    if warm is None or model.tree is None:  # a chain's fit runs SA whatever the warm starts
+        return fitted
     limit = params.error_threshold_px * _compared(tuple(det.counts.tolist()), len(model.markers))
-    # A chain's fit runs SA whatever the warm starts.
-    if warm is None or model.tree is None or not fitted[2] > previous + limit:
+    if not fitted[2] > previous + limit:
         return fitted
     cold = fit_image(det, model=model, rig=rig, space=space, params=params, stream=stream,
                      draw_start=draw_start, offsets=offsets)

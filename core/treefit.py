@@ -1192,9 +1192,9 @@ def _concerned_branches(q: np.ndarray, det: Detections, model: KinematicModel, r
     A candidate concerns a branch where it has a blob that no marker projection explains,
     every blob in the branch's reach (``reach`` (B, N)), and its other blobs unexplained too
     or explained by the branch's own markers."""
-    claiming, owner = _claiming(q, det, model, rig, tree, off)
-    by_branch = _claims_of(claiming, owner, len(tree.branches), len(det.points))  # (B, N)
     proj = rig.project(model.marker_positions(q)) + off[:, None, :]  # (V, M, 2)
+    claiming, owner = _claiming_at(proj, det, tree)
+    by_branch = _claims_of(claiming, owner, len(tree.branches), len(det.points))  # (B, N)
     explained = _explained_blobs(proj, det.points, det.start, CLAIM_PX)
     support = candidates.support
     blob, real = np.maximum(support, 0), support >= 0  # (K, V)
@@ -1302,12 +1302,16 @@ def _subset(det: Detections, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _claiming(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
               off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(V, M) int64: the detection (index into ``det``) each projection of a branch's marker
-    claims, the nearest in its view within :data:`CLAIM_PX`, else -1; and (M,) each marker's
-    branch (index into ``tree.branches``, -1 for a marker in none)."""
-    owner = np.full(len(model.markers), -1)
+    at posture ``q`` claims, the nearest in its view within :data:`CLAIM_PX`, else -1; and
+    (M,) each marker's branch (index into ``tree.branches``, -1 for a marker in none)."""
+    return _claiming_at(rig.project(model.marker_positions(q)) + off[:, None, :], det, tree)
+
+
+def _claiming_at(proj: np.ndarray, det: Detections, tree: Tree) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_claiming` of the marker projections ``proj`` (V, M, 2), already offset."""
+    owner = np.full(proj.shape[1], -1)
     for k, part in enumerate(tree.branches):
         owner[part.markers] = k
-    proj = rig.project(model.marker_positions(q)) + off[:, None, :]  # (V, M, 2)
     out = np.full(proj.shape[:2], -1)
     for v in np.flatnonzero(_seen_views(det.start)):
         a, b = det.start[v], det.start[v + 1]
