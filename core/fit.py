@@ -353,9 +353,9 @@ def fit_image(
     Returns
     -------
     (dofs (D,), plain Eq. 5 error in pixels, minimised objective, SA iterations, searched
-    (D,) bool: where SA ran, False for the DOFs of a tree's parts that a warm start placed,
-    standing in for SA under twice their ε (``core.treefit._searched``); a chain's every DOF
-    where SA ran; runs (r, D): a chain's SA runs' final postures, the first run's first,
+    (D,) bool: for a tree, False for the DOFs of the parts a warm start placed, standing in
+    for SA under twice their ε, True elsewhere (``core.treefit._searched``); a chain's every
+    DOF where SA ran; runs (r, D): a chain's SA runs' final postures, the first run's first,
     (0, D) for a tree)
     """
     check_views(detections, rig)

@@ -801,13 +801,11 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
     q, error, objective = refine_whole(q, det, model, rig, params, off, steps)
     rot = model.rotational
     settled = keep is not None and not any(distinct(q[p.dofs], keep[p.dofs], rot[p.dofs]) for p in gained)
-    return q, error, objective, iterations, settled, _searched(q, tree, placed, rot, iterations)
+    return q, error, objective, iterations, settled, _searched(q, tree, placed, rot)
 
 
-def _searched(q: np.ndarray, tree: Tree, placed: Mapping[str, np.ndarray], rot: np.ndarray,
-              iterations: int) -> np.ndarray:
-    """(D,) bool: all False where no SA ran (``iterations`` 0: every part came from its warm
-    starts); else False for the DOFs of each part a warm start placed and True elsewhere.
+def _searched(q: np.ndarray, tree: Tree, placed: Mapping[str, np.ndarray], rot: np.ndarray) -> np.ndarray:
+    """(D,) bool: False for the DOFs of each part a warm start placed and True elsewhere.
 
     Placed (``placed``, by part name): the warm start stood in for SA with its part
     objective under :data:`WARM_EPS_FACTOR` times the part's ε, and the part is still
@@ -817,7 +815,7 @@ def _searched(q: np.ndarray, tree: Tree, placed: Mapping[str, np.ndarray], rot: 
     projections were left out or under its ceiling, leaves the part searched: the image
     judged it less closely, and the previous posture refined may land in another minimum
     that the choice by continuity needs (``core.fit._warm_alternatives``)."""
-    searched = np.full(len(q), iterations > 0)
+    searched = np.ones(len(q), dtype=bool)
     for part in tree.parts:
         if part.name in placed and not distinct(q[part.dofs], placed[part.name], rot[part.dofs]):
             searched[part.dofs] = False

@@ -102,7 +102,7 @@ def test_searched_marks_the_parts_sa_placed_not_those_a_warm_start_placed(legs):
     for leg 1 alone, and fit_image says so. ``core.fit._warm_alternatives`` refines the
     previous posture only for searched parts: leg 0 is that posture refined already. With
     leg 0's claw hidden from one camera its warm start stands in only once that projection
-    is left out, judged less closely: leg 0 counts as searched then."""
+    is left out, judged less closely: leg 0 counts as searched then, SA run or not."""
     model, rig, truth, images = legs
     leg0, leg1 = (part.dofs for part in model.tree.branches)
     warm = truth[0].copy()
@@ -117,6 +117,8 @@ def test_searched_marks_the_parts_sa_placed_not_those_a_warm_start_placed(legs):
     fitted, _, _, its, searched = _searched_too(model, rig, hidden, warm=warm[None])
     assert its > 0 and angle_errors(fitted, truth[1]).max() < 0.5
     assert searched.all()
+    _, _, _, its, searched = _searched_too(model, rig, hidden, warm=truth[:1])
+    assert its == 0 and searched[leg0].all() and not searched[leg1].any()
 
 
 def _hiding(model: KinematicModel, rig: Rig, posture: np.ndarray, view: int, marker: int) -> Detections:
