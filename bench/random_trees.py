@@ -37,7 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.animals import OUT, ambiguous_flags, angle_errors, fit, render_and_detect
+from bench.animals import OUT, ambiguous_flags, angle_errors, far_off_unflagged, fit, render_and_detect
 from bench.subjects import Subject
 from bench.subjects.build import ring
 from core.fit import Status
@@ -162,7 +162,7 @@ def main() -> None:
         rng = np.random.default_rng([args.seed, k])
         model = random_model(rng, args.markers)
         r = run_model(model, args, rng)
-        bad = np.flatnonzero(r["ok"] & ~r["flagged"] & (r["worst"] > 10.0))
+        bad = far_off_unflagged(r["worst"], r["ok"], r["flagged"])
         n = len(r["worst"])
         errors.append(r["errors"].ravel())
         print(f"model {k}: {len(model.dofs)} DOFs, parts {r['parts']}; median error "

@@ -14,7 +14,14 @@ import numpy as np
 import pytest
 from tree_subjects import detections, insect, movement, ring_rig
 
-from bench.animals import angle_errors, fit_params, render_and_detect
+from bench.animals import (
+    FAR_OFF_DEG,
+    angle_errors,
+    far_off_unflagged,
+    fit_flags,
+    fit_params,
+    render_and_detect,
+)
 from bench.animals import fit as bench_fit
 from bench.random_trees import filmed, random_model
 from bench.subjects import load
@@ -582,7 +589,5 @@ def test_a_branch_two_views_barely_place_is_not_far_off_unflagged():
     rot = model.rotational
     fitted = np.array([f.dofs for f in result.fits])
     worst = np.abs(angle_errors(model, fitted, data.truth)[:, rot]).max(axis=1)
-    flagged = np.array([math.isfinite(f.alternative_deg(rot)) or f.status is not Status.OK
-                        for f in result.fits])
-    assert (worst > 10.0).sum() >= 3
-    assert not np.any((worst > 10.0) & ~flagged), np.flatnonzero((worst > 10.0) & ~flagged)
+    assert (worst > FAR_OFF_DEG).sum() >= 3
+    assert not (bad := far_off_unflagged(worst, *fit_flags(result, rot))).size, bad
