@@ -57,8 +57,8 @@ from core.undetermined import (
     crossed_markers,
     fused_projections,
     hidden_projections,
-    marker_lineage,
     residual_tolerance,
+    rigid_markers,
     scatter_error,
     typical_inflation,
     undetermined_alternative,
@@ -566,14 +566,13 @@ def _undetermined_witness(fit: Candidate, det: Detections, model: KinematicModel
     off = view_offsets(offsets, rig)
     penalty = params.empty_view_penalty_px
     unseen = np.zeros(len(model.markers), dtype=bool)
-    if fit.error > penalty:  # else no marker can be unseen
-        projected = rig.project(model.marker_positions(fit.dofs)) + off[:, None, :]
+    projected = rig.project(model.marker_positions(fit.dofs)) + off[:, None, :]
+    crossed = crossed_markers(projected, det, params.fusion_px, rigid_markers(model))
+    if fit.error > penalty or crossed.any():  # else no marker can be unseen
         distances = marker_errors(projected, det)
-        if hidden_projections(distances, penalty).any():
+        if crossed.any() or hidden_projections(distances, penalty).any():
             unseen = unseen_markers(distances, penalty, borrowed_projections(projected, det),
-                                    fused_projections(projected, det, params.fusion_px),
-                                    crossed_markers(projected, det, params.fusion_px,
-                                                    marker_lineage(model)))
+                                    fused_projections(projected, det, params.fusion_px), crossed)
     if not unseen.any() and _witness_readings(params, det, model, fit.error) is None:
         return None
     scatter = scatter_error(fit.dofs, det, model, rig, off, penalty, params.fusion_px)

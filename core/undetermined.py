@@ -26,13 +26,12 @@ from core.ambiguity import Candidate, angle_gaps, plain_error
 from core.error import FUSION_DIAMETERS, Detections, marker_errors, nearest_detection, view_offsets
 from core.model import KinematicModel
 from core.rig import Rig
-from core.tree import _subtrees
 from core.treefit import FUSED_PX, MAX_LOST_SHARE, world_frames
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "borrowed_projections",
            "confidence_chi2", "crossed_markers", "fused_projections", "hidden_projections",
-           "interval_chi2", "marker_lineage", "moved_projections", "residual_shares",
-           "residual_tolerance", "scatter_error", "shared_scatter_inflation", "typical_inflation",
+           "interval_chi2", "moved_projections", "residual_shares", "residual_tolerance",
+           "rigid_markers", "scatter_error", "shared_scatter_inflation", "typical_inflation",
            "undetermined_alternative", "unseen_markers"]
 
 # An image does not determine a DOF when a posture this far from its fit in that DOF (degrees,
@@ -96,8 +95,8 @@ def unseen_markers(distances: np.ndarray, penalty: float, borrowed: np.ndarray |
     M) bool, :func:`fused_projections`: big markers whose joints touch fuse in every view,
     the merged blob's centroid far from each), and it is seen in no view with blobs, in
     one alone where three or more have blobs, or only where it is fused (on no blob of its
-    own). A marker ``crossed`` (M,) bool (:func:`crossed_markers`: at one point with another
-    limb's marker in every view) is unseen with no projection hidden. ``borrowed``, ``fused`` and
+    own). A marker ``crossed`` (M,) bool (:func:`crossed_markers`: at one point with a marker
+    on another joint in every view) is unseen with no projection hidden. ``borrowed``, ``fused`` and
     ``crossed`` are none where not given.
 
     Why one of three: a marker hidden from every camera is charged its distance to the
@@ -213,38 +212,42 @@ def _fused_pairs(projected: np.ndarray, nearest: np.ndarray, fusion_px: float) -
 
 
 def crossed_markers(projected: np.ndarray, detections: Detections, fusion_px: float,
-                    lineage: np.ndarray) -> np.ndarray:
-    """(M,) bool: the markers at one point with a marker of another limb (outside their
-    ``lineage`` (M, M) bool, :func:`marker_lineage`): on one blob with it, less than half a
-    marker's diameter away (``fusion_px`` / ``core.error.FUSION_DIAMETERS`` is the
-    diameter), in every view with blobs, two or more. Two real markers cannot lie that
+                    rigid: np.ndarray) -> np.ndarray:
+    """(M,) bool: the markers at one point with a marker on another joint (``rigid`` (M, M)
+    bool, :func:`rigid_markers`, marks the pairs on one joint): on one blob with it, less
+    than half a marker's diameter away (``fusion_px`` / ``core.error.FUSION_DIAMETERS`` is
+    the diameter), in every view with blobs, two or more. Two real markers cannot lie that
     close in two views (each is a marker's diameter across); the images cannot tell one
-    marker there from two, so they place neither limb's DOFs that only it places.
+    marker there from two, so they place neither segment's DOFs that only it places.
 
     Why: a rat whose right ankle and toe no camera saw was fitted with its right leg folded
     onto its left, the two ankles and the two toes 0.03 px apart in all three views; no
     projection of theirs looked hidden, and hip flexion was 35° off, ``ok``, with no
-    alternative. Why half a diameter, not ``fusion_px``: a walking fly's middle and hind
-    knees, 9 px markers, come within ``fusion_px`` (17.8 px) in every view of 15 images in
-    60, 7-17 px apart in the view that shows them farthest apart. Why other limbs only: a
-    model may place two markers of one limb that close.
+    alternative. A random tree of one branch on a free root (one chain) had the branch's
+    first marker, hidden from both cameras, put on a root marker's blob, 0.9 and 0.2 px from
+    it: the branch's roll 17° off, ``ok``, with no alternative (docs/BENCH_SUBJECTS.md, stop
+    48). Why half a diameter, not ``fusion_px``: a walking fly's middle and hind knees, 9 px
+    markers, come within ``fusion_px`` (17.8 px) in every view of 15 images in 60, 7-17 px
+    apart in the view that shows them farthest apart. Why not two markers on one joint: a
+    model may place them that close, and no posture moves them apart.
     """
-    views = [v for v in range(projected.shape[0]) if len(detections.view(v))]
+    views = np.flatnonzero(detections.counts)
     if len(views) < 2:
         return np.zeros(projected.shape[1], bool)
-    crossed = ~lineage
-    for v in views:
+    limit = 0.5 * fusion_px / FUSION_DIAMETERS
+    gap = projected[views, :, None, :] - projected[views, None, :, :]  # (V', M, M, 2)
+    crossed = (np.einsum("vijk,vijk->vij", gap, gap) < limit * limit).all(axis=0) & ~rigid
+    for v in views if crossed.any() else ():  # close in every view: on one blob in each?
         nearest = nearest_detection(projected[v], detections.view(v))[0]
-        crossed = crossed & _fused_pairs(projected[v], nearest, 0.5 * fusion_px / FUSION_DIAMETERS)
+        crossed = crossed & (nearest[:, None] == nearest[None, :])
     return crossed.any(axis=1)
 
 
-def marker_lineage(model: KinematicModel) -> np.ndarray:
-    """(M, M) bool: True where one marker's joint is the other's or lies above it in the
-    tree (one limb), False for markers of two limbs (the left and right ankle)."""
-    kin = model.arrays
-    above = _subtrees(kin.parent)[np.ix_(kin.marker_joint, kin.marker_joint)]  # m's joint at or above n's
-    return above | above.T
+def rigid_markers(model: KinematicModel) -> np.ndarray:
+    """(M, M) bool: True where two markers ride on one joint (their distance is the model's,
+    in every posture), False elsewhere."""
+    joint = model.arrays.marker_joint
+    return joint[:, None] == joint[None, :]
 
 
 def residual_tolerance(error_px: float, compared: int, n_dofs: int, tested_dofs: int,
