@@ -205,10 +205,15 @@ def _fused_in_view(projected: np.ndarray, nearest: np.ndarray, fusion_px: float)
 def _fused_pairs(projected: np.ndarray, nearest: np.ndarray, fusion_px: float) -> np.ndarray:
     """(M, M) bool, symmetric: projections ``projected`` (M, 2) of one view closer than
     ``fusion_px`` to each other on one blob (``nearest`` (M,), each one's nearest blob)."""
-    gap = projected[:, None, :] - projected[None, :, :]
-    near = np.einsum("ijk,ijk->ij", gap, gap) < fusion_px * fusion_px
-    np.fill_diagonal(near, False)
-    return near & (nearest[:, None] == nearest[None, :])
+    return _close_pairs(projected, fusion_px) & (nearest[:, None] == nearest[None, :])
+
+
+def _close_pairs(projected: np.ndarray, px: float) -> np.ndarray:
+    """(..., M, M) bool, symmetric: two distinct projections of ``projected`` (..., M, 2),
+    in one view, closer than ``px`` to each other."""
+    gap = projected[..., :, None, :] - projected[..., None, :, :]
+    near = np.einsum("...ijk,...ijk->...ij", gap, gap) < px * px
+    return near & ~np.eye(projected.shape[-2], dtype=bool)
 
 
 def crossed_markers(projected: np.ndarray, detections: Detections, fusion_px: float,
@@ -235,8 +240,7 @@ def crossed_markers(projected: np.ndarray, detections: Detections, fusion_px: fl
     if len(views) < 2:
         return np.zeros(projected.shape[1], bool)
     limit = 0.5 * fusion_px / FUSION_DIAMETERS
-    gap = projected[views, :, None, :] - projected[views, None, :, :]  # (V', M, M, 2)
-    crossed = (np.einsum("vijk,vijk->vij", gap, gap) < limit * limit).all(axis=0) & ~rigid
+    crossed = _close_pairs(projected[views], limit).all(axis=0) & ~rigid
     for v in views if crossed.any() else ():  # close in every view: on one blob in each?
         nearest = nearest_detection(projected[v], detections.view(v))[0]
         crossed = crossed & (nearest[:, None] == nearest[None, :])
