@@ -2,7 +2,7 @@
 
     python bench/animals.py [--subject hexapod|freefly|biped|fullbody|stick|locust|rat|mouse|spider|all]
         [--images N] [--cameras 6|4|3|2] [--soft-tissue] [--ghosts N] [--occlusion F [--everywhere]]
-        [--lost-claw] [--seed S] [--jobs 1]
+        [--lost-claw] [--glints N] [--seed S] [--jobs 1]
         [--threshold auto|otsu|100] [--model-error F] [--rig-error PX]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
@@ -24,7 +24,9 @@ chain is one per marker and hides it from every view at once (a claw tucked unde
 a marker that fell off): the DOFs it alone places are then not determined, and the figures
 say whether such images are flagged. With ``--lost-claw`` the first branch's last marker (a
 claw or a toe in most subjects) is missing from every view of every image, as a marker
-that fell off before the trial (:func:`lost_marker`).
+that fell off before the trial (:func:`lost_marker`). With ``--glints N``, N reflections
+per view and image lie on the animal's segments (:func:`glint_pixels`), among the markers
+where a lab's clutter is, unlike the ghosts drawn anywhere in the view.
 With ``--model-error F`` the fit is given the subject's model with every segment length and
 marker placement off by a relative N(0, F) (a model measured by hand), and with
 ``--rig-error PX`` its rig with every view's image shifted by PX pixels (a calibration's
@@ -57,7 +59,7 @@ from core.detect import DetectorParams, detect, marker_diameter
 from core.error import Detections, fusion_distance
 from core.fit import FitParams, ImageFit, Status
 from core.histogram import Histograms
-from core.model import KinematicModel
+from core.model import KinematicModel, Marker
 from core.results import SampleClock, write_angles_csv
 from core.sequence import SequenceResult, fit_sequence
 from core.synth import render_frames
@@ -92,7 +94,8 @@ class Rendered:
 def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
                       rng: np.random.Generator, occlusion: float = 0.0, everywhere: bool = False,
                       detector: DetectorParams = DetectorParams(),
-                      marker_px: float = MARKER_DIAMETER_PX, lost_claw: bool = False) -> Rendered:
+                      marker_px: float = MARKER_DIAMETER_PX, lost_claw: bool = False,
+                      glints: int = 0) -> Rendered:
     """Render ``n`` images of the subject's movement in every camera, then detect them (timed).
 
     ``occlusion``: the fraction of (image, view, marker) hidden (:func:`occlusion_mask`), each
@@ -100,6 +103,8 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
     ``lost_claw``: :func:`lost_marker` hidden from every view of every image too.
     ``detector``: the detection settings (``mocap fit``'s defaults unless given).
     ``marker_px``: the markers' imaged diameter, pixels.
+    ``glints``: reflections off the animal's body per view and image (:func:`glint_pixels`),
+    drawn after everything else is drawn from ``rng``.
     """
     truth = subject.trajectory(n, rng)
     model, offsets = subject.model, None
@@ -117,10 +122,15 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
     if lost_claw:
         hidden = np.zeros((n, len(subject.rig.views), len(model.markers)), bool) if hidden is None else hidden
         hidden[:, :, lost_marker(subject.model)] = True
+    if glints:
+        model, offsets, drop = _with_glints(subject, model, truth, offsets, hidden,
+                                            glint_pixels(subject, truth, glints, marker_px, rng))
+    else:
+        drop = hidden
     frames = [
         render_frames(model, subject.rig, truth, rng=r, video=k, frame_size=subject.size_of(k),
                       marker_diameter_px=marker_px, ghosts_per_view=ghosts,
-                      drop=hidden, marker_offsets_px=offsets)
+                      drop=drop, marker_offsets_px=offsets)
         for k, r in enumerate(noise)
     ]
     detections, seconds = [], 0.0
@@ -129,6 +139,54 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
         detections.append(detect(list(image), rig=subject.rig, params=detector))
         seconds += time.perf_counter() - t0
     return Rendered(truth, detections, seconds, hidden)
+
+
+def glint_pixels(subject: Subject, truth: np.ndarray, per_view: int, marker_px: float,
+                 rng: np.random.Generator) -> np.ndarray:
+    """(T, V, per_view, 2) image points of reflections off the animal's body (cuticle, fur,
+    skin): each at a uniformly random place on a random segment of the posture ``truth``
+    (T, D) (a joint to a child joint or to one of its markers), moved across by up to
+    ``marker_px`` pixels, drawn anew for every view and image (a glint depends on where the
+    camera and the light are, and comes and goes as the limb turns). Unlike ``--ghosts``,
+    which fall anywhere in the view, these lie where markers lie: among the legs."""
+    model = subject.model
+    index = {j.name: i for i, j in enumerate(model.joints)}
+    ends = [(index[j.parent], i, False) for i, j in enumerate(model.joints) if j.parent is not None]
+    ends += [(index[m.joint], k, True) for k, m in enumerate(model.markers)]
+    n, views = len(truth), len(subject.rig.views)
+    joints = np.array([model.joint_transforms(q)[:, :3, 3] for q in truth])  # (T, J, 3)
+    markers = model.marker_positions(truth)  # (T, M, 3)
+    pick = rng.integers(len(ends), size=(n, views, per_view))
+    base = np.array([e[0] for e in ends])[pick]
+    tip = np.array([e[1] for e in ends])[pick]
+    on_marker = np.array([e[2] for e in ends])[pick]
+    t = np.arange(n)[:, None, None]
+    a = joints[t, base]
+    b = np.where(on_marker[..., None], markers[t, np.where(on_marker, tip, 0)],
+                 joints[t, np.where(on_marker, 0, tip)])
+    points = a + rng.random((n, views, per_view, 1)) * (b - a)  # (T, V, G, 3)
+    flat = subject.rig.project(points.reshape(n, views * per_view, 3))  # (T, V, V·G, 2)
+    own = flat.reshape(n, views, views, per_view, 2)[:, np.arange(views), np.arange(views)]
+    angle = rng.uniform(0, 2 * np.pi, (n, views, per_view))
+    radius = marker_px * np.sqrt(rng.random((n, views, per_view)))
+    return own + radius[..., None] * np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+
+
+def _with_glints(subject: Subject, model: KinematicModel, truth: np.ndarray, offsets: np.ndarray | None,
+                 hidden: np.ndarray | None, glints: np.ndarray
+                 ) -> tuple[KinematicModel, np.ndarray, np.ndarray | None]:
+    """The rendering model, marker offsets and drop mask with the glints ``glints``
+    (T, V, G, 2) drawn as markers: G markers at the root's origin, offset in each view and
+    image onto their glint, never hidden."""
+    root = next(j.name for j in model.joints if j.parent is None)
+    g = glints.shape[2]
+    drawn = replace(model, markers=(*model.markers,
+                                    *(Marker(f"glint{i + 1}", root, (0.0, 0.0, 0.0)) for i in range(g))))
+    at = subject.rig.project(drawn.marker_positions(truth)[:, -g:])  # (T, V, G, 2)
+    n, views = glints.shape[:2]
+    before = np.zeros((n, views, len(model.markers), 2)) if offsets is None else offsets
+    drop = None if hidden is None else np.concatenate([hidden, np.zeros((n, views, g), bool)], axis=2)
+    return drawn, np.concatenate([before, glints - at], axis=2), drop
 
 
 def lost_marker(model: KinematicModel) -> int:
@@ -347,11 +405,13 @@ def run(name: str, args: argparse.Namespace) -> None:
              + (" + soft tissue" if args.soft_tissue else "")
              + (f" + {subject.model.markers[lost_marker(subject.model)].name} lost" if args.lost_claw else "")
              + (f" + model off {100 * args.model_error:g} %" if args.model_error else "")
-             + (f" + rig off {args.rig_error:g} px" if args.rig_error else ""))
+             + (f" + rig off {args.rig_error:g} px" if args.rig_error else "")
+             + (f" + {args.glints} glints per view" if args.glints else ""))
     rng = np.random.default_rng(args.seed)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts,
                              rng=rng, occlusion=args.occlusion, everywhere=args.everywhere,
-                             detector=args.detector, marker_px=args.marker_px, lost_claw=args.lost_claw)
+                             detector=args.detector, marker_px=args.marker_px, lost_claw=args.lost_claw,
+                             glints=args.glints)
     if data.hidden is not None:
         h = data.hidden
         print(f"\n{label}: hidden {int(h.sum())} of {h.size} marker projections "
@@ -366,7 +426,8 @@ def run(name: str, args: argparse.Namespace) -> None:
            + (f"-model{100 * args.model_error:g}" if args.model_error else "")
            + (f"-rig{args.rig_error:g}" if args.rig_error else "")
            + (f"-marker{args.marker_px:g}" if args.marker_px != MARKER_DIAMETER_PX else "")
-           + ("-lostclaw" if args.lost_claw else ""))
+           + ("-lostclaw" if args.lost_claw else "")
+           + (f"-glints{args.glints}" if args.glints else ""))
     OUT.mkdir(parents=True, exist_ok=True)
     csv_path = OUT / f"animals-{tag}.csv"
     write_angles_csv(csv_path, subject.model, result.fits, SampleClock(subject.fps))
@@ -406,6 +467,9 @@ def main() -> None:
                              f"{OCCLUSION_RUN_S:g} s per view and marker (default 0)")
     parser.add_argument("--everywhere", action="store_true",
                         help="with --occlusion, hide each marker from every view at once")
+    parser.add_argument("--glints", type=int, default=0, metavar="N",
+                        help="reflections off the animal's body per view and image, on its segments "
+                             "(default 0)")
     parser.add_argument("--lost-claw", action="store_true",
                         help="the first branch's last marker (a claw, a toe) is missing from every image")
     parser.add_argument("--fps", type=float, default=None,
@@ -431,10 +495,11 @@ def main() -> None:
         parser.error(f"--threshold: {exc}")
     if args.ghosts is None:
         args.ghosts = 0 if args.soft_tissue else 2
-    if (args.images < 1 or args.jobs < 1 or args.ghosts < 0 or not 0 <= args.occlusion <= 0.5
+    if (args.images < 1 or args.jobs < 1 or min(args.ghosts, args.glints) < 0
+            or not 0 <= args.occlusion <= 0.5
             or (args.fps is not None and args.fps <= 0)
             or not (0 <= args.model_error <= 0.5 and 0 <= args.rig_error <= 50)):
-        parser.error("--images and --jobs must be >= 1, --ghosts >= 0, --occlusion in [0, 0.5], "
+        parser.error("--images and --jobs must be >= 1, --ghosts and --glints >= 0, --occlusion in [0, 0.5], "
                      "--fps > 0, --model-error in [0, 0.5], --rig-error in [0, 50]")
     names = NAMES if args.subject == "all" else (args.subject,)
     print(f"bench/animals.py: seed {args.seed}, {args.images} images per subject, "
@@ -445,6 +510,7 @@ def main() -> None:
              if args.occlusion else "")
           + (f", model off {100 * args.model_error:g} %" if args.model_error else "")
           + (f", rig off {args.rig_error:g} px" if args.rig_error else "")
+          + (f", {args.glints} glints per view on the body" if args.glints else "")
           + f", threshold {args.detector.threshold}")
     for name in names:
         run(name, args)

@@ -254,6 +254,42 @@ def test_a_lost_claw_is_missing_from_every_view_of_every_image():
     assert lost_marker(load("locust").model) == len(load("locust").model.markers) - 1
 
 
+def test_glints_lie_on_the_body_and_add_blobs():
+    """``--glints``: every glint lies within a marker diameter of a segment of the posture in
+    its own view (a joint to a child joint or to a marker), each view and image draws its
+    own, and they add blobs (those that fall on a marker fuse with it)."""
+    from bench.animals import glint_pixels, render_and_detect
+
+    subject = load("rat")
+    truth = subject.trajectory(6, np.random.default_rng(4))
+    glints = glint_pixels(subject, truth, 4, 5.0, np.random.default_rng(5))
+    assert glints.shape == (6, len(subject.rig.views), 4, 2)
+    model = subject.model
+    index = {j.name: i for i, j in enumerate(model.joints)}
+    for t, q in enumerate(truth):
+        joints = subject.rig.project(model.joint_transforms(q)[None, :, :3, 3])[0]  # (V, J, 2)
+        markers = subject.rig.project(model.marker_positions(q)[None])[0]
+        segments = [(joints[:, index[j.parent]], joints[:, i]) for i, j in enumerate(model.joints)
+                    if j.parent is not None]
+        segments += [(joints[:, index[m.joint]], markers[:, k]) for k, m in enumerate(model.markers)]
+        for v in range(len(subject.rig.views)):
+            for g in glints[t, v]:
+                gaps = [_distance_to_segment(g, a[v], b[v]) for a, b in segments]
+                assert min(gaps) <= 5.0 + 1e-6
+    assert not np.allclose(glints[0, 0], glints[0, 1]) and not np.allclose(glints[0, 0], glints[1, 0])
+    plain = render_and_detect(subject, 6, soft=False, ghosts=0, rng=np.random.default_rng(6))
+    glinting = render_and_detect(subject, 6, soft=False, ghosts=0, rng=np.random.default_rng(6), glints=4)
+    extra = np.array([g.counts - p.counts
+                      for g, p in zip(glinting.detections, plain.detections, strict=True)])
+    assert extra.min() >= 0 and extra.max() <= 4 and extra.mean() > 1  # some fuse with a marker
+
+
+def _distance_to_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    ab = b - a
+    u = np.clip(np.dot(p - a, ab) / max(float(np.dot(ab, ab)), 1e-12), 0.0, 1.0)
+    return float(np.linalg.norm(p - (a + u * ab)))
+
+
 @pytest.mark.parametrize("subject", ["locust", "hexapod", "spider"])
 def test_a_calibrated_rig_moves_every_projection_by_the_asked_shift(subject):
     """bench/imperfect.py's rig error: every view's image (affine, pinhole with distortion)
