@@ -176,7 +176,8 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     so a warm start judged without them must leave every DOF placed in two views (one with
     two cameras, :func:`_left_in_too_few_views`): at 50 Hz the free fly's hind claw, next
     to another leg's marker in the previous image, was left out in enough views to free
-    the tarsus, and the warm start stood in 25° off.
+    the tarsus, and the warm start stood in 25° off. Nor may a marker left out of every view
+    lie on no blob in any (:func:`_on_no_blob`): nothing then places it.
 
     A warm start stands in only where the projections it is judged on lie in two views,
     wherever the part has detections in two or more (:func:`_judged_in_two_views`): the claim
@@ -205,7 +206,8 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
                                 _kernels.NO_TARGETS)
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
         if value < WARM_EPS_FACTOR * eps and views and not (
-                unseen.any() and _left_in_too_few_views(unseen, q, kin, image)):
+                unseen.any() and (_left_in_too_few_views(unseen, q, kin, image)
+                                  or _on_no_blob(q, kin, rig, image))):
             return q, value, True
         if params.refine and views and (seen := _without_lost(q, row[dofs], kin, image, bounds, rig,
                                                               params, eps, unexplained)) is not None:
@@ -215,6 +217,26 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     if best is not None and ceiling is not None and views:
         best = (best[0], best[1], _under_ceiling(best[0], kin, rig, image, params, ceiling()))
     return best
+
+
+def _on_no_blob(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) -> bool:
+    """Whether posture ``q`` (d,) (posed by ``kin``) has a marker that ``image.unseen``
+    leaves out of every view with detections, farther than half the fusion distance, and
+    than the empty-view penalty, from every blob of each.
+
+    Why: a projection next to another part's marker is left out of a warm start's objective
+    as one of two markers fused on one blob (:func:`warm_start`), and two markers closer
+    than the fusion distance make a blob within half of it of each. A marker left out of
+    every view and on no such blob in any is placed by nothing: a 2-camera hexapod's
+    middle leg, its femur-tibia marker left out of both views, turned its coxa and femur
+    rolls against each other, kept its two distal markers on their blobs and stood in 11°
+    off, ``ok``, that marker 6 and 9 px from any blob (docs/BENCH_SUBJECTS.md, glints). One
+    compared in some view, or on a blob in one it is left out of, is placed there."""
+    beyond = max(image.penalty, image.fuse_px / 2.0)
+    lost = _kernels._lost_markers(np.ascontiguousarray(q), kin, rig.arrays, image, beyond, True)[0]
+    elsewhere = ~_seen_views(image.start)[:, None]  # (V, 1): views without detections
+    left_out = (image.unseen | elsewhere).all(axis=0)
+    return bool((left_out & (lost | elsewhere).all(axis=0)).any())
 
 
 def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bounds: _kernels.Bounds,

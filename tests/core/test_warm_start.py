@@ -400,6 +400,33 @@ def test_a_warm_start_judged_without_shared_projections_leaves_every_dof_placed(
     assert angle_errors(posture, q[part.dofs]).max() < 0.1
 
 
+def test_a_warm_start_with_a_marker_left_out_everywhere_and_on_no_blob_does_not_stand_in(legs):
+    """Leg 0's warm start on the truth, its third marker left out of all three views as
+    next to another part's marker (every DOF that moves it moves the claw too, compared in
+    three views): on its blobs it stands in. With those blobs 8 px off it in every view,
+    nothing places it, and the warm start does not stand in, though its objective without
+    that marker is below twice its ε."""
+    model, rig, truth, _ = legs
+    q, part, params = truth[1], model.tree.branches[0], FitParams()
+    kin = part.at(*_base_frame(q, model, part))
+    unseen = np.zeros((len(rig.views), len(part.markers)), dtype=bool)
+    unseen[:, 2] = True
+    eps = _part_eps(part, params, 3)
+
+    def tried(shift: float) -> tuple[np.ndarray, float, bool]:
+        views = rig.project(model.marker_positions(q[None]))[0] + 0.05  # (V, M, 2)
+        views[:, int(part.markers[2]), 0] += shift
+        det = Detections.from_views(list(views))
+        return treefit.warm_start(part.dofs, kin, det.kernel_points, det.start, q[None], model, rig,
+                                  params, eps, np.zeros((3, 2)), unseen)
+
+    posture, _, stands_in = tried(0.0)
+    assert stands_in and angle_errors(posture, q[part.dofs]).max() < 0.5
+    posture, value, stands_in = tried(8.0)
+    assert not stands_in and value < treefit.WARM_EPS_FACTOR * eps
+    assert angle_errors(posture, q[part.dofs]).max() < 0.5
+
+
 def test_a_dof_placed_only_by_hidden_markers_needs_two_views_of_three_and_one_of_two(legs):
     """``_left_in_too_few_views`` on leg 0 of the two-legged insect (4 markers: coxa-femur
     joint, knee, tibia-tarsus joint, claw): the claw hidden in one view of three is still
