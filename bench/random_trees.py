@@ -1,7 +1,7 @@
 """Random kinematic trees: does the engine hold on animals it was not built around?
 
     python bench/random_trees.py [--models 8] [--images 40] [--seed 0] [--cameras 3]
-        [--markers 1|2] [--occlusion F] [--fps 100] [--soft-tissue]
+        [--markers 1|2] [--occlusion F] [--fps 100] [--soft-tissue] [--glints N]
 
 The subjects of ``bench/animals.py`` are nine animals; labs bring others. Each model here
 is drawn at random: a root with three markers, fixed or (two models in five) free with
@@ -20,7 +20,8 @@ The cameras stand on a ring 35° above the root, 250 mm away (800×600 px, f = 1
 about 5.6 px per mm); the movement is ``core.synth.natural_movements`` at ``--fps``. The
 images are rendered, detected and fitted as ``bench/animals.py`` does (5 px markers, 2
 ghost blobs per view, ``--occlusion`` as there; ``--soft-tissue`` as there: every marker
-slides 2 px RMS, no ghost blobs, an unmodelled marker on the root, :data:`UNMODELLED`).
+slides 2 px RMS, no ghost blobs, an unmodelled marker on the root, :data:`UNMODELLED`;
+``--glints`` as there: reflections on the segments).
 Prints one line per model (DOFs, the parts ``core.tree`` fits, the median absolute
 rotational DOF error, the worst image, the share of images with every DOF within 5°,
 ``ok`` images more than 10° off without an alternative, statuses, fit images per CPU
@@ -125,7 +126,7 @@ def run_model(model: KinematicModel, args: argparse.Namespace, rng: np.random.Ge
     """Render, detect and fit ``args.images`` images of ``model``; the figures of its line."""
     subject = filmed(model, args.cameras, args.fps)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=0 if args.soft_tissue else 2,
-                             rng=rng, occlusion=args.occlusion)
+                             rng=rng, occlusion=args.occlusion, glints=args.glints)
     result, timing = fit(subject, data, seed=args.seed, jobs=1)
     csv_path = OUT / "random-tree.csv"
     OUT.mkdir(parents=True, exist_ok=True)
@@ -150,12 +151,17 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=100.0)
     parser.add_argument("--soft-tissue", action="store_true",
                         help="markers slide 2 px RMS; an unmodelled marker; no ghost blobs")
+    parser.add_argument("--glints", type=int, default=0, metavar="N",
+                        help="reflections off the body per view and image, on its segments")
     args = parser.parse_args()
-    if args.models < 1 or args.images < 1 or args.cameras < 2 or not 0 <= args.occlusion <= 0.5:
-        parser.error("--models and --images must be >= 1, --cameras >= 2, --occlusion in [0, 0.5]")
+    if (args.models < 1 or args.images < 1 or args.cameras < 2 or args.glints < 0
+            or not 0 <= args.occlusion <= 0.5):
+        parser.error("--models and --images must be >= 1, --cameras >= 2, --glints >= 0, "
+                     "--occlusion in [0, 0.5]")
     print(f"bench/random_trees.py: seed {args.seed}, {args.models} models, {args.images} images each, "
           f"{args.cameras} cameras, {args.markers} marker(s) per segment, {100 * args.occlusion:g} % hidden"
-          + (", sliding skin" if args.soft_tissue else ""))
+          + (", sliding skin" if args.soft_tissue else "")
+          + (f", {args.glints} glints per view" if args.glints else ""))
     totals = {"images": 0, "within": 0, "bad": 0, "cpu": 0.0}
     errors = []
     for k in range(args.models):
