@@ -176,8 +176,9 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     so a warm start judged without them must leave every DOF placed in two views (one with
     two cameras, :func:`_left_in_too_few_views`): at 50 Hz the free fly's hind claw, next
     to another leg's marker in the previous image, was left out in enough views to free
-    the tarsus, and the warm start stood in 25° off. Nor may a marker left out of every view
-    lie on no blob in any (:func:`_on_no_blob`): nothing then places it.
+    the tarsus, and the warm start stood in 25° off. Nor may leaving them out free a
+    direction that no single DOF shows, two DOFs turning against each other
+    (:func:`_freed_by_leaving_out`).
 
     A warm start stands in only where the projections it is judged on lie in two views,
     wherever the part has detections in two or more (:func:`_judged_in_two_views`): the claim
@@ -199,6 +200,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     image = _image(points, start, params, off, unseen)
     bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
     views = _judged_in_two_views(unseen, start)
+    rot = model.rotational[dofs]
     for row in warm:
         q = np.ascontiguousarray(row[dofs])
         if params.refine:
@@ -207,7 +209,8 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
         if value < WARM_EPS_FACTOR * eps and views and not (
                 unseen.any() and (_left_in_too_few_views(unseen, q, kin, image)
-                                  or _on_no_blob(q, kin, rig, image))):
+                                  or _freed_by_leaving_out(q, rot, kin, rig, image,
+                                                           params.alternative_tolerance_px))):
             return q, value, True
         if params.refine and views and (seen := _without_lost(q, row[dofs], kin, image, bounds, rig,
                                                               params, eps, unexplained)) is not None:
@@ -219,24 +222,40 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     return best
 
 
-def _on_no_blob(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) -> bool:
-    """Whether posture ``q`` (d,) (posed by ``kin``) has a marker that ``image.unseen``
-    leaves out of every view with detections, farther than half the fusion distance, and
-    than the empty-view penalty, from every blob of each.
+def _freed_by_leaving_out(q: np.ndarray, rot: np.ndarray, kin, rig: Rig, image: _kernels.Image,
+                          floor_px: float) -> bool:
+    """Whether leaving out the projections ``image.unseen`` marks frees a direction of the
+    rotational DOFs ``rot`` (d,) bool of a part at posture ``q`` (d,) (posed by ``kin``)
+    where some marker is left out of every view with detections: a
+    ``core.undetermined.UNDETERMINED_DEG`` step along it moves the projections left by less
+    than ``floor_px`` (norm, pixels), while it moves all of them by more. Where every
+    marker is compared in some view, False without reading the Jacobian (about 50 µs with
+    six views; a warm start with a shared projection is tried in most images).
 
-    Why: a projection next to another part's marker is left out of a warm start's objective
-    as one of two markers fused on one blob (:func:`warm_start`), and two markers closer
-    than the fusion distance make a blob within half of it of each. A marker left out of
-    every view and on no such blob in any is placed by nothing: a 2-camera hexapod's
-    middle leg, its femur-tibia marker left out of both views, turned its coxa and femur
-    rolls against each other, kept its two distal markers on their blobs and stood in 11°
-    off, ``ok``, that marker 6 and 9 px from any blob (docs/BENCH_SUBJECTS.md, glints). One
-    compared in some view, or on a blob in one it is left out of, is placed there."""
-    beyond = max(image.penalty, image.fuse_px / 2.0)
-    lost = _kernels._lost_markers(np.ascontiguousarray(q), kin, rig.arrays, image, beyond, True)[0]
-    elsewhere = ~_seen_views(image.start)[:, None]  # (V, 1): views without detections
-    left_out = (image.unseen | elsewhere).all(axis=0)
-    return bool((left_out & (lost | elsewhere).all(axis=0)).any())
+    Why: each DOF may still move some projection left (:func:`_left_in_too_few_views`)
+    while two DOFs together move none of them. With its femur-tibia marker left out of
+    both of two views, a fly's middle leg turns its coxa roll against its femur roll and
+    keeps its distal markers where they were (0.03 px per degree along that direction
+    against 0.26 with the marker): its warm start stood in 16° off, ``ok``, 16 px above
+    the truth in the whole objective (docs/BENCH_SUBJECTS.md, glints)."""
+    from core.undetermined import UNDETERMINED_DEG  # it imports this module
+
+    seen = _seen_views(image.start)[:, None]
+    columns = np.flatnonzero(rot)
+    if (seen & ~image.unseen).any(axis=0).all() or not columns.size:
+        return False
+    steps = np.repeat(q[None], len(columns) + 1, axis=0)
+    steps[np.arange(1, len(columns) + 1), columns] += 1.0  # one degree each
+    proj = rig.project(_kernels.marker_positions_many(steps, kin))  # (k + 1, V, m, 2)
+    moved = proj[1:] - proj[:1]  # (k, V, m, 2): pixels per degree
+
+    def weakest(kept: np.ndarray) -> float:
+        jac = moved[:, kept].reshape(len(columns), -1).T
+        return float(np.linalg.svd(jac, compute_uv=False)[-1]) if jac.shape[0] >= len(columns) else 0.0
+
+    if weakest(seen & ~image.unseen) * UNDETERMINED_DEG >= floor_px:
+        return False
+    return weakest(np.broadcast_to(seen, image.unseen.shape)) * UNDETERMINED_DEG >= floor_px
 
 
 def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bounds: _kernels.Bounds,

@@ -400,31 +400,41 @@ def test_a_warm_start_judged_without_shared_projections_leaves_every_dof_placed(
     assert angle_errors(posture, q[part.dofs]).max() < 0.1
 
 
-def test_a_warm_start_with_a_marker_left_out_everywhere_and_on_no_blob_does_not_stand_in(legs):
-    """Leg 0's warm start on the truth, its third marker left out of all three views as
-    next to another part's marker (every DOF that moves it moves the claw too, compared in
-    three views): on its blobs it stands in. With those blobs 8 px off it in every view,
-    nothing places it, and the warm start does not stand in, though its objective without
-    that marker is below twice its ε."""
-    model, rig, truth, _ = legs
-    q, part, params = truth[1], model.tree.branches[0], FitParams()
+def test_leaving_out_a_marker_that_two_dofs_turn_against_each_other_frees_them():
+    """The 2-camera hexapod's right middle leg: its femur-tibia marker left out of both
+    views lets the coxa roll and the femur roll turn against each other with the tibia and
+    claw markers where they were, though each DOF alone still moves one of them; left out
+    of one view, or with the claw left out of one, nothing is freed. The warm start on the
+    truth, judged without that marker in both views, does not stand in for SA; judged on
+    every projection it does."""
+    subject = load("hexapod", 2)
+    model, rig = subject.model, subject.rig
+    q = subject.trajectory(10, np.random.default_rng(0))[5]
+    part = next(p for p in model.tree.parts if model.dof_names[p.dofs[0]].startswith("RM_"))
+    assert [model.markers[k].name for k in part.markers] == ["RM_CTr", "RM_FTi", "RM_TiTa", "RM_claw"]
     kin = part.at(*_base_frame(q, model, part))
-    unseen = np.zeros((len(rig.views), len(part.markers)), dtype=bool)
-    unseen[:, 2] = True
-    eps = _part_eps(part, params, 3)
+    det = Detections.from_views(list(rig.project(model.marker_positions(q[None]))[0]))
+    params, off = FitParams(fusion_px=10.0), np.zeros((2, 2))
+    image = treefit._image(det.kernel_points, det.start, params, off)
+    rot = model.rotational[part.dofs]
 
-    def tried(shift: float) -> tuple[np.ndarray, float, bool]:
-        views = rig.project(model.marker_positions(q[None]))[0] + 0.05  # (V, M, 2)
-        views[:, int(part.markers[2]), 0] += shift
-        det = Detections.from_views(list(views))
-        return treefit.warm_start(part.dofs, kin, det.kernel_points, det.start, q[None], model, rig,
-                                  params, eps, np.zeros((3, 2)), unseen)
+    def left_out(*pairs: tuple[int, int]) -> np.ndarray:
+        unseen = np.zeros((2, 4), dtype=bool)
+        for view, marker in pairs:
+            unseen[view, marker] = True
+        return unseen
 
-    posture, _, stands_in = tried(0.0)
-    assert stands_in and angle_errors(posture, q[part.dofs]).max() < 0.5
-    posture, value, stands_in = tried(8.0)
-    assert not stands_in and value < treefit.WARM_EPS_FACTOR * eps
-    assert angle_errors(posture, q[part.dofs]).max() < 0.5
+    def freed(unseen: np.ndarray) -> bool:
+        return treefit._freed_by_leaving_out(q[part.dofs], rot, kin, rig, image._replace(unseen=unseen), 0.5)
+
+    both = left_out((0, 1), (1, 1))
+    assert freed(both)
+    assert not freed(left_out((0, 1))) and not freed(left_out((1, 3))) and not freed(left_out())
+    eps = _part_eps(part, params, 2)
+    for unseen, stands_in in ((both, False), (left_out(), True)):
+        tried = treefit.warm_start(part.dofs, kin, det.kernel_points, det.start, q[None], model, rig,
+                                   params, eps, off, unseen)
+        assert tried[2] is stands_in and tried[1] < treefit.WARM_EPS_FACTOR * eps
 
 
 def test_a_dof_placed_only_by_hidden_markers_needs_two_views_of_three_and_one_of_two(legs):
