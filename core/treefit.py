@@ -229,8 +229,8 @@ def _freed_by_leaving_out(q: np.ndarray, rot: np.ndarray, kin, rig: Rig, image: 
     where some marker is left out of every view with detections: a
     ``core.undetermined.UNDETERMINED_DEG`` step along it moves the projections left by less
     than ``floor_px`` (norm, pixels), while it moves all of them by more. Where every
-    marker is compared in some view, False without reading the Jacobian (about 50 µs with
-    six views; a warm start with a shared projection is tried in most images).
+    marker is compared in some view, False without reading the Jacobian: a warm start with
+    a shared projection is tried in most images.
 
     Why: each DOF may still move some projection left (:func:`_left_in_too_few_views`)
     while two DOFs together move none of them. With its femur-tibia marker left out of
