@@ -33,7 +33,8 @@ marker placement off by a relative N(0, F) (a model measured by hand), and with
 error); the images are rendered with the true ones (``bench/imperfect.py``).
 Prints, per subject, the per-DOF RMSE and the issue's figures next to its targets, and
 writes every image's fit to
-``bench/out/animals-<subject>[-<cameras>cams][-soft][-occ<percent>[all]].csv`` (angles.csv).
+``bench/out/animals-<subject>[-<cameras>cams][-soft][-occ<percent>[all]]…[-glints<N>].csv``
+(angles.csv).
 """
 
 from __future__ import annotations
