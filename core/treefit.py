@@ -364,8 +364,7 @@ def _farthest_projection(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) ->
     proj = proj + image.offset[:, None, :]
     best, where = -1.0, None
     for v in np.flatnonzero(_seen_views(image.start)):
-        blobs = image.det[image.start[v]:image.start[v + 1], :2]
-        gaps = np.sqrt(((proj[v][:, None, :] - blobs[None]) ** 2).sum(axis=2).min(axis=1))  # (m,)
+        gaps = np.sqrt(nearest_detection(proj[v], image.det[image.start[v]:image.start[v + 1]])[1])  # (m,)
         if image.unseen.size:
             gaps[image.unseen[v]] = -1.0
         m = int(np.argmax(gaps))
