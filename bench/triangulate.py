@@ -34,8 +34,8 @@ from core.epipolar_start import branch_start
 from core.error import view_offsets
 from core.fit import FitParams
 from core.histogram import Histograms
+from core.part_objective import EPS_PROJECTIONS
 from core.tree import decompose
-from core.treefit import EPS_PROJECTIONS
 from core.triangulate import triangulate
 
 FOUND_FRACTION = 0.02  # a true marker is found when a candidate lies within this × the leg's reach

@@ -37,6 +37,7 @@ from core.error import (
 )
 from core.histogram import Histograms
 from core.model import KinematicModel
+from core.part_objective import part_objective
 from core.rig import Rig
 from core.threads import one_blas_thread
 from core.treefit import (
@@ -44,7 +45,6 @@ from core.treefit import (
     attempt_kernel,
     fit_tree,
     hidden_charge,
-    part_objective,
     refine_whole,
     refine_without_lost,
     refit_tree,
@@ -763,7 +763,7 @@ def _still_alternatives(best: Candidate, alternatives: tuple[Candidate, ...], pr
 def _seen_objective(q: np.ndarray, lost: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
                     params: FitParams, off: np.ndarray) -> float:
     """The objective (pixels) of a whole posture ``q`` (D,) without the projections ``lost``
-    (V, M) bool marks (``core.treefit.part_objective`` of the whole model)."""
+    (V, M) bool marks (``core.part_objective.part_objective`` of the whole model)."""
     return part_objective(q, model.arrays, det.kernel_points, det.start, lost, rig, params, off)
 
 

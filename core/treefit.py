@@ -3,11 +3,9 @@
 The parts are fitted in the tree's order, each by the paper's SA
 (``core._kernels.fit_attempt``) over its own DOFs and markers with its base where the
 parts fitted before it put it (the root's trunk first; a branch's own trunk before its
-sub-branches); then the whole posture is refined jointly. ε, the SA stop
-(``AnnealParams.eps``, 1 px), counts per :data:`EPS_PROJECTIONS` marker projections of a
-part, 0.25 px each by default: twice the paper's 1 px over 4 markers × 2 views, which the
-detection noise of real markers (0.1-0.2 px a projection) keeps out of reach of a part
-seen in many views, so SA would run every part to its patience limit.
+sub-branches); then the whole posture is refined jointly. Each part's SA stops at its own
+ε, 0.25 px a marker projection by default (``core.part_objective``, which poses and scores a
+part for every module of this fit).
 
 Branches (every part with a base, a branch's own trunk too) compete for blobs. Eq. 5
 charges each marker its nearest blob and never charges a blob no marker explains, so a leg
@@ -77,6 +75,17 @@ from core.epipolar_start import branch_start, trunk_start
 from core.error import Detections, nearest_detection, view_offsets
 from core.identifiability import marker_jacobian
 from core.model import KinematicModel
+from core.part_objective import (
+    base_frame,
+    in_seen_views,
+    kernel_image,
+    outside,
+    part_eps,
+    part_objective,
+    seen_views,
+    whole_image,
+    world_frames,
+)
 from core.rig import Rig
 from core.tree import Part, Tree, _subtrees, reach_points
 from core.triangulate import Candidates, triangulate
@@ -85,12 +94,10 @@ if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
-__all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "hidden_charge", "part_objective",
-           "refine_whole", "refine_without_lost", "refit_tree", "search_floor", "shared_projections",
-           "tree_flip_alternatives", "two_sided_error", "typical_ceilings", "warm_ceilings", "warm_start",
-           "world_frames"]
+__all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "hidden_charge", "refine_whole",
+           "refine_without_lost", "refit_tree", "search_floor", "shared_projections",
+           "tree_flip_alternatives", "two_sided_error", "typical_ceilings", "warm_ceilings", "warm_start"]
 
-EPS_PROJECTIONS = 4  # ε (1 px) per this many marker projections of a part: 0.25 px each
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
 FUSED_PX = 1.0  # a blob within this of two markers' midpoint is the two of them fused
 CONFLICT_SWEEPS = 2
@@ -112,7 +119,7 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
     iterations, each SA run's final posture (r, d), the first's first)."""
     sa = kernel_params(params.anneal, space.sigma[dofs], space.table[dofs], eps=eps,
                        refine_result=params.refine, restarts=params.restarts)
-    image = _image(points, start, params, off)
+    image = kernel_image(points, start, params, off)
     runs = np.empty((params.restarts + 1, len(dofs)))
     q, error, objective, iterations, written = _kernels.fit_attempt(
         space.mean[dofs], bool(draw_start), _kernels.Bounds(model.lower[dofs], model.upper[dofs]), kin,
@@ -193,11 +200,11 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     """
     if warm is None:
         return None
-    unseen = _in_seen_views(unseen, start)
+    unseen = in_seen_views(unseen, start)
     if unseen.size:
-        eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(_seen_views(start)), 1)
+        eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(seen_views(start)), 1)
     best: tuple[np.ndarray, float, bool] | None = None
-    image = _image(points, start, params, off, unseen)
+    image = kernel_image(points, start, params, off, unseen)
     bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
     views = _judged_in_two_views(unseen, start)
     rot = model.rotational[dofs]
@@ -240,7 +247,7 @@ def _freed_by_leaving_out(q: np.ndarray, rot: np.ndarray, kin, rig: Rig, image: 
     the truth in the whole objective (docs/BENCH_SUBJECTS.md, glints)."""
     from core.undetermined import UNDETERMINED_DEG  # it imports this module
 
-    seen = _seen_views(image.start)[:, None]
+    seen = seen_views(image.start)[:, None]
     columns = np.flatnonzero(rot)
     if (seen & ~image.unseen).any(axis=0).all() or not columns.size:
         return False
@@ -331,10 +338,10 @@ def _one_left_out(tried: tuple[np.ndarray, float, bool], part: Part, kin, points
     views: a marker left to one slides along its ray, and a depth flip explains most
     projections alike. Last, after the blobs shared or flagged merged are left out
     (:func:`_reshared_warm_start`), which leaves out all of them where two blobs moved."""
-    seen = _seen_views(start)
+    seen = seen_views(start)
     if not params.refine or np.count_nonzero(seen) < 3:
         return tried
-    image = _image(points, start, params, off, unseen)
+    image = kernel_image(points, start, params, off, unseen)
     q = tried[0]
     if (far := _farthest_projection(q, kin, rig, image)) is None:
         return tried
@@ -363,7 +370,7 @@ def _farthest_projection(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) ->
     proj = rig.project(_kernels.marker_positions_many(np.ascontiguousarray(q[None]), kin))[0]
     proj = proj + image.offset[:, None, :]
     best, where = -1.0, None
-    for v in np.flatnonzero(_seen_views(image.start)):
+    for v in np.flatnonzero(seen_views(image.start)):
         gaps = np.sqrt(nearest_detection(proj[v], image.det[image.start[v]:image.start[v + 1]])[1])  # (m,)
         if image.unseen.size:
             gaps[image.unseen[v]] = -1.0
@@ -397,7 +404,7 @@ def _left_in_too_few_views(lost: np.ndarray, q: np.ndarray, kin, image: _kernels
     ``image.unseen`` leaves out (next to another part's marker) count as compared:
     :func:`_may_leave_out` judged them, and a fusion places them. (:func:`warm_start` asks
     the same of those projections themselves, passed as ``lost``.)"""
-    seen = _seen_views(image.start)
+    seen = seen_views(image.start)
     compared = seen[:, None] & ~lost  # (V, m)
     needed = 2 if np.count_nonzero(seen) >= 3 else 1
     if (np.count_nonzero(compared, axis=0)[lost.any(axis=0)] >= needed).all():
@@ -464,8 +471,8 @@ def hidden_charge(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
     projection that looks hidden (:func:`_lost`: farther than the penalty from every blob of
     its view) and for each marker of a view without detections, the least the objective
     charges each of those."""
-    lost = np.count_nonzero(_lost(q, model.arrays, rig, _whole_image(det, params, off)))
-    empty = np.count_nonzero(~_seen_views(det.start)) * len(model.markers)
+    lost = np.count_nonzero(_lost(q, model.arrays, rig, whole_image(det, params, off)))
+    empty = np.count_nonzero(~seen_views(det.start)) * len(model.markers)
     return float(params.empty_view_penalty_px) * (lost + empty)
 
 
@@ -474,8 +481,8 @@ def _lost(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) -> np.ndarray:
     ``image``: farther than the empty-view penalty from every blob of their view
     (``_kernels._lost_markers``), in views with detections, not already left out by
     ``image.unseen``."""
-    lost = _in_seen_views(_kernels._lost_markers(q, kin, rig.arrays, image, image.penalty, True)[0],
-                          image.start)
+    lost = in_seen_views(_kernels._lost_markers(q, kin, rig.arrays, image, image.penalty, True)[0],
+                         image.start)
     return lost & ~image.unseen if image.unseen.size else lost
 
 
@@ -504,8 +511,8 @@ def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
     """
     out = {}
     for part, points, start, unseen, counted in _compared_parts(q, det, model, rig, params, off):
-        kin = part.at(*_base_frame(q, model, part))
-        image = _image(points, start, params, off, unseen)
+        kin = part.at(*base_frame(q, model, part))
+        image = kernel_image(points, start, params, off, unseen)
         seen, hidden, most = _ceiling_level(q[part.dofs], kin, rig, image, params)
         out[part.name] = (math.nan if most and part.base >= 0
                           else _ceiling(seen, counted, len(part.dofs), hidden, params.empty_view_penalty_px))
@@ -548,7 +555,7 @@ def _compared_parts(q: np.ndarray, det: Detections, model: KinematicModel, rig: 
     posed += [(b, *_subset(det, keep)) for b, keep in zip(tree.branches, reach, strict=True)]
     out = []
     for part, points, start in posed:
-        unseen = _in_seen_views(shared[part.name], start)
+        unseen = in_seen_views(shared[part.name], start)
         out.append((part, points, start, unseen, _compared(unseen, start, len(part.markers))))
     return out
 
@@ -572,7 +579,7 @@ def _ceiling(level: float, counted: int, d: int, hidden: int = 0, penalty: float
 def _judged_in_two_views(unseen: np.ndarray, start: np.ndarray) -> bool:
     """Whether a part's projections not marked ``unseen`` (V, m) lie in two views with
     detections (grouped at ``start``), or in the one view that has any."""
-    views = _seen_views(start)
+    views = seen_views(start)
     seen = views & ~unseen.all(axis=1) if unseen.size else views
     return int(np.count_nonzero(seen)) >= min(2, int(np.count_nonzero(views)))
 
@@ -580,16 +587,7 @@ def _judged_in_two_views(unseen: np.ndarray, start: np.ndarray) -> bool:
 def _compared(unseen: np.ndarray, start: np.ndarray, markers: int) -> int:
     """Marker projections of a part of ``markers`` markers compared with its detections
     grouped at ``start``: markers × views with detections, less the ``unseen`` (V, m) ones."""
-    return markers * int(np.count_nonzero(_seen_views(start))) - int(np.count_nonzero(unseen))
-
-
-def part_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, unseen: np.ndarray,
-                   rig: Rig, params: FitParams, off: np.ndarray) -> float:
-    """The objective (pixels) of a part's posture ``q`` (d,) posed by ``kin`` on detections
-    ``points`` grouped at ``start``, without the projections ``unseen`` (V, m) marks."""
-    unseen = _in_seen_views(unseen, start)
-    image = _image(points, start, params, off, unseen)
-    return float(_kernels.posture_error(q, kin, rig.arrays, image)) - image.penalty * np.count_nonzero(unseen)
+    return markers * int(np.count_nonzero(seen_views(start))) - int(np.count_nonzero(unseen))
 
 
 def _charged_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, rig: Rig,
@@ -600,7 +598,7 @@ def _charged_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray
     out as :func:`part_objective` leaves out the unseen ones), fusion below
     ``params.fusion_px``, and every view allowed to lose one marker at the empty-view
     penalty (the restarts' objective; the first run's, which loses none, is never lower)."""
-    image = _image(points, start, params, off)
+    image = kernel_image(points, start, params, off)
     return float(_kernels.posture_error(q, kin, rig.arrays, image._replace(lost_px=image.penalty)))
 
 
@@ -636,7 +634,7 @@ def _missed_by_a_slide(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray
     hidden: 76.7 → 68.3 % of images within 5°; docs/BENCH_SUBJECTS.md)."""
     if not math.isfinite(ceiling):
         return False
-    image = _image(points, start, params, off, _in_seen_views(unseen, start))
+    image = kernel_image(points, start, params, off, in_seen_views(unseen, start))
     return not _lost(q, kin, rig, image).any() and _under_ceiling(q, kin, rig, image, params,
                                                                   SLIDE_FACTOR * ceiling)
 
@@ -649,18 +647,6 @@ def _under_ceiling(q: np.ndarray, kin, rig: Rig, image: _kernels.Image, params: 
     limit = per_projection * _compared(image.unseen, image.start, len(kin.marker_joint))
     seen, hidden, _ = _ceiling_level(q, kin, rig, image, params)
     return bool(seen + image.penalty * hidden < limit)
-
-
-def _in_seen_views(unseen: np.ndarray, start: np.ndarray) -> np.ndarray:
-    """``unseen`` (V, m) bool limited to views with detections (an empty view is charged in
-    full whatever it marks)."""
-    return np.ascontiguousarray(unseen & _seen_views(start)[:, None]) if unseen.size else unseen
-
-
-def _seen_views(start: np.ndarray) -> np.ndarray:
-    """(V,) bool: the views with detections, of detections grouped by view at ``start``
-    (V + 1,)."""
-    return start[1:] > start[:-1]
 
 
 def shared_projections(q: np.ndarray, model: KinematicModel, rig: Rig, tree: Tree,
@@ -781,9 +767,9 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
         """Fit ``part`` in ``q``, its base where the parts fitted before put it; with ``defer``,
         only where its warm start stands in for SA. Whether it is fitted."""
         nonlocal iterations
-        rotation, origin = _base_frame(q, model, part)
+        rotation, origin = base_frame(q, model, part)
         kin = part.at(rotation, origin)
-        eps = _part_eps(part, params, views_seen)
+        eps = part_eps(part, params, views_seen)
         unseen = shared.get(part.name, _kernels.NO_UNSEEN)
         ceiling = None if ceilings is None else lambda: levels(part.name)
         done[part.dofs] = True
@@ -967,10 +953,10 @@ def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], post
     at = posture.copy()
     at[part.dofs] = tried[0]
     near = max(float(params.fusion_px), CLAIM_PX)
-    again = _in_seen_views(shared_projections(at, model, rig, tree, params, off)[part.name], start)
+    again = in_seen_views(shared_projections(at, model, rig, tree, params, off)[part.name], start)
     again |= _on_merged_blobs(rig.project(model.marker_positions(at)[part.markers]) + off[:, None, :],
                               points, start, near)
-    before = _in_seen_views(unseen, start) if unseen.size else np.zeros_like(again)
+    before = in_seen_views(unseen, start) if unseen.size else np.zeros_like(again)
     again |= before
     fused = _fusions(at, part, model, rig, points, start, off, near)
     more = np.count_nonzero(again) > np.count_nonzero(before) and _may_leave_out(again, start, fused)
@@ -980,13 +966,6 @@ def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], post
     retried = warm_start(part.dofs, kin, flagged, start, at[None], model, rig, params, eps, off,
                          again if more else unseen, ceiling, unexplained)
     return tried if retried is None else retried
-
-
-def _outside(part: Part, n_markers: int) -> np.ndarray:
-    """(n_markers,) bool: the model's markers that are not ``part``'s."""
-    out = np.ones(n_markers, dtype=bool)
-    out[part.markers] = False
-    return out
 
 
 def _explained_elsewhere(points: np.ndarray, start: np.ndarray, posture: np.ndarray, part: Part,
@@ -1004,12 +983,12 @@ def _explained_elsewhere(points: np.ndarray, start: np.ndarray, posture: np.ndar
     With 9 px markers the 6-camera hexapod's legs, on the truth, were charged 12-20 px for a
     neighbouring leg's blob next to their own merged pair, above twice their ε, and ran SA
     at 29 ms instead of standing in from the warm start."""
-    others = _outside(part, len(model.markers))
+    others = outside(part, len(model.markers))
     proj = rig.project(model.marker_positions(posture)[others]) + off[:, None, :]  # (V, M - m, 2)
     radius = max(0.5 * float(params.fusion_px), CLAIM_PX)
     out = np.zeros((len(points), 4))
     out[:, :3] = points[:, :3]
-    for v in np.flatnonzero(_seen_views(start)):
+    for v in np.flatnonzero(seen_views(start)):
         a, b = start[v], start[v + 1]
         nearest, d2 = nearest_detection(proj[v], points[a:b])
         out[a + nearest[d2 <= radius * radius], 3] = 1.0
@@ -1062,7 +1041,7 @@ def _may_leave_out(left_out: np.ndarray, start: np.ndarray, fused: np.ndarray | 
     merge, which places it as well as a blob of its own would). Fused projections may take
     the left-out share to twice :data:`MAX_LOST_SHARE`, no more: a leg lying on another
     leg's markers would look fused everywhere."""
-    seen = _seen_views(start)
+    seen = seen_views(start)
     unexplained = left_out if fused is None else left_out & ~fused
     compared = seen[:, None] & ~left_out
     limit = MAX_LOST_SHARE * left_out.shape[1] * np.count_nonzero(seen)
@@ -1081,9 +1060,9 @@ def _fusions(q: np.ndarray, part: Part, model: KinematicModel, rig: Rig, points:
     fuse in every view; leaving those projections out for being shared would leave the
     marker in no view, yet each blob is where the two markers' fusion puts it."""
     proj = rig.project(model.marker_positions(q)) + off[:, None, :]  # (V, M, 2)
-    others = _outside(part, len(model.markers))
+    others = outside(part, len(model.markers))
     out = np.zeros((len(start) - 1, len(part.markers)), dtype=bool)
-    for v in np.flatnonzero(_seen_views(start)):
+    for v in np.flatnonzero(seen_views(start)):
         mine, theirs = proj[v, part.markers], proj[v, others]
         gap = np.linalg.norm(mine[:, None] - theirs[None], axis=2)  # (m, M - m)
         i, j = np.nonzero(gap <= near)
@@ -1113,14 +1092,14 @@ def _explained_without(part: Part, q: np.ndarray, left_out: np.ndarray, det: Det
     views as well, and is searched."""
     if shared.size:
         left_out = left_out | shared
-    left_out = _in_seen_views(left_out, start)
+    left_out = in_seen_views(left_out, start)
     near = max(float(params.fusion_px), CLAIM_PX)
     fused = _fusions(q, part, model, rig, det.kernel_points, det.start, off, near)
     if not _may_leave_out(left_out, start, fused):
         return False
-    kin = part.at(*_base_frame(q, model, part))
+    kin = part.at(*base_frame(q, model, part))
     tried = warm_start(part.dofs, kin, points, start, q[None], model, rig, params,
-                       _part_eps(part, params, views_seen), off, left_out)
+                       part_eps(part, params, views_seen), off, left_out)
     return tried is not None and tried[2]
 
 
@@ -1128,7 +1107,7 @@ def _explained_blobs(proj: np.ndarray, points: np.ndarray, start: np.ndarray, ra
     """(N,) bool: the detections ``points`` (N, 2 or more: u, v first) grouped at ``start``
     with a marker projection ``proj`` (V, M, 2) of their view within ``radius`` px."""
     out = np.zeros(len(points), dtype=bool)
-    for v in np.flatnonzero(_seen_views(start)):
+    for v in np.flatnonzero(seen_views(start)):
         a, b = start[v], start[v + 1]
         out[a:b] = nearest_detection(points[a:b, :2], proj[v])[1] <= radius * radius
     return out
@@ -1139,7 +1118,7 @@ def _on_merged_blobs(proj: np.ndarray, points: np.ndarray, start: np.ndarray, ra
     (``points`` (N, 3) grouped at ``start``, ``Detections.kernel_points``) is one the
     detector may have merged from several markers (its flag) and lies within ``radius`` px."""
     out = np.zeros(proj.shape[:2], dtype=bool)
-    for v in np.flatnonzero(_seen_views(start)):
+    for v in np.flatnonzero(seen_views(start)):
         a, b = start[v], start[v + 1]
         nearest, d2 = nearest_detection(proj[v], points[a:b])
         out[v] = (points[a + nearest, 2] > 0.0) & (d2 <= radius * radius)
@@ -1191,7 +1170,7 @@ def _trunk_by_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: 
     trunk = tree.trunk
     assert trunk is not None
     dofs = trunk.dofs
-    image = _whole_image(det, params, off)
+    image = whole_image(det, params, off)
     bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
     rows = [q] if warm is None else [q, *warm]  # read only: the trunk is written last
     best, best_value = q[dofs].copy(), np.inf
@@ -1225,17 +1204,11 @@ def _rigid_trunk(q: np.ndarray, model: KinematicModel, trunk: Part):
         marker_pos=np.ascontiguousarray(np.vstack([kin.marker_pos, local])))
 
 
-def _part_eps(part: Part, params: FitParams, views_seen: int) -> float:
-    """SA's stop ε for a part (pixels): ``AnnealParams.eps`` per :data:`EPS_PROJECTIONS` of its
-    marker projections into the views with detections."""
-    return params.anneal.eps * len(part.markers) * views_seen / EPS_PROJECTIONS
-
-
 def search_floor(model: KinematicModel, params: FitParams, views_seen: int) -> float:
     """The objective (pixels) below which every part of ``model`` is within the ε its search
     stops at, in an image with detections in ``views_seen`` views: ε (``AnnealParams.eps``)
     for a model fitted whole (``model.tree`` None), the smallest of its parts' ε
-    (:func:`_part_eps`) for a tree.
+    (:func:`part_eps`) for a tree.
 
     An image scoring under it ends where another attempt's search would stop as well, so
     it is no outlier to re-analyse, however far above the sequence's typical objective
@@ -1250,7 +1223,7 @@ def search_floor(model: KinematicModel, params: FitParams, views_seen: int) -> f
     """
     if model.tree is None:
         return params.anneal.eps
-    return float(min(_part_eps(part, params, views_seen) for part in model.tree.parts))
+    return float(min(part_eps(part, params, views_seen) for part in model.tree.parts))
 
 
 def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
@@ -1286,9 +1259,9 @@ def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig:
         starts = [(p, cap) for p in minima.get(part.name, ())]  # (posture, margin)
         if offered:
             points, start = _subset(det, keep)
-            rotation, origin = _base_frame(q, model, part)
+            rotation, origin = base_frame(q, model, part)
             proposed = epipolar_start(part, rotation, origin, candidates, points, start,
-                                      model, rig, space, params, _part_eps(part, params, 2), off,
+                                      model, rig, space, params, part_eps(part, params, 2), off,
                                       shared.get(part.name, _kernels.NO_UNSEEN))
             if proposed is not None:
                 starts.append((proposed[0], 0.0))
@@ -1316,7 +1289,7 @@ def _concerned_branches(q: np.ndarray, det: Detections, model: KinematicModel, r
     open_ = (~explained[blob] & real).any(axis=1)  # (K,)
     inside = (reach[:, blob] | ~real).all(axis=2)  # (B, K)
     mine = (by_branch[:, blob] | ~explained[blob] | ~real).all(axis=2)  # (B, K)
-    unclaimed = (claiming < 0)[_seen_views(det.start)]  # (seen V, M)
+    unclaimed = (claiming < 0)[seen_views(det.start)]  # (seen V, M)
     off_blobs = np.array([unclaimed[:, part.markers].any() for part in tree.branches], dtype=bool)
     return off_blobs | (open_ & inside & mine).any(axis=1)
 
@@ -1369,23 +1342,6 @@ def two_sided_error(q: np.ndarray, det: Detections, model: KinematicModel, rig: 
     return total
 
 
-def world_frames(q: np.ndarray, model: KinematicModel) -> tuple[np.ndarray, np.ndarray]:
-    """World rotation (J, 3, 3) and origin (J, 3) of every joint, topological order."""
-    J = len(model.joints)
-    rot, pos = np.empty((J, 3, 3)), np.empty((J, 3))
-    _kernels.forward_kinematics(q, model.arrays, rot, pos)
-    return rot, pos
-
-
-def _base_frame(q: np.ndarray, model: KinematicModel, part: Part) -> tuple[np.ndarray, np.ndarray]:
-    """World rotation (3, 3) and origin (3,) of ``part``'s base joint at posture ``q`` (D,)
-    (identity and zero for the root's trunk, which has none)."""
-    if part.base < 0:
-        return np.eye(3), np.zeros(3)
-    rot, pos = world_frames(q, model)
-    return rot[part.base], pos[part.base]
-
-
 def _reaches(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, parts: list[Part],
              off: np.ndarray) -> np.ndarray:
     """(len(parts), N) bool: the detections each branch of ``parts`` can reach, its base where
@@ -1428,7 +1384,7 @@ def _claiming_at(proj: np.ndarray, det: Detections, tree: Tree) -> tuple[np.ndar
     for k, part in enumerate(tree.branches):
         owner[part.markers] = k
     out = np.full(proj.shape[:2], -1)
-    for v in np.flatnonzero(_seen_views(det.start)):
+    for v in np.flatnonzero(seen_views(det.start)):
         a, b = det.start[v], det.start[v + 1]
         nearest, d2 = nearest_detection(proj[v], det.points[a:b])
         close = (d2 <= CLAIM_PX ** 2) & (owner >= 0)
@@ -1485,21 +1441,6 @@ def _gains(q: np.ndarray, part: Part, value: float, kept: tuple[np.ndarray, floa
         other, det, model, rig, params, off)
 
 
-def _image(points: np.ndarray, start: np.ndarray, params: FitParams, off: np.ndarray,
-           unseen: np.ndarray = _kernels.NO_UNSEEN) -> _kernels.Image:
-    """The kernels' view of detections ``points`` (N, 3) grouped at ``start`` (V + 1,) under
-    ``params`` (empty-view penalty, marker fusion) with view offsets ``off`` (V, 2), the
-    projections ``unseen`` (V, m) marks left out: the one construction of a part's or a
-    whole image's objective here."""
-    return _kernels.Image.of(points, start, off, penalty=params.empty_view_penalty_px,
-                             fuse_px=params.fusion_px, unseen=unseen)
-
-
-def _whole_image(det: Detections, params: FitParams, off: np.ndarray) -> _kernels.Image:
-    """:func:`_image` of a whole image ``det``, no projection left out."""
-    return _image(det.kernel_points, det.start, params, off)
-
-
 def _whole_objective(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
                      params: FitParams, off: np.ndarray) -> float:
     """:func:`_charged_objective` of a whole posture ``q`` (D,) on ``det``: what
@@ -1516,7 +1457,7 @@ def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig
     reports it (fusion, a lost marker per view)."""
     a, kin, views = params.anneal, model.arrays, rig.arrays
     bounds = _kernels.Bounds(model.lower, model.upper)
-    image = _whole_image(det, params, off)
+    image = whole_image(det, params, off)
 
     def objective(p: np.ndarray) -> float:
         return _whole_objective(p, det, model, rig, params, off)
@@ -1547,7 +1488,7 @@ def refine_without_lost(q: np.ndarray, det: Detections, model: KinematicModel, r
     until each lands on some other blob, a ghost or a neighbour's marker, and the reading is
     lost with it.
     """
-    image = _whole_image(det, params, off)
+    image = whole_image(det, params, off)
     if (lost := _left_out_with_lost(q, model.arrays, rig, image)) is None:
         return None
     refined = _kernels.refine(np.ascontiguousarray(q), _kernels.Bounds(model.lower, model.upper),
@@ -1627,7 +1568,7 @@ def _trunk_masks(geometry: FlipGeometry, model: KinematicModel, tree: Tree) -> n
     joint whose subtree holds markers of one branch only (``Part.flips``) or none."""
     in_branch = np.zeros(len(geometry.flip_joints), dtype=bool)
     for part in tree.branches:
-        in_branch |= ~geometry.subtree_markers[:, _outside(part, len(model.markers))].any(axis=1)
+        in_branch |= ~geometry.subtree_markers[:, outside(part, len(model.markers))].any(axis=1)
     bits = int(np.sum(np.left_shift(1, np.flatnonzero(in_branch).astype(np.int64))))
     return (geometry.masks & bits) == 0
 

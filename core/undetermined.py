@@ -25,8 +25,9 @@ from core import _kernels
 from core.ambiguity import Candidate, angle_gaps, plain_error
 from core.error import FUSION_DIAMETERS, Detections, marker_errors, nearest_detection, view_offsets
 from core.model import KinematicModel
+from core.part_objective import world_frames
 from core.rig import Rig
-from core.treefit import FUSED_PX, MAX_LOST_SHARE, world_frames
+from core.treefit import FUSED_PX, MAX_LOST_SHARE
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "borrowed_projections",
            "confidence_chi2", "crossed_markers", "fused_projections", "hidden_projections",

@@ -43,10 +43,10 @@ from core.fields import detect_fields
 from core.fit import FitParams, image_stream
 from core.histogram import Histograms
 from core.model import KinematicModel
+from core.part_objective import world_frames
 from core.refine import refine
 from core.rig import Rig
 from core.sequence import fit_sequence
-from core.treefit import world_frames
 
 __all__ = ["compile_kernels", "compile_kernels_saying_so"]
 

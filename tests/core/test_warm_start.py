@@ -33,14 +33,12 @@ from core.fit import (
 )
 from core.histogram import Histograms
 from core.model import KinematicModel
+from core.part_objective import EPS_PROJECTIONS, base_frame, kernel_image, part_eps
 from core.rig import Rig
 from core.sequence import _ceilings, _warm_starts, fit_chunk, fit_sequence
 from core.synth import render_frames
 from core.treefit import (
-    EPS_PROJECTIONS,
     WARM_EPS_FACTOR,
-    _base_frame,
-    _part_eps,
     refine_whole,
     refit_tree,
     shared_projections,
@@ -382,7 +380,7 @@ def test_a_warm_start_judged_without_shared_projections_leaves_every_dof_placed(
     the truth."""
     model, rig, truth, dets = legs
     q, det, part = truth[1], dets[1], model.tree.branches[0]
-    kin = part.at(*_base_frame(q, model, part))
+    kin = part.at(*base_frame(q, model, part))
     knee = part.dofs[list(part.dofs).index(model.dof_names.index("leg0_knee"))]
     row = q.copy()
     row[knee] += 20.0 if row[knee] < 120.0 else -20.0
@@ -392,7 +390,7 @@ def test_a_warm_start_judged_without_shared_projections_leaves_every_dof_placed(
         unseen = np.zeros((len(rig.views), len(part.markers)), dtype=bool)
         unseen[list(views), claw] = True
         return treefit.warm_start(part.dofs, kin, det.kernel_points, det.start, row[None], model, rig,
-                                  params, _part_eps(part, params, 3), np.zeros((3, 2)), unseen)
+                                  params, part_eps(part, params, 3), np.zeros((3, 2)), unseen)
 
     assert not tried(1, 2)[2]
     posture, _, stands_in = tried(1)
@@ -412,10 +410,10 @@ def test_leaving_out_a_marker_that_two_dofs_turn_against_each_other_frees_them()
     q = subject.trajectory(10, np.random.default_rng(0))[5]
     part = next(p for p in model.tree.parts if model.dof_names[p.dofs[0]].startswith("RM_"))
     assert [model.markers[k].name for k in part.markers] == ["RM_CTr", "RM_FTi", "RM_TiTa", "RM_claw"]
-    kin = part.at(*_base_frame(q, model, part))
+    kin = part.at(*base_frame(q, model, part))
     det = Detections.from_views(list(rig.project(model.marker_positions(q[None]))[0]))
     params, off = FitParams(fusion_px=10.0), np.zeros((2, 2))
-    image = treefit._image(det.kernel_points, det.start, params, off)
+    image = kernel_image(det.kernel_points, det.start, params, off)
     rot = model.rotational[part.dofs]
 
     def left_out(*pairs: tuple[int, int]) -> np.ndarray:
@@ -430,7 +428,7 @@ def test_leaving_out_a_marker_that_two_dofs_turn_against_each_other_frees_them()
     both = left_out((0, 1), (1, 1))
     assert freed(both)
     assert not freed(left_out((0, 1))) and not freed(left_out((1, 3))) and not freed(left_out())
-    eps = _part_eps(part, params, 2)
+    eps = part_eps(part, params, 2)
     for unseen, stands_in in ((both, False), (left_out(), True)):
         tried = treefit.warm_start(part.dofs, kin, det.kernel_points, det.start, q[None], model, rig,
                                    params, eps, off, unseen)
@@ -445,7 +443,7 @@ def test_a_warm_start_whose_one_blob_a_glint_moved_stands_in_with_three_views_no
     left to one view slides along its ray."""
     model, rig, truth, _ = legs
     q, part, params = truth[1], model.tree.branches[0], FitParams()
-    kin = part.at(*_base_frame(q, model, part))
+    kin = part.at(*base_frame(q, model, part))
     knee = int(part.markers[2])
     views = rig.project(model.marker_positions(q[None]))[0]  # (V, M, 2)
     views += np.random.default_rng(3).normal(0.0, 0.3, views.shape)
@@ -454,7 +452,7 @@ def test_a_warm_start_whose_one_blob_a_glint_moved_stands_in_with_three_views_no
     def tried(cameras: list[int]) -> tuple[np.ndarray, float, bool]:
         filmed = Rig(tuple(rig.views[c] for c in cameras))
         det = Detections.from_views([views[c] for c in cameras])
-        eps, off = _part_eps(part, params, len(cameras)), np.zeros((len(cameras), 2))
+        eps, off = part_eps(part, params, len(cameras)), np.zeros((len(cameras), 2))
         first = treefit.warm_start(part.dofs, kin, det.kernel_points, det.start, q[None], model, filmed,
                                    params, eps, off)
         assert not first[2]
@@ -476,7 +474,7 @@ def test_a_dof_placed_only_by_hidden_markers_needs_two_views_of_three_and_one_of
     model, _, truth, _ = legs
     part = model.tree.branches[0]
     q = truth[1]
-    kin = part.at(*_base_frame(q, model, part))
+    kin = part.at(*base_frame(q, model, part))
     knee, claw = 1, 3
 
     def too_few(views: int, *hidden: tuple[int, int], unseen: tuple[tuple[int, int], ...] = ()) -> bool:
@@ -484,8 +482,8 @@ def test_a_dof_placed_only_by_hidden_markers_needs_two_views_of_three_and_one_of
         shared = np.zeros_like(lost)
         for (view, marker), mask in [*((h, lost) for h in hidden), *((u, shared) for u in unseen)]:
             mask[view, marker] = True
-        image = treefit._image(np.zeros((views, 3)), np.arange(views + 1), FitParams(),
-                               np.zeros((views, 2)), shared)
+        image = kernel_image(np.zeros((views, 3)), np.arange(views + 1), FitParams(),
+                             np.zeros((views, 2)), shared)
         return treefit._left_in_too_few_views(lost, q[part.dofs], kin, image)
 
     assert not too_few(3, (0, claw))
@@ -502,8 +500,8 @@ def test_a_warm_start_judged_on_one_view_of_three_stands_in_for_nothing(legs):
     on lie in two views, not where they lie in one (its depth flips cost nothing there)."""
     model, rig, truth, images = legs
     part, q, params = model.tree.branches[0], truth[1], FitParams()
-    kin = part.at(*_base_frame(q, model, part))
-    eps = _part_eps(part, params, len(rig.views))
+    kin = part.at(*base_frame(q, model, part))
+    eps = part_eps(part, params, len(rig.views))
     for left_out, stands in (([2], True), ([1, 2], False)):
         unseen = np.zeros((len(rig.views), len(part.markers)), dtype=bool)
         unseen[left_out] = True
