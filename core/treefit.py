@@ -7,19 +7,10 @@ sub-branches); then the whole posture is refined jointly. Each part's SA stops a
 ε, 0.25 px a marker projection by default (``core.part_objective``, which poses and scores a
 part for every module of this fit).
 
-Branches (every part with a base, a branch's own trunk too) compete for blobs. Eq. 5
-charges each marker its nearest blob and never charges a blob no marker explains, so a leg
-that settles on its neighbour's blobs costs nothing: both legs explain the same blobs, and
-the blobs of the stolen leg stay unexplained. After the first pass, any blob claimed by
-markers of two branches is a conflict; each branch in a conflict is fitted again without the
-blobs the other branches claim (a conflict needs a blob too small to be two markers the
-detector merged), and the new posture is kept where it lowers the
-*two-sided* error (:func:`two_sided_error`: every marker's distance to its nearest blob
-plus, for every blob within the branches' reach, its distance to the nearest marker, both
-capped at the empty-view penalty), which does charge the stolen leg's blobs. A real
-fusion (two markers imaged as one blob) survives: refitting without the shared blob raises
-the error, and the first posture stays; a branch that, refined where it is, explains every
-other blob at twice its ε is not searched at all (:func:`_explained_without`).
+Branches (every part with a base, a branch's own trunk too) compete for blobs: after the
+first pass, each branch in a conflict (a blob that markers of two branches claim) is fitted
+again without the blobs the other branches claim, and kept where that lowers the two-sided
+error (``core.claims``, which says why).
 
 A root trunk whose own markers are left unexplained after the first pass (hidden, or on
 a blob a branch claims) is refined again on every marker of the model, the branches held
@@ -71,6 +62,20 @@ from core.ambiguity import (
     flip_masks,
 )
 from core.anneal import kernel_params
+from core.claims import (
+    CLAIM_PX,
+    FUSED_PX,
+    claimed,
+    claiming_at,
+    claims_of,
+    contested_projections,
+    explained_blobs,
+    on_merged_blobs,
+    reaches,
+    shared_projections,
+    subset,
+    two_sided_error,
+)
 from core.epipolar_start import branch_start, trunk_start
 from core.error import Detections, nearest_detection, view_offsets
 from core.identifiability import marker_jacobian
@@ -87,7 +92,7 @@ from core.part_objective import (
     world_frames,
 )
 from core.rig import Rig
-from core.tree import Part, Tree, _subtrees, reach_points
+from core.tree import Part, Tree, _subtrees
 from core.triangulate import Candidates, triangulate
 
 if TYPE_CHECKING:
@@ -95,11 +100,9 @@ if TYPE_CHECKING:
     from core.fit import FitParams
 
 __all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "hidden_charge", "refine_whole",
-           "refine_without_lost", "refit_tree", "search_floor", "shared_projections",
-           "tree_flip_alternatives", "two_sided_error", "typical_ceilings", "warm_ceilings", "warm_start"]
+           "refine_without_lost", "refit_tree", "search_floor", "tree_flip_alternatives", "typical_ceilings",
+           "warm_ceilings", "warm_start"]
 
-CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
-FUSED_PX = 1.0  # a blob within this of two markers' midpoint is the two of them fused
 CONFLICT_SWEEPS = 2
 JOINT_STEPS = 10  # LM steps of the joint refinement: the parts arrive refined
 WARM_STEPS = 10  # LM steps refining the previous image's posture of a part (a warm start)
@@ -550,9 +553,9 @@ def _compared_parts(q: np.ndarray, det: Detections, model: KinematicModel, rig: 
     tree = model.tree
     assert tree is not None
     shared = shared_projections(q, model, rig, tree, params, off)
-    reach = _reaches(q, det, model, rig, list(tree.branches), off)
+    reach = reaches(q, det, model, rig, list(tree.branches), off)
     posed = [] if tree.trunk is None else [(tree.trunk, det.kernel_points, det.start)]
-    posed += [(b, *_subset(det, keep)) for b, keep in zip(tree.branches, reach, strict=True)]
+    posed += [(b, *subset(det, keep)) for b, keep in zip(tree.branches, reach, strict=True)]
     out = []
     for part, points, start in posed:
         unseen = in_seen_views(shared[part.name], start)
@@ -647,21 +650,6 @@ def _under_ceiling(q: np.ndarray, kin, rig: Rig, image: _kernels.Image, params: 
     limit = per_projection * _compared(image.unseen, image.start, len(kin.marker_joint))
     seen, hidden, _ = _ceiling_level(q, kin, rig, image, params)
     return bool(seen + image.penalty * hidden < limit)
-
-
-def shared_projections(q: np.ndarray, model: KinematicModel, rig: Rig, tree: Tree,
-                       params: FitParams, off: np.ndarray) -> dict[str, np.ndarray]:
-    """Per part of ``tree`` (by name), (V, m) bool: where posture ``q`` (D,) projects one of
-    the part's markers within the fusion distance (at least :data:`CLAIM_PX`) of a marker
-    of another part, in pixels of that view."""
-    proj = rig.project(model.marker_positions(q)) + off[:, None, :]
-    gap = proj[:, :, None, :] - proj[:, None, :, :]
-    near = np.einsum("vijk,vijk->vij", gap, gap) < max(float(params.fusion_px), CLAIM_PX) ** 2
-    part_of = np.full(len(model.markers), -1)
-    for k, part in enumerate(tree.parts):
-        part_of[part.markers] = k
-    across = (near & (part_of[:, None] != part_of[None, :])).any(axis=2)  # (V, M)
-    return {part.name: across[:, part.markers] for part in tree.parts}
 
 
 def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
@@ -838,7 +826,7 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             # now, and where two legs touch, the fusion of their markers places each
             # (_fusions) only once both are where this image has them.
             for k in deferred:
-                fit_part(branches[k], *_subset(det, reach[k]), warm)
+                fit_part(branches[k], *subset(det, reach[k]), warm)
             deferred.clear()
 
         for b, part in enumerate(branches):
@@ -846,9 +834,9 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
                 search_deferred()
             if not known[b]:  # every branch on this base at once: the base is fitted
                 group = [k for k, p in enumerate(branches) if p.base == part.base]
-                reach[group] = _reaches(q, det, model, rig, [branches[k] for k in group], off)
+                reach[group] = reaches(q, det, model, rig, [branches[k] for k in group], off)
                 known[group] = True
-            if not fit_part(part, *_subset(det, reach[b]), warm, defer=warm is not None):
+            if not fit_part(part, *subset(det, reach[b]), warm, defer=warm is not None):
                 deferred.append(b)
         search_deferred()
         return reach
@@ -873,7 +861,7 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
     score = np.inf  # the two-sided error, computed once there is a conflict to judge
     previous: list[int] = []
     for _ in range(CONFLICT_SWEEPS):
-        contested = _contested(q, det, model, rig, tree, off)
+        contested = contested_projections(q, det, model, rig, tree, off)
         conflicted = [b for b, part in enumerate(branches) if contested[:, part.markers].any()]
         if not conflicted or conflicted == previous:
             break
@@ -882,9 +870,9 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             score = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
         for b in conflicted:
             part, saved = branches[b], q.copy()
-            free = _reaches(q, det, model, rig, [part], off)[0] & ~_claimed(q, det, model, rig, tree, off,
-                                                                             exclude=b)
-            points, start = _subset(det, free)
+            free = reaches(q, det, model, rig, [part], off)[0] & ~claimed(q, det, model, rig, tree, off,
+                                                                          exclude=b)
+            points, start = subset(det, free)
             if _explained_without(part, q, contested[:, part.markers], det, points, start, model, rig,
                                   params, off, views_seen, shared.get(part.name, _kernels.NO_UNSEEN)):
                 continue
@@ -936,7 +924,7 @@ def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], post
     (:func:`shared_projections`) where the part stands at its refined warm start and the
     other parts at ``posture`` (D,) (where this attempt fitted them, else at the previous
     image's posture), and those on a detection the detector flags as merged markers
-    (:func:`_on_merged_blobs`), where :func:`_may_leave_out` allows them and ``unseen``
+    (:func:`on_merged_blobs`), where :func:`_may_leave_out` allows them and ``unseen``
     (V, m) does not mark them all already; and with the blobs of other parts' markers at
     ``posture`` never charged as unexplained (:func:`_explained_elsewhere`). ``tried`` where
     neither applies.
@@ -954,8 +942,8 @@ def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], post
     at[part.dofs] = tried[0]
     near = max(float(params.fusion_px), CLAIM_PX)
     again = in_seen_views(shared_projections(at, model, rig, tree, params, off)[part.name], start)
-    again |= _on_merged_blobs(rig.project(model.marker_positions(at)[part.markers]) + off[:, None, :],
-                              points, start, near)
+    again |= on_merged_blobs(rig.project(model.marker_positions(at)[part.markers]) + off[:, None, :],
+                             points, start, near)
     before = in_seen_views(unseen, start) if unseen.size else np.zeros_like(again)
     again |= before
     fused = _fusions(at, part, model, rig, points, start, off, near)
@@ -1020,7 +1008,7 @@ def _hidden_marker_triangulated(posture: np.ndarray, part: Part, points: np.ndar
     at = posture.copy()
     at[part.dofs] = q
     proj = rig.project(model.marker_positions(at)) + off[:, None, :]  # (V, M, 2)
-    explained = _explained_blobs(proj, points, start, max(0.5 * float(params.fusion_px), CLAIM_PX))
+    explained = explained_blobs(proj, points, start, max(0.5 * float(params.fusion_px), CLAIM_PX))
     unexplained = [points[a:b, :2][~explained[a:b]] for a, b in pairwise(start)]
     for m in markers:
         views = [u if hidden[v, m] else u[:0] for v, u in enumerate(unexplained)]
@@ -1101,28 +1089,6 @@ def _explained_without(part: Part, q: np.ndarray, left_out: np.ndarray, det: Det
     tried = warm_start(part.dofs, kin, points, start, q[None], model, rig, params,
                        part_eps(part, params, views_seen), off, left_out)
     return tried is not None and tried[2]
-
-
-def _explained_blobs(proj: np.ndarray, points: np.ndarray, start: np.ndarray, radius: float) -> np.ndarray:
-    """(N,) bool: the detections ``points`` (N, 2 or more: u, v first) grouped at ``start``
-    with a marker projection ``proj`` (V, M, 2) of their view within ``radius`` px."""
-    out = np.zeros(len(points), dtype=bool)
-    for v in np.flatnonzero(seen_views(start)):
-        a, b = start[v], start[v + 1]
-        out[a:b] = nearest_detection(points[a:b, :2], proj[v])[1] <= radius * radius
-    return out
-
-
-def _on_merged_blobs(proj: np.ndarray, points: np.ndarray, start: np.ndarray, radius: float) -> np.ndarray:
-    """(V, m) bool: the projections ``proj`` (V, m, 2) whose nearest detection of their view
-    (``points`` (N, 3) grouped at ``start``, ``Detections.kernel_points``) is one the
-    detector may have merged from several markers (its flag) and lies within ``radius`` px."""
-    out = np.zeros(proj.shape[:2], dtype=bool)
-    for v in np.flatnonzero(seen_views(start)):
-        a, b = start[v], start[v + 1]
-        nearest, d2 = nearest_detection(proj[v], points[a:b])
-        out[v] = (points[a + nearest, 2] > 0.0) & (d2 <= radius * radius)
-    return out
 
 
 def _trunk_unexplained(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
@@ -1258,7 +1224,7 @@ def _two_view_starts(q: np.ndarray, det: Detections, model: KinematicModel, rig:
     for part, keep, offered in zip(tree.branches, reach, concerned, strict=True):
         starts = [(p, cap) for p in minima.get(part.name, ())]  # (posture, margin)
         if offered:
-            points, start = _subset(det, keep)
+            points, start = subset(det, keep)
             rotation, origin = base_frame(q, model, part)
             proposed = epipolar_start(part, rotation, origin, candidates, points, start,
                                       model, rig, space, params, part_eps(part, params, 2), off,
@@ -1281,9 +1247,9 @@ def _concerned_branches(q: np.ndarray, det: Detections, model: KinematicModel, r
     every blob in the branch's reach (``reach`` (B, N)), and its other blobs unexplained too
     or explained by the branch's own markers."""
     proj = rig.project(model.marker_positions(q)) + off[:, None, :]  # (V, M, 2)
-    claiming, owner = _claiming_at(proj, det, tree)
-    by_branch = _claims_of(claiming, owner, len(tree.branches), len(det.points))  # (B, N)
-    explained = _explained_blobs(proj, det.points, det.start, CLAIM_PX)
+    claiming, owner = claiming_at(proj, det, tree)
+    by_branch = claims_of(claiming, owner, len(tree.branches), len(det.points))  # (B, N)
+    explained = explained_blobs(proj, det.points, det.start, CLAIM_PX)
     support = candidates.support
     blob, real = np.maximum(support, 0), support >= 0  # (K, V)
     open_ = (~explained[blob] & real).any(axis=1)  # (K,)
@@ -1313,115 +1279,6 @@ def epipolar_start(part: Part, rotation: np.ndarray, origin: np.ndarray, candida
     row[part.dofs] = proposed.dofs
     return warm_start(part.dofs, part.at(rotation, origin), points, start, row[None], model, rig,
                       params, eps, off, unseen)
-
-
-def two_sided_error(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
-                    off: np.ndarray, blobs: np.ndarray, cap_px: float) -> float:
-    """Both sides of the match between posture ``q``'s projected markers and the blobs
-    (pixels): every marker projection's distance to the nearest blob of its view, plus, for
-    every detection where ``blobs`` (N,) bool is set, its distance to the nearest projected
-    marker of its view, each capped at ``cap_px``.
-
-    Eq. 5 alone lets two branches explain one blob while another goes unexplained; the
-    second sum charges the unexplained one. Ghost blobs cost at most ``cap_px`` each, and so
-    does a marker hidden from a camera: charged its full distance to the nearest blob (tens
-    of pixels), the right leg would cost more than one posed on its neighbour's blobs or on
-    ghosts.
-    """
-    proj = rig.project(model.marker_positions(q)) + off[:, None, :]
-    total = 0.0
-    for v in range(det.n_views):
-        pts = det.view(v)
-        if len(pts) == 0:
-            total += cap_px * proj.shape[1]
-            continue
-        d = np.linalg.norm(proj[v][:, None, :] - pts[None, :, :], axis=2)
-        total += float(np.minimum(d.min(axis=1), cap_px).sum())
-        mask = blobs[det.start[v]:det.start[v + 1]]
-        total += float(np.minimum(d.min(axis=0)[mask], cap_px).sum())
-    return total
-
-
-def _reaches(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, parts: list[Part],
-             off: np.ndarray) -> np.ndarray:
-    """(len(parts), N) bool: the detections each branch of ``parts`` can reach, its base where
-    ``q`` (D,) puts it (:func:`_within_reach`)."""
-    pos = world_frames(q, model)[1]
-    return _within_reach(det, rig, pos[[p.base for p in parts]], np.array([p.reach for p in parts]), off)
-
-
-def _within_reach(det: Detections, rig: Rig, origins: np.ndarray, reach: np.ndarray,
-                  off: np.ndarray) -> np.ndarray:
-    """(B, N) bool: the detections each of B branches hanging at ``origins`` (B, 3) with
-    reaches ``reach`` (B,) can reach, those inside its projected reach sphere
-    (``core.tree.reach_points``) in their view."""
-    proj = rig.project(reach_points(origins, reach).reshape(-1, 3)) + off[:, None, :]
-    proj = proj.reshape(len(rig.views), len(reach), -1, 2)  # (V, B, 27, 2), the origin first
-    gap = proj[:, :, 1:] - proj[:, :, :1]
-    radius = np.sqrt(np.einsum("vbsk,vbsk->vbs", gap, gap).max(axis=2))  # (V, B)
-    view = np.repeat(np.arange(det.n_views), det.counts)  # (N,)
-    offset = det.points[None] - proj[view, :, 0].swapaxes(0, 1)  # (B, N, 2)
-    return np.sqrt(np.einsum("bnk,bnk->bn", offset, offset)) <= radius[view].T
-
-
-def _subset(det: Detections, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Kernel points (n, 3) and view starts (V + 1,) of the detections ``keep`` selects."""
-    start = np.concatenate(([0], np.cumsum(keep)))[det.start]
-    return np.ascontiguousarray(det.kernel_points[keep]), start
-
-
-def _claiming(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
-              off: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(V, M) int64: the detection (index into ``det``) each projection of a branch's marker
-    at posture ``q`` claims, the nearest in its view within :data:`CLAIM_PX`, else -1; and
-    (M,) each marker's branch (index into ``tree.branches``, -1 for a marker in none)."""
-    return _claiming_at(rig.project(model.marker_positions(q)) + off[:, None, :], det, tree)
-
-
-def _claiming_at(proj: np.ndarray, det: Detections, tree: Tree) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_claiming` of the marker projections ``proj`` (V, M, 2), already offset."""
-    owner = np.full(proj.shape[1], -1)
-    for k, part in enumerate(tree.branches):
-        owner[part.markers] = k
-    out = np.full(proj.shape[:2], -1)
-    for v in np.flatnonzero(seen_views(det.start)):
-        a, b = det.start[v], det.start[v + 1]
-        nearest, d2 = nearest_detection(proj[v], det.points[a:b])
-        close = (d2 <= CLAIM_PX ** 2) & (owner >= 0)
-        out[v, close] = a + nearest[close]
-    return out, owner
-
-
-def _claims(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
-            off: np.ndarray) -> np.ndarray:
-    """(B, N) bool: detections claimed (nearest, within :data:`CLAIM_PX`) by each branch's
-    markers in their view."""
-    return _claims_of(*_claiming(q, det, model, rig, tree, off), len(tree.branches), len(det.points))
-
-
-def _claims_of(claiming: np.ndarray, owner: np.ndarray, branches: int, detections: int) -> np.ndarray:
-    """(B, N) bool from :func:`_claiming`'s (V, M) claimed detections and (M,) owners."""
-    out = np.zeros((branches, detections), dtype=bool)
-    view, marker = np.nonzero(claiming >= 0)
-    out[owner[marker], claiming[view, marker]] = True
-    return out
-
-
-def _claimed(q, det, model, rig, tree, off, exclude: int) -> np.ndarray:
-    """(N,) bool: detections claimed by any branch but ``exclude``."""
-    claims = _claims(q, det, model, rig, tree, off)
-    claims[exclude] = False
-    return claims.any(axis=0)
-
-
-def _contested(q, det, model, rig, tree, off) -> np.ndarray:
-    """(V, M) bool: the projections of branch markers that claim a detection another branch
-    claims too, where that detection is too small to be markers the detector merged
-    (``Detections.kernel_points``' flag)."""
-    claiming, owner = _claiming(q, det, model, rig, tree, off)
-    claims = _claims_of(claiming, owner, len(tree.branches), len(det.points))
-    shared = (claims.sum(axis=0) > 1) & (det.kernel_points[:, 2] == 0.0)
-    return (claiming >= 0) & shared[np.maximum(claiming, 0)]
 
 
 def _gains(q: np.ndarray, part: Part, value: float, kept: tuple[np.ndarray, float, bool], eps: float,

@@ -23,11 +23,12 @@ import numpy as np
 
 from core import _kernels
 from core.ambiguity import Candidate, angle_gaps, plain_error
+from core.claims import FUSED_PX
 from core.error import FUSION_DIAMETERS, Detections, marker_errors, nearest_detection, view_offsets
 from core.model import KinematicModel
 from core.part_objective import world_frames
 from core.rig import Rig
-from core.treefit import FUSED_PX, MAX_LOST_SHARE
+from core.treefit import MAX_LOST_SHARE
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "borrowed_projections",
            "confidence_chi2", "crossed_markers", "fused_projections", "hidden_projections",
@@ -130,7 +131,7 @@ def unseen_markers(distances: np.ndarray, penalty: float, borrowed: np.ndarray |
 def borrowed_projections(projected: np.ndarray, detections: Detections) -> np.ndarray:
     """(V, M) bool: the projections ``projected`` (V, M, 2) whose nearest blob another
     projection lies nearer to, where the blob is not the two of them fused (their midpoint
-    farther than ``core.treefit.FUSED_PX`` from it): a marker on another marker's blob.
+    farther than ``core.claims.FUSED_PX`` from it): a marker on another marker's blob.
     False in a view without blobs.
 
     >>> det = Detections.from_views([[[0.0, 0.0], [10.0, 0.0]]])

@@ -23,6 +23,7 @@ from tree_subjects import (
 )
 
 from core import _kernels
+from core.claims import two_sided_error
 from core.error import Detections
 from core.examples import EXAMPLES
 from core.fit import FitParams
@@ -31,7 +32,7 @@ from core.model import KinematicModel
 from core.rig import Rig
 from core.sequence import fit_sequence
 from core.tree import MAX_PART_DOFS, SEGMENT_DOFS, _dof_joints, _name, _subtrees
-from core.treefit import _rigid_trunk, search_floor, two_sided_error
+from core.treefit import _rigid_trunk, search_floor
 
 BENCH = Path(__file__).resolve().parents[2] / "bench" / "subjects"
 

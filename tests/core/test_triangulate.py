@@ -7,6 +7,7 @@ import pytest
 
 from core import _kernels, treefit
 from core.anneal import AnnealParams, search_space
+from core.claims import reaches
 from core.epipolar_start import branch_start, trunk_start
 from core.error import Detections, view_offsets
 from core.examples import EXAMPLES
@@ -317,7 +318,7 @@ def test_with_two_views_a_leg_on_the_wrong_blobs_is_replaced_by_its_triangulated
     params = FitParams()
     space = search_space(model, Histograms.uniform(model))
     off = view_offsets(None, rig)
-    reach = treefit._reaches(wrong, det, model, rig, list(tree.branches), off)
+    reach = reaches(wrong, det, model, rig, list(tree.branches), off)
     q = wrong.copy()
     treefit._two_view_starts(q, det, model, rig, tree, space, params, off, reach,
                              triangulate(det, rig=rig), {}, {})
@@ -329,7 +330,7 @@ def _two_view_start_calls(q: np.ndarray, det: Detections, model, rig: Rig) -> li
     """The branches ``_two_view_starts`` poses onto the triangulated candidates, from ``q``."""
     tree, off, called, pose = model.tree, view_offsets(None, rig), [], treefit.epipolar_start
     space = search_space(model, Histograms.uniform(model))
-    reach = treefit._reaches(q, det, model, rig, list(tree.branches), off)
+    reach = reaches(q, det, model, rig, list(tree.branches), off)
 
     def counted(part, *args, **kwargs):
         called.append(part.name)
@@ -378,7 +379,7 @@ def test_with_two_views_the_sa_minimum_that_leaves_fewest_blobs_unexplained_is_k
     assert np.abs(q - q_true).max() > 10.0
     minima = {leg0.name: [truth[15][leg0.dofs], q_true[leg0.dofs]], leg1.name: [truth[10][leg1.dofs]]}
     off = view_offsets(None, rig)
-    reach = treefit._reaches(q, det, model, rig, list(tree.branches), off)
+    reach = reaches(q, det, model, rig, list(tree.branches), off)
     treefit._two_view_starts(q, det, model, rig, tree, search_space(model, Histograms.uniform(model)),
                              FitParams(), off, reach, Candidates.empty(2), {}, minima)
     np.testing.assert_array_equal(q, q_true)

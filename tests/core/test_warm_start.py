@@ -17,6 +17,7 @@ from tree_subjects import angle_errors, detections, insect, movement, ring_rig
 from core import _kernels, treefit
 from core.ambiguity import Candidate
 from core.anneal import search_space
+from core.claims import shared_projections
 from core.detect import DetectorParams, detect
 from core.error import Detections, view_error
 from core.examples import LOCUST
@@ -41,7 +42,6 @@ from core.treefit import (
     WARM_EPS_FACTOR,
     refine_whole,
     refit_tree,
-    shared_projections,
     tree_flip_alternatives,
     typical_ceilings,
     warm_ceilings,
