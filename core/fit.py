@@ -27,6 +27,7 @@ from core.ambiguity import (
     flip_alternatives,
 )
 from core.anneal import AnnealParams, SearchSpace, search_space
+from core.ceilings import hidden_charge
 from core.error import (
     DEFAULT_EMPTY_VIEW_PENALTY_PX,
     Detections,
@@ -44,7 +45,6 @@ from core.treefit import (
     TreeFlips,
     attempt_kernel,
     fit_tree,
-    hidden_charge,
     refine_whole,
     refine_without_lost,
     refit_tree,
@@ -178,7 +178,7 @@ class ImageFit:
     settled : a re-analysis from a drawn start ended in this posture's minimum
         (:func:`reanalyse_image`), so :func:`needs_reanalysis` asks for no more attempts.
     charged : pixels of ``objective`` that markers the image does not show cost at the
-        empty-view penalty (``core.treefit.hidden_charge``), at the posture the attempts
+        empty-view penalty (``core.ceilings.hidden_charge``), at the posture the attempts
         kept (before the choice by continuity): left out of the sequence's typical objective
         (``core.sequence.typical_objective``).
     """
@@ -347,7 +347,7 @@ def fit_image(
         A single chain always runs SA: it costs about a millisecond there, and a warm start
         that reaches ε in a wrong minimum would carry that minimum on to the next images.
     ceilings : for a tree, gives per part name the objective per compared projection under
-        which its warm start replaces SA too (``core.treefit.warm_ceilings`` of the previous
+        which its warm start replaces SA too (``core.ceilings.warm_ceilings`` of the previous
         image), called only where a part's warm start misses twice its ε.
 
     Returns

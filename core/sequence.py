@@ -37,6 +37,7 @@ from itertools import pairwise
 import numpy as np
 
 from core.ambiguity import choose_candidates
+from core.ceilings import warm_ceilings
 from core.error import Detections, view_offsets
 from core.fit import (
     FitParams,
@@ -52,7 +53,6 @@ from core.histogram import Histograms
 from core.model import KinematicModel
 from core.rig import Rig
 from core.threads import one_blas_thread
-from core.treefit import warm_ceilings
 
 __all__ = [
     "ChunkResult",
@@ -273,7 +273,7 @@ def _carried(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:
 def _ceilings(fit: ImageFit, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
               offsets: np.ndarray | None) -> dict[str, float]:
     """Where the next image's warm starts stand in for SA, per part: the lowest
-    ``core.treefit.warm_ceilings`` on ``det`` (``offsets``: the image's (V, 2) view offsets,
+    ``core.ceilings.warm_ceilings`` on ``det`` (``offsets``: the image's (V, 2) view offsets,
     optional) of ``fit`` and of its alternatives.
 
     The fit is the candidate of lowest *whole* objective; where an alternative fits a part

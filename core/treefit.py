@@ -21,7 +21,7 @@ the branches are refitted given it, kept where the whole objective is lower.
 Within a chunk, each part first tries the previous image's posture (:func:`warm_start`):
 refined on the part's detections, it replaces the part's SA where it reaches twice the
 part's ε or, under sliding skin markers, the part's level in the previous image plus what
-its residual cannot tell apart (:func:`warm_ceilings`), or on its other projections with
+its residual cannot tell apart (:func:`core.ceilings.warm_ceilings`), or on its other projections with
 those of markers that look hidden left out (:func:`_without_lost`). One that misses is
 tried again after the other branches on its base are fitted, without the projections this
 image's postures put on another part's marker or a merged blob
@@ -62,6 +62,15 @@ from core.ambiguity import (
     flip_masks,
 )
 from core.anneal import kernel_params
+from core.ceilings import (
+    MAX_LOST_SHARE,
+    compared_count,
+    judged_in_two_views,
+    left_out_with_lost,
+    missed_by_a_slide,
+    typical_ceilings,
+    under_ceiling,
+)
 from core.claims import (
     CLAIM_PX,
     FUSED_PX,
@@ -99,9 +108,8 @@ if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
-__all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "hidden_charge", "refine_whole",
-           "refine_without_lost", "refit_tree", "search_floor", "tree_flip_alternatives", "typical_ceilings",
-           "warm_ceilings", "warm_start"]
+__all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "refine_whole", "refine_without_lost",
+           "refit_tree", "search_floor", "tree_flip_alternatives", "warm_start"]
 
 CONFLICT_SWEEPS = 2
 JOINT_STEPS = 10  # LM steps of the joint refinement: the parts arrive refined
@@ -109,8 +117,6 @@ WARM_STEPS = 10  # LM steps refining the previous image's posture of a part (a w
 WARM_JOINT_STEPS = 2  # joint refinement of parts that all came from warm starts
 WARM_EPS_FACTOR = 2.0  # a warm start stands in for SA within this many times the part's ε
 HIDDEN_SEEN_VIEWS = 3  # unexplained blobs of this many views meeting in space: a marker not hidden
-MAX_LOST_SHARE = 0.25  # of a part's projections, at most this share may look hidden in a warm start
-SLIDE_FACTOR = 2.0  # a warm start under this many times its ceiling missed it by sliding markers
 
 
 def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
@@ -142,9 +148,9 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     for SA) of the first that reaches :data:`WARM_EPS_FACTOR` times ``eps`` (SA's stop), or
     does on its other projections once those that look hidden are left out
     (:func:`_without_lost`), else of the lowest objective, which stands in for SA where it
-    is below ``ceiling()`` (pixels per compared projection, :func:`warm_ceilings`: the part's level in the
-    previous image plus what a residual at that level cannot tell apart; asked for only
-    there); None without ``warm``.
+    is below ``ceiling()`` (pixels per compared projection, :func:`core.ceilings.warm_ceilings`:
+    the part's level in the previous image plus what a residual at that level cannot tell
+    apart; asked for only there); None without ``warm``.
 
     Why more than ε: where a warm start misses ε by a little, the part's minimum itself is
     above it (a ghost blob merged with a marker in one view, say), and SA only runs to its
@@ -164,10 +170,10 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     previous fit and its alternatives (``core.sequence.fit_chunk``), so a part that the
     whole objective put in another minimum than its own best is searched again. Both the
     level and the warm start charge a projection that looks hidden the empty-view penalty
-    (:func:`_ceiling_level`): at its distance to some other blob, one hidden marker raised
+    (:func:`core.ceilings._ceiling_level`): at its distance to some other blob, one hidden marker raised
     the next image's ceiling by tens of pixels, and a leg in another basin stood in for SA
     (2-camera hexapod, 10 % of projections hidden: 97 of 116 such warm starts). A branch
-    most of whose projections looked hidden has no ceiling (:func:`warm_ceilings`). The image's
+    most of whose projections looked hidden has no ceiling (:func:`core.ceilings.warm_ceilings`). The image's
     depth flips and undetermined DOFs are still searched (``core.fit``), and a chunk's first
     image runs SA on every part. A re-analysis judges its kept posture by ceilings from the
     sequence's typical objective instead (:func:`typical_ceilings`).
@@ -191,7 +197,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     (:func:`_freed_by_leaving_out`).
 
     A warm start stands in only where the projections it is judged on lie in two views,
-    wherever the part has detections in two or more (:func:`_judged_in_two_views`): the claim
+    wherever the part has detections in two or more (:func:`judged_in_two_views`): the claim
     that another basin costs far more rests on its being pixels off in several views. In one
     view a limb's depth flips cost nothing, and the refinement can turn it into a posture
     that explains that view alone (a forelimb whose side-view markers all lie next to the
@@ -209,7 +215,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     best: tuple[np.ndarray, float, bool] | None = None
     image = kernel_image(points, start, params, off, unseen)
     bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
-    views = _judged_in_two_views(unseen, start)
+    views = judged_in_two_views(unseen, start)
     rot = model.rotational[dofs]
     for row in warm:
         q = np.ascontiguousarray(row[dofs])
@@ -228,7 +234,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
         if best is None or value < best[1]:
             best = (q, value, False)
     if best is not None and ceiling is not None and views:
-        best = (best[0], best[1], _under_ceiling(best[0], kin, rig, image, params, ceiling()))
+        best = (best[0], best[1], under_ceiling(best[0], kin, rig, image, params, ceiling()))
     return best
 
 
@@ -301,12 +307,12 @@ def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bo
     meet in space in three of the views that leave it out (:func:`_hidden_marker_triangulated`):
     re-analysed, the free fly filmed at 50 Hz kept a hind leg 36° off that way, `ok`."""
     unseen, start = image.unseen, image.start
-    if (without := _left_out_with_lost(q, kin, rig, image)) is None:
+    if (without := left_out_with_lost(q, kin, rig, image)) is None:
         return None
     lost = without & ~unseen if unseen.size else without  # those left out as hidden
     if _left_in_too_few_views(lost, q, kin, image):
         return None
-    compared = _compared(unseen, start, len(kin.marker_joint))
+    compared = compared_count(unseen, start, len(kin.marker_joint))
     hidden = int(np.count_nonzero(lost))
     refined = _kernels.refine(np.ascontiguousarray(row), bounds, kin, rig.arrays,
                               image._replace(unseen=without), float(params.anneal.huber_px), WARM_STEPS,
@@ -383,16 +389,6 @@ def _farthest_projection(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) ->
     return where if 0.0 < best <= image.penalty else None
 
 
-def _left_out_with_lost(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) -> np.ndarray | None:
-    """The projections (V, m) bool to leave out of posture ``q`` (posed by ``kin``) on
-    ``image``: those ``image.unseen`` marks, and those that look hidden, farther than the
-    empty-view penalty from every blob of their view (``_kernels._lost_markers``). None
-    where none look hidden, more than :data:`MAX_LOST_SHARE` of the compared projections
-    do, or those left do not lie in two views (:func:`_judged_in_two_views`)."""
-    lost = _lost(q, kin, rig, image)
-    return _left_out(lost, image) if lost.any() else None
-
-
 def _left_in_too_few_views(lost: np.ndarray, q: np.ndarray, kin, image: _kernels.Image) -> bool:
     """Whether, once a part's ``lost`` (V, m) projections are left out, some DOF of posture
     ``q`` (d,) (posed by ``kin``) that moves a lost marker moves markers compared in fewer
@@ -433,166 +429,6 @@ def _moved_markers(q: np.ndarray, kin) -> np.ndarray:
     return speed > 1e-6 * np.maximum(speed.max(axis=1, keepdims=True), 1e-300)
 
 
-def _left_out(lost: np.ndarray, image: _kernels.Image) -> np.ndarray | None:
-    """The projections (V, m) bool a part's ``lost`` ones (:func:`_lost`) and those
-    ``image.unseen`` marks leave out, or None where ``lost`` holds more than
-    :data:`MAX_LOST_SHARE` of the compared projections or those left do not lie in two
-    views (:func:`_judged_in_two_views`)."""
-    unseen, start = image.unseen, image.start
-    if np.count_nonzero(lost) > MAX_LOST_SHARE * _compared(unseen, start, lost.shape[1]):
-        return None
-    without = lost | unseen if unseen.size else lost
-    return without if _judged_in_two_views(without, start) else None
-
-
-def _ceiling_level(q: np.ndarray, kin, rig: Rig, image: _kernels.Image, params: FitParams
-                   ) -> tuple[float, int, bool]:
-    """What a part's warm-start ceiling reads of its posture ``q`` (d,) posed by ``kin`` on
-    ``image`` (:func:`warm_ceilings`, :func:`warm_start`): (the objective, pixels, of its
-    projections that do not look hidden (:func:`_lost`), how many look hidden, False) where
-    the rest can judge the part (:func:`_left_out`); else (:func:`part_objective`, 0, True):
-    most of its projections look hidden. Its level is the objective plus the empty-view
-    penalty for each hidden projection, as a lost marker is charged.
-
-    Why: the ceiling is the level of sliding skin markers. A hidden marker's distance to
-    another blob (tens of pixels) would swamp it, and the next image's ceiling would let a
-    leg in another basin stand in for SA. Where most of a part's projections look hidden,
-    the previous image's posture is all that places it (a trunk with two of its three
-    markers hidden), and the level stays on every projection."""
-    lost = _lost(q, kin, rig, image)
-    if (without := _left_out(lost, image)) is None:
-        return (part_objective(q, kin, image.det, image.start, image.unseen, rig, params, image.offset),
-                0, True)
-    return (part_objective(q, kin, image.det, image.start, without, rig, params, image.offset),
-            int(np.count_nonzero(lost)), False)
-
-
-def hidden_charge(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
-                  off: np.ndarray) -> float:
-    """Pixels of the whole objective of posture ``q`` (D,) on ``det`` (view offsets ``off``
-    (V, 2)) that what the image does not show costs: the empty-view penalty for each
-    projection that looks hidden (:func:`_lost`: farther than the penalty from every blob of
-    its view) and for each marker of a view without detections, the least the objective
-    charges each of those."""
-    lost = np.count_nonzero(_lost(q, model.arrays, rig, whole_image(det, params, off)))
-    empty = np.count_nonzero(~seen_views(det.start)) * len(model.markers)
-    return float(params.empty_view_penalty_px) * (lost + empty)
-
-
-def _lost(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) -> np.ndarray:
-    """(V, m) bool, the projections of posture ``q`` (posed by ``kin``) that look hidden on
-    ``image``: farther than the empty-view penalty from every blob of their view
-    (``_kernels._lost_markers``), in views with detections, not already left out by
-    ``image.unseen``."""
-    lost = in_seen_views(_kernels._lost_markers(q, kin, rig.arrays, image, image.penalty, True)[0],
-                         image.start)
-    return lost & ~image.unseen if image.unseen.size else lost
-
-
-def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
-                  params: FitParams, off: np.ndarray) -> dict[str, float]:
-    """Per part of ``model.tree`` (by name), the objective per compared marker projection
-    below which its warm start stands in for SA in the next image (:func:`warm_start`):
-    the part's objective at this image's fitted posture ``q`` (D,) on detections ``det``
-    with its projections that look hidden charged the empty-view penalty
-    (:func:`_ceiling_level`), plus what a residual at that level cannot tell apart
-    (:func:`_ceiling`), over its compared projections (markers × views with detections
-    within its reach, less those next to another part's marker, :func:`shared_projections`).
-
-    The level is that of this image's first fit (its parts searched by SA, or warm started
-    under this image's own ceilings); per projection, so that a marker next to another
-    part's in the next image does not move it.
-
-    NaN (no ceiling: the next image searches the part) for a branch most of whose
-    projections look hidden, its level then read on every projection (:func:`_ceiling_level`):
-    the hidden markers' distances to other blobs. Once the branch is seen again, that level
-    let a warm start in another basin stand in: a hexapod leg with two of its four markers
-    hidden from all six cameras left a ceiling of 12 px a projection, and in the next
-    image its warm start stood in 17° off, reported ``ok``. A trunk keeps it: its legs
-    place it (:func:`_trunk_by_whole`), and searched on its own third marker it ended
-    15-55° off (``tests/core/test_tree.py``).
-    """
-    out = {}
-    for part, points, start, unseen, counted in _compared_parts(q, det, model, rig, params, off):
-        kin = part.at(*base_frame(q, model, part))
-        image = kernel_image(points, start, params, off, unseen)
-        seen, hidden, most = _ceiling_level(q[part.dofs], kin, rig, image, params)
-        out[part.name] = (math.nan if most and part.base >= 0
-                          else _ceiling(seen, counted, len(part.dofs), hidden, params.empty_view_penalty_px))
-    return out
-
-
-def typical_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
-                     params: FitParams, off: np.ndarray, typical: float) -> dict[str, float]:
-    """Per part of ``model.tree`` (by name), the objective per compared marker projection
-    below which a re-analysis keeps the part's kept posture ``q`` (D,) without searching it
-    again (:func:`refit_tree`): :func:`_ceiling` of the level the sequence's typical
-    objective ``typical`` (pixels, ``core.sequence.typical_objective``) gives the part's
-    compared projections on ``det``, at ``typical`` shared evenly over the model's markers in
-    this image's views with detections.
-
-    Why: under sliding skin markers every image is over the threshold and every part above
-    its ε, and the re-analysis searched every part again, to find the part's minimum once
-    more. A part no worse than a typical image's, by more than its residual can tell apart,
-    leaves a search nothing it could tell from its kept posture, as a warm start under its
-    ceiling does (:func:`warm_start`); a part in another basin costs pixels more than that
-    and is searched. Clean footage fits at a typical ~0.01 px a projection, where every
-    part that reaches such a level has reached twice its ε already.
-    """
-    per_projection = typical / max(1, len(model.markers) * det.views_seen)
-    return {part.name: _ceiling(per_projection * counted, counted, len(part.dofs))
-            for part, _, _, _, counted in _compared_parts(q, det, model, rig, params, off)}
-
-
-def _compared_parts(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
-                    off: np.ndarray) -> list[tuple[Part, np.ndarray, np.ndarray, np.ndarray, int]]:
-    """Each part of ``model.tree`` with what it is compared with at posture ``q`` (D,): its
-    detections (kernel points (n, 3) and view starts (V + 1,); a branch's those within its
-    reach), its projections next to another part's marker (``unseen`` (V, m),
-    :func:`shared_projections`) and how many projections are compared (:func:`_compared`)."""
-    tree = model.tree
-    assert tree is not None
-    shared = shared_projections(q, model, rig, tree, params, off)
-    reach = reaches(q, det, model, rig, list(tree.branches), off)
-    posed = [] if tree.trunk is None else [(tree.trunk, det.kernel_points, det.start)]
-    posed += [(b, *subset(det, keep)) for b, keep in zip(tree.branches, reach, strict=True)]
-    out = []
-    for part, points, start in posed:
-        unseen = in_seen_views(shared[part.name], start)
-        out.append((part, points, start, unseen, _compared(unseen, start, len(part.markers))))
-    return out
-
-
-def _ceiling(level: float, counted: int, d: int, hidden: int = 0, penalty: float = 0.0) -> float:
-    """A part's ceiling per compared projection (pixels): its objective ``level`` (pixels)
-    over ``counted`` projections, ``hidden`` of which look hidden and are not in ``level``,
-    plus ``core.undetermined.residual_tolerance`` of ``level`` over the others for another
-    minimum anywhere in its ``d`` DOFs, plus ``penalty`` for each hidden one.
-
-    Why the tolerance leaves the hidden projections out: their penalty is not scatter. Read
-    as scatter, the penalty of one hidden projection doubled the next warm start's
-    allowance, and a leg that had jumped between images stood in for SA in another basin
-    (docs/BENCH_SUBJECTS.md, stop 48)."""
-    from core.undetermined import residual_tolerance  # it imports this module
-
-    tolerance = residual_tolerance(level, counted - hidden, d, d)
-    return (level + tolerance + penalty * hidden) / max(counted, 1)
-
-
-def _judged_in_two_views(unseen: np.ndarray, start: np.ndarray) -> bool:
-    """Whether a part's projections not marked ``unseen`` (V, m) lie in two views with
-    detections (grouped at ``start``), or in the one view that has any."""
-    views = seen_views(start)
-    seen = views & ~unseen.all(axis=1) if unseen.size else views
-    return int(np.count_nonzero(seen)) >= min(2, int(np.count_nonzero(views)))
-
-
-def _compared(unseen: np.ndarray, start: np.ndarray, markers: int) -> int:
-    """Marker projections of a part of ``markers`` markers compared with its detections
-    grouped at ``start``: markers × views with detections, less the ``unseen`` (V, m) ones."""
-    return markers * int(np.count_nonzero(seen_views(start))) - int(np.count_nonzero(unseen))
-
-
 def _charged_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, rig: Rig,
                        params: FitParams, off: np.ndarray) -> float:
     """The objective (pixels) of a posture ``q`` posed by ``kin`` (a part's or the whole
@@ -617,39 +453,8 @@ def _search_stop(kept: np.ndarray, eps: float, kin, points: np.ndarray, start: n
     markers no part reaches its ε: with ε alone, every part whose warm start missed its
     ceiling ran SA to its patience and restarted, to end within a pixel of the warm start
     (the whole body's right leg, 37 of 60 images). In a first attempt this stop is used only
-    where the warm start missed its ceiling as a slide does (:func:`_missed_by_a_slide`)."""
+    where the warm start missed its ceiling as a slide does (:func:`missed_by_a_slide`)."""
     return max(eps, _charged_objective(kept, kin, points, start, rig, params, off))
-
-
-def _missed_by_a_slide(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, unseen: np.ndarray,
-                       rig: Rig, params: FitParams, off: np.ndarray, ceiling: float) -> bool:
-    """Whether a part's warm start ``q`` (d,), posed by ``kin`` on the detections ``points``
-    grouped at ``start`` (``unseen`` (V, m) left out), missed its ``ceiling`` (pixels per
-    compared projection, :func:`warm_ceilings`) as sliding skin markers make it: no
-    projection looks hidden (:func:`_lost`) and its level (:func:`_ceiling_level`) is under
-    :data:`SLIDE_FACTOR` times the ceiling. Its SA then stops once as low as it
-    (:func:`_search_stop`).
-
-    Why not every warm start that missed: a leg whose warm start lies in another basin, or
-    whose marker is hidden, is pixels off in several views, and its SA, stopped at that
-    level, ended in a worse minimum than SA run down to ε (the free fly with markers hidden
-    from every camera: median DOF RMSE 1.25 → 4.66°; the 2-camera hexapod with 10 %
-    hidden: 76.7 → 68.3 % of images within 5°; docs/BENCH_SUBJECTS.md)."""
-    if not math.isfinite(ceiling):
-        return False
-    image = kernel_image(points, start, params, off, in_seen_views(unseen, start))
-    return not _lost(q, kin, rig, image).any() and _under_ceiling(q, kin, rig, image, params,
-                                                                  SLIDE_FACTOR * ceiling)
-
-
-def _under_ceiling(q: np.ndarray, kin, rig: Rig, image: _kernels.Image, params: FitParams,
-                   per_projection: float) -> bool:
-    """Whether a part's posture ``q`` (d,), posed by ``kin``, has its level on ``image``
-    (:func:`_ceiling_level`) under ``per_projection`` pixels per compared projection (its
-    projections in views with detections, less those ``image.unseen`` leaves out)."""
-    limit = per_projection * _compared(image.unseen, image.start, len(kin.marker_joint))
-    seen, hidden, _ = _ceiling_level(q, kin, rig, image, params)
-    return bool(seen + image.penalty * hidden < limit)
 
 
 def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space: SearchSpace,
@@ -661,9 +466,9 @@ def fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, space
     iterations, searched (D,) bool), the first five of what :func:`core.fit.fit_image` returns. Each part
     first tries its posture in the warm starts ``warm`` (k, D) (:func:`warm_start`), and runs SA only
     where none reaches twice the part's ε or its ceiling in ``ceilings()`` (by part name,
-    :func:`warm_ceilings` of the previous image, asked for once, where a part first needs
+    :func:`core.ceilings.warm_ceilings` of the previous image, asked for once, where a part first needs
     it), keeping the warm start where SA ends higher; where the best warm start missed its
-    ceiling as sliding markers make it miss (:func:`_missed_by_a_slide`), SA stops once as
+    ceiling as sliding markers make it miss (:func:`missed_by_a_slide`), SA stops once as
     low as it (:func:`_search_stop`).
     A part that SA leaves above its ε, and above that stop, tries its triangulated start too
     (:func:`epipolar_start`), kept where it ends lower; with two views, every branch does
@@ -783,8 +588,8 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             return False
         placed.pop(part.name, None)
         at_level = tried is not None and (keep is not None or (
-            ceiling is not None and _missed_by_a_slide(tried[0], kin, points, start, unseen, rig, params, off,
-                                                       ceiling())))
+            ceiling is not None and missed_by_a_slide(tried[0], kin, points, start, unseen, rig, params, off,
+                                                      ceiling())))
         stop = _search_stop(tried[0], eps, kin, points, start, rig, params, off) if at_level else eps
         q[part.dofs], _, _, its, runs = attempt_kernel(part.dofs, kin, points, start, model, rig, space,
                                                        params, stop, stream, draw_start, off)
@@ -1338,15 +1143,15 @@ def refine_without_lost(q: np.ndarray, det: Detections, model: KinematicModel, r
     the projections that look hidden at ``q`` itself: (posture, plain Eq. 5 error, objective
     as :func:`refine_whole` reports it, those projections (V, M) bool); None
     where none look hidden, more than :data:`MAX_LOST_SHARE` of the compared projections do,
-    or those left do not lie in two views (:func:`_judged_in_two_views`).
+    or those left do not lie in two views (:func:`judged_in_two_views`).
 
-    Hidden as :func:`_left_out_with_lost` reads them, as :func:`_without_lost` does for a
+    Hidden as :func:`left_out_with_lost` reads them, as :func:`_without_lost` does for a
     part's warm start, but before any refinement: refined with them, the posture slides
     until each lands on some other blob, a ghost or a neighbour's marker, and the reading is
     lost with it.
     """
     image = whole_image(det, params, off)
-    if (lost := _left_out_with_lost(q, model.arrays, rig, image)) is None:
+    if (lost := left_out_with_lost(q, model.arrays, rig, image)) is None:
         return None
     refined = _kernels.refine(np.ascontiguousarray(q), _kernels.Bounds(model.lower, model.upper),
                               model.arrays, rig.arrays, image._replace(unseen=lost),

@@ -23,12 +23,12 @@ import numpy as np
 
 from core import _kernels
 from core.ambiguity import Candidate, angle_gaps, plain_error
+from core.ceilings import MAX_LOST_SHARE
 from core.claims import FUSED_PX
 from core.error import FUSION_DIAMETERS, Detections, marker_errors, nearest_detection, view_offsets
 from core.model import KinematicModel
 from core.part_objective import world_frames
 from core.rig import Rig
-from core.treefit import MAX_LOST_SHARE
 
 __all__ = ["PROFILE_STEPS", "UNDETERMINED_DEG", "WITNESS_DOUBLINGS", "borrowed_projections",
            "confidence_chi2", "crossed_markers", "fused_projections", "hidden_projections",
@@ -76,7 +76,7 @@ def hidden_projections(distances: np.ndarray, penalty: float) -> np.ndarray:
     """(V, M) bool: the projections whose ``distances`` (V, M) px to the nearest blob of
     their view (``core.error.marker_errors``; NaN in a view without blobs) exceed
     ``penalty``: markers hidden from that camera, charged their distance to some other blob.
-    None of them (all False) where more than ``core.treefit.MAX_LOST_SHARE`` of the compared
+    None of them (all False) where more than ``core.ceilings.MAX_LOST_SHARE`` of the compared
     projections are that far: that fit is not one with a few hidden markers."""
     far = np.isfinite(distances) & (distances > penalty)
     if np.count_nonzero(far) > MAX_LOST_SHARE * np.count_nonzero(np.isfinite(distances)):

@@ -17,6 +17,7 @@ from tree_subjects import angle_errors, detections, insect, movement, ring_rig
 from core import _kernels, treefit
 from core.ambiguity import Candidate
 from core.anneal import search_space
+from core.ceilings import typical_ceilings, warm_ceilings
 from core.claims import shared_projections
 from core.detect import DetectorParams, detect
 from core.error import Detections, view_error
@@ -43,8 +44,6 @@ from core.treefit import (
     refine_whole,
     refit_tree,
     tree_flip_alternatives,
-    typical_ceilings,
-    warm_ceilings,
 )
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
@@ -1069,7 +1068,7 @@ def test_a_warm_start_that_missed_its_ceiling_by_a_slide_stops_sa_at_its_level(s
     far = {name: 0.3 * level for name, level in ceilings.items()}
     q, _, _, its = _one(model, rig, images[1], warm=previous[None], ceilings=near)
     with monkeypatch.context() as patch:
-        patch.setattr(treefit, "_missed_by_a_slide", lambda *_: False)
+        patch.setattr(treefit, "missed_by_a_slide", lambda *_: False)
         at_eps, _, _, at_eps_its = _one(model, rig, images[1], warm=previous[None], ceilings=near)
     _, _, _, far_its = _one(model, rig, images[1], warm=previous[None], ceilings=far)
     assert 0 < its < at_eps_its and far_its == at_eps_its
