@@ -78,7 +78,7 @@ class Image(NamedTuple):
     det : (N, 3) float64, detections of all views (u, v px, merged flag), view v in
         ``det[start[v]:start[v + 1]]`` (``core.error.Detections.kernel_points``); or (N, 4),
         the fourth column 1.0 where another part of the model explains the detection (a
-        part's objective, ``core.treefit``): :func:`_unexplained` never charges it.
+        part's objective, ``core.warm_start``): :func:`_unexplained` never charges it.
     start : (V + 1,) int64.  offset : (V, 2) float64, pixels added to each view's projections.
     penalty : float, px a marker of a view without detections costs (and an unseen one).
     fuse_px : float, markers projecting closer are one blob; 0: plain Eq. 5.

@@ -74,7 +74,7 @@ def _left_out(lost: np.ndarray, image: _kernels.Image) -> np.ndarray | None:
 def _ceiling_level(q: np.ndarray, kin, rig: Rig, image: _kernels.Image, params: FitParams
                    ) -> tuple[float, int, bool]:
     """What a part's warm-start ceiling reads of its posture ``q`` (d,) posed by ``kin`` on
-    ``image`` (:func:`warm_ceilings`, :func:`core.treefit.warm_start`): (the objective, pixels, of its
+    ``image`` (:func:`warm_ceilings`, :func:`core.warm_start.warm_start`): (the objective, pixels, of its
     projections that do not look hidden (:func:`_lost`), how many look hidden, False) where
     the rest can judge the part (:func:`_left_out`); else (:func:`part_objective`, 0, True):
     most of its projections look hidden. Its level is the objective plus the empty-view
@@ -118,7 +118,7 @@ def _lost(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) -> np.ndarray:
 def warm_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig,
                   params: FitParams, off: np.ndarray) -> dict[str, float]:
     """Per part of ``model.tree`` (by name), the objective per compared marker projection
-    below which its warm start stands in for SA in the next image (:func:`core.treefit.warm_start`):
+    below which its warm start stands in for SA in the next image (:func:`core.warm_start.warm_start`):
     the part's objective at this image's fitted posture ``q`` (D,) on detections ``det``
     with its projections that look hidden charged the empty-view penalty
     (:func:`_ceiling_level`), plus what a residual at that level cannot tell apart
@@ -161,7 +161,7 @@ def typical_ceilings(q: np.ndarray, det: Detections, model: KinematicModel, rig:
     its ε, and the re-analysis searched every part again, to find the part's minimum once
     more. A part no worse than a typical image's, by more than its residual can tell apart,
     leaves a search nothing it could tell from its kept posture, as a warm start under its
-    ceiling does (:func:`core.treefit.warm_start`); a part in another basin costs pixels more than that
+    ceiling does (:func:`core.warm_start.warm_start`); a part in another basin costs pixels more than that
     and is searched. Clean footage fits at a typical ~0.01 px a projection, where every
     part that reaches such a level has reached twice its ε already.
     """

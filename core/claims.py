@@ -12,7 +12,7 @@ plus, for every blob within the branches' reach, its distance to the nearest mar
 capped at the empty-view penalty), which does charge the stolen leg's blobs. A real
 fusion (two markers imaged as one blob) survives: refitting without the shared blob raises
 the error, and the first posture stays; a branch that, refined where it is, explains every
-other blob at twice its ε is not searched at all (:func:`core.treefit._explained_without`).
+other blob at twice its ε is not searched at all (:func:`core.warm_start.explained_without`).
 
 Here: the detections within a branch's reach (:func:`reaches`, :func:`subset`), those its
 markers claim (within :data:`CLAIM_PX`: :func:`claimed`, :func:`contested_projections`),

@@ -343,7 +343,7 @@ def fit_image(
     offsets : (V, 2) per-view pixel offsets (root tracking), optional.
     warm : (k, D) warm starts, optional (the chunk's previous postures,
         ``core.sequence.fit_chunk``): for a tree, refined on this image first per part, the
-        first that reaches twice the part's ε replaces its SA (``core.treefit.warm_start``).
+        first that reaches twice the part's ε replaces its SA (``core.warm_start.warm_start``).
         A single chain always runs SA: it costs about a millisecond there, and a warm start
         that reaches ε in a wrong minimum would carry that minimum on to the next images.
     ceilings : for a tree, gives per part name the objective per compared projection under

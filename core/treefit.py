@@ -18,17 +18,11 @@ rigid (:func:`_trunk_by_whole`): its hidden markers would otherwise take limb bl
 own objective prefers that wrong pose to the right one. Where it moves to another minimum
 the branches are refitted given it, kept where the whole objective is lower.
 
-Within a chunk, each part first tries the previous image's posture (:func:`warm_start`):
-refined on the part's detections, it replaces the part's SA where it reaches twice the
-part's ε or, under sliding skin markers, the part's level in the previous image plus what
-its residual cannot tell apart (:func:`core.ceilings.warm_ceilings`), or on its other projections with
-those of markers that look hidden left out (:func:`_without_lost`). One that misses is
-tried again after the other branches on its base are fitted, without the projections this
-image's postures put on another part's marker or a merged blob
-(:func:`_reshared_warm_start`); when every part came
-from a warm start the joint refinement takes
-:data:`WARM_JOINT_STEPS` steps: at 50-200 Hz most parts of most images skip SA (figures in
-docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
+Within a chunk, each part first tries the previous image's posture, refined, and runs SA
+only where that does not stand in for it (``core.warm_start``; under sliding skin markers,
+the ceiling it is held to, ``core.ceilings``); when every part came from a warm start the
+joint refinement takes :data:`WARM_JOINT_STEPS` steps: at 50-200 Hz most parts of most
+images skip SA (figures in docs/BENCH_SUBJECTS.md). Depth flips are searched branch by branch
 (:func:`tree_flip_alternatives`). A part that SA leaves above its ε (with two or more
 views) tries one more start, triangulated from the blobs (:func:`epipolar_start`,
 ``core.triangulate``), refined like a warm start and kept where it ends lower: a branch
@@ -38,6 +32,12 @@ can end on the wrong blobs, and every branch then hangs from the wrong place). W
 views every branch tries it, and every SA run's minimum of it and its warm start, kept where
 it lowers the two-sided error (:func:`_two_view_starts`): there a leg on the wrong blobs can
 explain all it projects onto, and the run SA ranks lowest can be one.
+
+This module orchestrates; the rules it applies live in the modules below it, lowest
+first: ``core.part_objective`` (a part posed and scored, its ε), ``core.claims`` (branches
+competing for blobs), ``core.ceilings`` (a part's level and ceiling, the projections that
+look hidden) and ``core.warm_start`` (when the previous image's posture stands in for SA).
+None of them imports this module.
 """
 
 from __future__ import annotations
@@ -46,7 +46,6 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from functools import partial
-from itertools import pairwise
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -63,35 +62,27 @@ from core.ambiguity import (
 )
 from core.anneal import kernel_params
 from core.ceilings import (
-    MAX_LOST_SHARE,
-    compared_count,
-    judged_in_two_views,
     left_out_with_lost,
     missed_by_a_slide,
     typical_ceilings,
-    under_ceiling,
 )
 from core.claims import (
     CLAIM_PX,
-    FUSED_PX,
     claimed,
     claiming_at,
     claims_of,
     contested_projections,
     explained_blobs,
-    on_merged_blobs,
     reaches,
     shared_projections,
     subset,
     two_sided_error,
 )
 from core.epipolar_start import branch_start, trunk_start
-from core.error import Detections, nearest_detection, view_offsets
-from core.identifiability import marker_jacobian
+from core.error import Detections, view_offsets
 from core.model import KinematicModel
 from core.part_objective import (
     base_frame,
-    in_seen_views,
     kernel_image,
     outside,
     part_eps,
@@ -103,20 +94,26 @@ from core.part_objective import (
 from core.rig import Rig
 from core.tree import Part, Tree, _subtrees
 from core.triangulate import Candidates, triangulate
+from core.warm_start import (
+    WARM_EPS_FACTOR,
+    WARM_STEPS,
+    explained_without,
+    hidden_marker_triangulated,
+    one_left_out,
+    reshared_warm_start,
+    warm_start,
+)
 
 if TYPE_CHECKING:
     from core.anneal import SearchSpace
     from core.fit import FitParams
 
 __all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "refine_whole", "refine_without_lost",
-           "refit_tree", "search_floor", "tree_flip_alternatives", "warm_start"]
+           "refit_tree", "search_floor", "tree_flip_alternatives"]
 
 CONFLICT_SWEEPS = 2
 JOINT_STEPS = 10  # LM steps of the joint refinement: the parts arrive refined
-WARM_STEPS = 10  # LM steps refining the previous image's posture of a part (a warm start)
 WARM_JOINT_STEPS = 2  # joint refinement of parts that all came from warm starts
-WARM_EPS_FACTOR = 2.0  # a warm start stands in for SA within this many times the part's ε
-HIDDEN_SEEN_VIEWS = 3  # unexplained blobs of this many views meeting in space: a marker not hidden
 
 
 def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
@@ -134,299 +131,6 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
         space.mean[dofs], bool(draw_start), _kernels.Bounds(model.lower[dofs], model.upper[dofs]), kin,
         rig.arrays, image, sa, stream, runs)
     return q, error, objective, iterations, runs[:written]
-
-
-def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, warm: np.ndarray | None,
-               model: KinematicModel, rig: Rig, params: FitParams, eps: float, off: np.ndarray,
-               unseen: np.ndarray = _kernels.NO_UNSEEN,
-               ceiling: Callable[[], float] | None = None,
-               unexplained: Callable[[np.ndarray, np.ndarray], bool] | None = None,
-               ) -> tuple[np.ndarray, float, bool] | None:
-    """The warm starts ``warm`` (k, D), each one's posture of the DOFs ``dofs`` (a part posed
-    by ``kin``) refined on detections ``points`` (N, 3) grouped at ``start`` (V + 1,) by
-    :data:`WARM_STEPS` LM steps: (posture (d,), objective in pixels, whether it stands in
-    for SA) of the first that reaches :data:`WARM_EPS_FACTOR` times ``eps`` (SA's stop), or
-    does on its other projections once those that look hidden are left out
-    (:func:`_without_lost`), else of the lowest objective, which stands in for SA where it
-    is below ``ceiling()`` (pixels per compared projection, :func:`core.ceilings.warm_ceilings`:
-    the part's level in the previous image plus what a residual at that level cannot tell
-    apart; asked for only there); None without ``warm``.
-
-    Why more than ε: where a warm start misses ε by a little, the part's minimum itself is
-    above it (a ghost blob merged with a marker in one view, say), and SA only runs to its
-    patience to end in the same minimum; a warm start in another minimum costs far more
-    (a wrong leg is pixels off in several views), and a depth flip that costs as little is
-    offered as an alternative either way (``core.ambiguity``).
-
-    Why the ceiling: with sliding skin markers no posture of a part reaches 2 ε, and the
-    minimum's own level is the markers' slide, which varies slowly from image to image. SA
-    can change the answer only by finding a posture lower than the warm start's by more
-    than the part's residual can tell apart (``core.undetermined.residual_tolerance``); a
-    warm start within that of the previous image's level leaves it none to find unless the
-    slide dropped by more than that in one image. Why it is safe: a warm start in another
-    basin costs the level plus a leg pixels off in several views, above the ceiling, and
-    runs SA (kept only where SA ends higher); one within the ceiling is one this image's
-    residual does not tell from the part's minimum. The level is the part's lowest over the
-    previous fit and its alternatives (``core.sequence.fit_chunk``), so a part that the
-    whole objective put in another minimum than its own best is searched again. Both the
-    level and the warm start charge a projection that looks hidden the empty-view penalty
-    (:func:`core.ceilings._ceiling_level`): at its distance to some other blob, one hidden marker raised
-    the next image's ceiling by tens of pixels, and a leg in another basin stood in for SA
-    (2-camera hexapod, 10 % of projections hidden: 97 of 116 such warm starts). A branch
-    most of whose projections looked hidden has no ceiling (:func:`core.ceilings.warm_ceilings`). The image's
-    depth flips and undetermined DOFs are still searched (``core.fit``), and a chunk's first
-    image runs SA on every part. A re-analysis judges its kept posture by ceilings from the
-    sequence's typical objective instead (:func:`typical_ceilings`).
-
-    ``unexplained(q, hidden)``, where given (a re-analysis), says whether a marker the part
-    at posture ``q`` (d,) leaves out as hidden (``hidden`` (V, m)) has unexplained blobs in
-    those views that meet in space (:func:`_hidden_marker_triangulated`); such a warm start
-    does not stand in (:func:`_without_lost`).
-
-    ``unseen`` (V, m) bool marks projections next to another part's marker
-    (:func:`shared_projections`): they are left out of the refinement and of the objective
-    (:func:`part_objective`), and ``eps`` (per projection) shrinks in proportion. Such a
-    blob is two markers fused, off each by pixels, which no posture of this part alone
-    explains: left in, it keeps a leg that fits everywhere else above ε (the joint
-    refinement reads it as fused). They are read at the posture the warm start came from,
-    so a warm start judged without them must leave every DOF placed in two views (one with
-    two cameras, :func:`_left_in_too_few_views`): at 50 Hz the free fly's hind claw, next
-    to another leg's marker in the previous image, was left out in enough views to free
-    the tarsus, and the warm start stood in 25° off. Nor may leaving them out free a
-    direction that no single DOF shows, two DOFs turning against each other
-    (:func:`_freed_by_leaving_out`).
-
-    A warm start stands in only where the projections it is judged on lie in two views,
-    wherever the part has detections in two or more (:func:`judged_in_two_views`): the claim
-    that another basin costs far more rests on its being pixels off in several views. In one
-    view a limb's depth flips cost nothing, and the refinement can turn it into a posture
-    that explains that view alone (a forelimb whose side-view markers all lie next to the
-    other forelimb's, its wrist hidden from below, ended 62° off).
-
-    At 50-200 Hz a part has moved a few degrees since the previous image, inside the
-    basin LM descends; where it moved farther, or the previous posture lies in a minimum
-    this image no longer supports, the refined posture stays above ``eps``.
-    """
-    if warm is None:
-        return None
-    unseen = in_seen_views(unseen, start)
-    if unseen.size:
-        eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(seen_views(start)), 1)
-    best: tuple[np.ndarray, float, bool] | None = None
-    image = kernel_image(points, start, params, off, unseen)
-    bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
-    views = judged_in_two_views(unseen, start)
-    rot = model.rotational[dofs]
-    for row in warm:
-        q = np.ascontiguousarray(row[dofs])
-        if params.refine:
-            q = _kernels.refine(q, bounds, kin, rig.arrays, image, float(params.anneal.huber_px), WARM_STEPS,
-                                _kernels.NO_TARGETS)
-        value = part_objective(q, kin, points, start, unseen, rig, params, off)
-        if value < WARM_EPS_FACTOR * eps and views and not (
-                unseen.any() and (_left_in_too_few_views(unseen, q, kin, image)
-                                  or _freed_by_leaving_out(q, rot, kin, rig, image,
-                                                           params.alternative_tolerance_px))):
-            return q, value, True
-        if params.refine and views and (seen := _without_lost(q, row[dofs], kin, image, bounds, rig,
-                                                              params, eps, unexplained)) is not None:
-            return seen, part_objective(seen, kin, points, start, unseen, rig, params, off), True
-        if best is None or value < best[1]:
-            best = (q, value, False)
-    if best is not None and ceiling is not None and views:
-        best = (best[0], best[1], under_ceiling(best[0], kin, rig, image, params, ceiling()))
-    return best
-
-
-def _freed_by_leaving_out(q: np.ndarray, rot: np.ndarray, kin, rig: Rig, image: _kernels.Image,
-                          floor_px: float) -> bool:
-    """Whether leaving out the projections ``image.unseen`` marks frees a direction of the
-    rotational DOFs ``rot`` (d,) bool of a part at posture ``q`` (d,) (posed by ``kin``)
-    where some marker is left out of every view with detections: a
-    ``core.undetermined.UNDETERMINED_DEG`` step along it moves the projections left by less
-    than ``floor_px`` (norm, pixels), while it moves all of them by more. Where every
-    marker is compared in some view, False without reading the Jacobian: a warm start with
-    a shared projection is tried in most images.
-
-    Why: each DOF may still move some projection left (:func:`_left_in_too_few_views`)
-    while two DOFs together move none of them. With its femur-tibia marker left out of
-    both of two views, a fly's middle leg turns its coxa roll against its femur roll and
-    keeps its distal markers where they were (0.03 px per degree along that direction
-    against 0.26 with the marker): its warm start stood in 16° off, ``ok``, 16 px above
-    the truth in the whole objective (docs/BENCH_SUBJECTS.md, glints)."""
-    from core.undetermined import UNDETERMINED_DEG  # it imports this module
-
-    seen = seen_views(image.start)[:, None]
-    columns = np.flatnonzero(rot)
-    if (seen & ~image.unseen).any(axis=0).all() or not columns.size:
-        return False
-    steps = np.repeat(q[None], len(columns) + 1, axis=0)
-    steps[np.arange(1, len(columns) + 1), columns] += 1.0  # one degree each
-    proj = rig.project(_kernels.marker_positions_many(steps, kin))  # (k + 1, V, m, 2)
-    moved = proj[1:] - proj[:1]  # (k, V, m, 2): pixels per degree
-
-    def weakest(kept: np.ndarray) -> float:
-        jac = moved[:, kept].reshape(len(columns), -1).T
-        return float(np.linalg.svd(jac, compute_uv=False)[-1]) if jac.shape[0] >= len(columns) else 0.0
-
-    if weakest(seen & ~image.unseen) * UNDETERMINED_DEG >= floor_px:
-        return False
-    return weakest(np.broadcast_to(seen, image.unseen.shape)) * UNDETERMINED_DEG >= floor_px
-
-
-def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bounds: _kernels.Bounds,
-                  rig: Rig, params: FitParams, eps: float,
-                  unexplained: Callable[[np.ndarray, np.ndarray], bool] | None = None) -> np.ndarray | None:
-    """A part's warm start ``row`` (d,) refined within ``bounds`` on its detections
-    ``image`` (``_kernels.Image``, the projections its ``unseen`` marks left out) without
-    its projections that look hidden as well, where that reaches :data:`WARM_EPS_FACTOR`
-    times ``eps`` (already shrunk for ``image.unseen``) shrunk in proportion again, else
-    None. Hidden: farther than the empty-view penalty from every blob at ``q`` (d,), the
-    warm start refined with them (``_kernels._lost_markers``); at most
-    :data:`MAX_LOST_SHARE` of the part's compared projections, and those left in two views
-    (:func:`warm_start`), else None.
-
-    Why: a marker hidden from one camera (a leg in front of it) is charged its distance to
-    some other blob and keeps the part above 2 ε however right the warm start is, so with
-    occluded markers almost every part ran SA in every image. Why it is safe: the
-    projections left must still be explained at 0.5 px each (2 ε), which a posture in
-    another basin is not in the views that see its markers, and a posture that only moves
-    the hidden marker (a flip about the axis of the segment before it) is still offered as
-    an alternative (``core.fit``). Where a marker merely slid (skin), it is within the
-    penalty and nothing is left out.
-
-    Nor where a DOF would be left placed in too few views (:func:`_left_in_too_few_views`):
-    a marker compared in one view can slide along that camera's ray, and one compared in
-    none places nothing, so a DOF that only such markers place (a tarsus, for its claw) is
-    free in the refinement without them. A free-walking fly's warm start, refined, had its
-    claw on the tibia-tarsus joint's blob in one of three views and off its blobs in the
-    other two; left to that view, it stood in for SA with the tarsus at its range limit,
-    32° off, and the next image's warm start carried it on.
-
-    Nor where ``unexplained`` says a marker left out as hidden has unexplained blobs that
-    meet in space in three of the views that leave it out (:func:`_hidden_marker_triangulated`):
-    re-analysed, the free fly filmed at 50 Hz kept a hind leg 36° off that way, `ok`."""
-    unseen, start = image.unseen, image.start
-    if (without := left_out_with_lost(q, kin, rig, image)) is None:
-        return None
-    lost = without & ~unseen if unseen.size else without  # those left out as hidden
-    if _left_in_too_few_views(lost, q, kin, image):
-        return None
-    compared = compared_count(unseen, start, len(kin.marker_joint))
-    hidden = int(np.count_nonzero(lost))
-    refined = _kernels.refine(np.ascontiguousarray(row), bounds, kin, rig.arrays,
-                              image._replace(unseen=without), float(params.anneal.huber_px), WARM_STEPS,
-                              _kernels.NO_TARGETS)
-    value = part_objective(refined, kin, image.det, start, without, rig, params, image.offset)
-    if value >= WARM_EPS_FACTOR * eps * (1.0 - hidden / compared):
-        return None
-    if unexplained is not None and unexplained(refined, lost):
-        return None
-    return refined
-
-
-def _one_left_out(tried: tuple[np.ndarray, float, bool], part: Part, kin, points: np.ndarray,
-                  start: np.ndarray, model: KinematicModel, rig: Rig, params: FitParams, eps: float,
-                  off: np.ndarray, unseen: np.ndarray) -> tuple[np.ndarray, float, bool]:
-    """A part's warm start that did not stand in for SA (``tried``, after
-    :func:`_reshared_warm_start`), refined again without its one projection farthest from a
-    blob, standing in where that reaches :data:`WARM_EPS_FACTOR` times its ``eps`` shrunk in
-    proportion to what is left out (with ``unseen`` (V, m)); ``tried`` otherwise. Only where
-    the part has detections in three or more views, that projection lies within the
-    empty-view penalty of a blob, every DOF moving it still moves markers compared in two
-    views (:func:`_left_in_too_few_views`) and leaving it out frees no direction
-    (:func:`_freed_by_leaving_out`), and the rest reach 2 ε already before the refinement
-    (under sliding skin they do not, and the refinement would be spent).
-
-    Why: a glint off the cuticle, or a ghost, merged with one marker's blob moves its
-    centre by a pixel or two; the part's objective then misses 2 ε however right the warm
-    start is, and SA ran to find the same posture (6-camera hexapod with 3 glints per view:
-    23 of 375 warm starts missed, against 4 without glints; 21 of them reached 2 ε without
-    their worst projection). Why it is safe: the other projections, in three views or more,
-    must still be explained at 2 ε, which a posture in another basin is not. Not with two
-    views: a marker left to one slides along its ray, and a depth flip explains most
-    projections alike. Last, after the blobs shared or flagged merged are left out
-    (:func:`_reshared_warm_start`), which leaves out all of them where two blobs moved."""
-    seen = seen_views(start)
-    if not params.refine or np.count_nonzero(seen) < 3:
-        return tried
-    image = kernel_image(points, start, params, off, unseen)
-    q = tried[0]
-    if (far := _farthest_projection(q, kin, rig, image)) is None:
-        return tried
-    left = image.unseen.copy() if image.unseen.size else np.zeros((len(seen), len(part.markers)), bool)
-    left[far] = True
-    if _left_in_too_few_views(left, q, kin, image) or _freed_by_leaving_out(
-            q, model.rotational[part.dofs], kin, rig, image._replace(unseen=left),
-            params.alternative_tolerance_px):
-        return tried
-    compared = len(part.markers) * np.count_nonzero(seen)
-    reach = WARM_EPS_FACTOR * eps * (1.0 - np.count_nonzero(left) / compared)
-    if part_objective(q, kin, points, start, left, rig, params, off) >= reach:
-        return tried  # the rest are off too (sliding skin): no refinement would bring them under
-    bounds = _kernels.Bounds(model.lower[part.dofs], model.upper[part.dofs])
-    refined = _kernels.refine(np.ascontiguousarray(q), bounds, kin, rig.arrays, image._replace(unseen=left),
-                              float(params.anneal.huber_px), WARM_STEPS, _kernels.NO_TARGETS)
-    if part_objective(refined, kin, points, start, left, rig, params, off) >= reach:
-        return tried
-    return refined, part_objective(refined, kin, points, start, unseen, rig, params, off), True
-
-
-def _farthest_projection(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) -> tuple[int, int] | None:
-    """(view, marker) of the projection of posture ``q`` (d,) (posed by ``kin``) farthest
-    from its nearest blob among those ``image.unseen`` does not leave out, in views with
-    detections, where that is within the empty-view penalty; else None."""
-    proj = rig.project(_kernels.marker_positions_many(np.ascontiguousarray(q[None]), kin))[0]
-    proj = proj + image.offset[:, None, :]
-    best, where = -1.0, None
-    for v in np.flatnonzero(seen_views(image.start)):
-        gaps = np.sqrt(nearest_detection(proj[v], image.det[image.start[v]:image.start[v + 1]])[1])  # (m,)
-        if image.unseen.size:
-            gaps[image.unseen[v]] = -1.0
-        m = int(np.argmax(gaps))
-        if gaps[m] > best:
-            best, where = float(gaps[m]), (int(v), m)
-    return where if 0.0 < best <= image.penalty else None
-
-
-def _left_in_too_few_views(lost: np.ndarray, q: np.ndarray, kin, image: _kernels.Image) -> bool:
-    """Whether, once a part's ``lost`` (V, m) projections are left out, some DOF of posture
-    ``q`` (d,) (posed by ``kin``) that moves a lost marker moves markers compared in fewer
-    than two views with detections where there are three or more, or in none where there
-    are two or one.
-
-    Per DOF, not per marker: a knee marker hidden from two of three cameras is still placed
-    by the shank and foot markers that move with the same DOFs, and leaving it out keeps
-    the warm start; asking two views of every such marker sent those warm starts to SA for
-    the same angles (docs/BENCH_SUBJECTS.md, the free fly). With two cameras a
-    hidden marker is left to one view, as it is by the objective anyway. Projections
-    ``image.unseen`` leaves out (next to another part's marker) count as compared:
-    :func:`_may_leave_out` judged them, and a fusion places them. (:func:`warm_start` asks
-    the same of those projections themselves, passed as ``lost``.)"""
-    seen = seen_views(image.start)
-    compared = seen[:, None] & ~lost  # (V, m)
-    needed = 2 if np.count_nonzero(seen) >= 3 else 1
-    if (np.count_nonzero(compared, axis=0)[lost.any(axis=0)] >= needed).all():
-        return False  # each lost marker is compared in enough views, so each DOF moving it is
-    moved = _moved_markers(q, kin)  # (d, m)
-    for dof in np.flatnonzero(moved[:, lost.any(axis=0)].any(axis=1)):  # DOFs moving a lost marker
-        if np.count_nonzero(compared[:, moved[dof]].any(axis=1)) < needed:
-            return True
-    return False
-
-
-def _moved_markers(q: np.ndarray, kin) -> np.ndarray:
-    """(d, m) bool: which of a part's markers each DOF moves at posture ``q`` (d,) (posed by
-    ``kin``), from the Jacobian of the marker positions (``core.identifiability.marker_jacobian``,
-    every column in model units per step: only which markers a DOF moves is read, against the
-    most it moves any): a marker on a rotation's axis, or above its joint, is not moved by it."""
-    def positions(postures: np.ndarray) -> np.ndarray:
-        return _kernels.marker_positions_many(np.ascontiguousarray(postures), kin)
-
-    d = len(q)
-    jac = marker_jacobian(positions, q, np.zeros(d, dtype=bool), 1.0)  # (3m, d)
-    speed = np.linalg.norm(jac.T.reshape(d, -1, 3), axis=2)  # (d, m)
-    return speed > 1e-6 * np.maximum(speed.max(axis=1, keepdims=True), 1e-300)
 
 
 def _charged_objective(q: np.ndarray, kin, points: np.ndarray, start: np.ndarray, rig: Rig,
@@ -523,7 +227,7 @@ def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spa
     when every part is (``core.fit.reanalyse_image`` settles an
     image whose attempt is not lower than the kept posture as well). A kept posture that
     reaches it only with a marker left out as hidden is searched where that marker's
-    unexplained blobs meet in space (:func:`_hidden_marker_triangulated`).
+    unexplained blobs meet in space (:func:`hidden_marker_triangulated`).
     """
     ceilings = (None if not math.isfinite(typical)
                 else partial(typical_ceilings, keep, det, model, rig, params, off, typical))
@@ -567,15 +271,15 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
         ceiling = None if ceilings is None else lambda: levels(part.name)
         done[part.dofs] = True
         # A re-analysis has every other part where the kept posture (or this attempt) has it.
-        unexplained = None if keep is None else partial(_hidden_marker_triangulated, q, part, points,
+        unexplained = None if keep is None else partial(hidden_marker_triangulated, q, part, points,
                                                          start, model, rig, params, off)
         tried = warm_start(part.dofs, kin, points, start, warm, model, rig, params, eps, off, unseen,
                            ceiling, unexplained)
         if tried is not None and not tried[2] and warm is not None:
-            tried = _reshared_warm_start(part, tried, np.where(done, q, warm[0]), kin, points, start, model,
-                                         rig, tree, params, eps, off, unseen, ceiling, unexplained)
+            tried = reshared_warm_start(part, tried, np.where(done, q, warm[0]), kin, points, start, model,
+                                        rig, tree, params, eps, off, unseen, ceiling, unexplained)
         if tried is not None and not tried[2] and warm is not None:
-            tried = _one_left_out(tried, part, kin, points, start, model, rig, params, eps, off, unseen)
+            tried = one_left_out(tried, part, kin, points, start, model, rig, params, eps, off, unseen)
         if tried is not None and tried[2]:
             q[part.dofs] = tried[0]
             if tried[1] < WARM_EPS_FACTOR * eps:
@@ -678,8 +382,8 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
             free = reaches(q, det, model, rig, [part], off)[0] & ~claimed(q, det, model, rig, tree, off,
                                                                           exclude=b)
             points, start = subset(det, free)
-            if _explained_without(part, q, contested[:, part.markers], det, points, start, model, rig,
-                                  params, off, views_seen, shared.get(part.name, _kernels.NO_UNSEEN)):
+            if explained_without(part, q, contested[:, part.markers], det, points, start, model, rig,
+                                 params, off, views_seen, shared.get(part.name, _kernels.NO_UNSEEN)):
                 continue
             fit_part(part, points, start)
             new = two_sided_error(q, det, model, rig, off, in_reach, params.empty_view_penalty_px)
@@ -716,184 +420,6 @@ def _searched(q: np.ndarray, tree: Tree, placed: Mapping[str, np.ndarray], rot: 
         if part.name in placed and not distinct(q[part.dofs], placed[part.name], rot[part.dofs]):
             searched[part.dofs] = False
     return searched
-
-
-def _reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], posture: np.ndarray, kin,
-                         points: np.ndarray, start: np.ndarray, model: KinematicModel, rig: Rig, tree: Tree,
-                         params: FitParams, eps: float, off: np.ndarray, unseen: np.ndarray,
-                         ceiling: Callable[[], float] | None,
-                         unexplained: Callable[[np.ndarray, np.ndarray], bool] | None,
-                         ) -> tuple[np.ndarray, float, bool]:
-    """A part's warm start that did not stand in for SA (``tried``, from :func:`warm_start`)
-    tried again with more of its projections left out: those next to another part's marker
-    (:func:`shared_projections`) where the part stands at its refined warm start and the
-    other parts at ``posture`` (D,) (where this attempt fitted them, else at the previous
-    image's posture), and those on a detection the detector flags as merged markers
-    (:func:`on_merged_blobs`), where :func:`_may_leave_out` allows them and ``unseen``
-    (V, m) does not mark them all already; and with the blobs of other parts' markers at
-    ``posture`` never charged as unexplained (:func:`_explained_elsewhere`). ``tried`` where
-    neither applies.
-
-    Why: the shared projections are read at the previous image's posture, and legs that
-    moved together since then leave a marker fused with another leg's in some view. The
-    fused blob lies pixels from both, no posture of the part alone explains it, and a
-    warm start on the truth missed twice its ε by a pixel: SA then ran to its patience,
-    the triangulated start and the conflict sweeps after it, 0.2 s of a 6-camera hexapod
-    image instead of 5 ms, to end where the warm start was. The same checks judge the
-    retry (:func:`warm_start`): the projections left must be explained at twice ε shrunk in
-    proportion, which a leg in another basin, pixels off in the views that do not fuse it,
-    is not; and :func:`_may_leave_out` must allow the projections left out."""
-    at = posture.copy()
-    at[part.dofs] = tried[0]
-    near = max(float(params.fusion_px), CLAIM_PX)
-    again = in_seen_views(shared_projections(at, model, rig, tree, params, off)[part.name], start)
-    again |= on_merged_blobs(rig.project(model.marker_positions(at)[part.markers]) + off[:, None, :],
-                             points, start, near)
-    before = in_seen_views(unseen, start) if unseen.size else np.zeros_like(again)
-    again |= before
-    fused = _fusions(at, part, model, rig, points, start, off, near)
-    more = np.count_nonzero(again) > np.count_nonzero(before) and _may_leave_out(again, start, fused)
-    flagged = _explained_elsewhere(points, start, at, part, model, rig, params, off)
-    if not more and not flagged[:, 3].any():
-        return tried
-    retried = warm_start(part.dofs, kin, flagged, start, at[None], model, rig, params, eps, off,
-                         again if more else unseen, ceiling, unexplained)
-    return tried if retried is None else retried
-
-
-def _explained_elsewhere(points: np.ndarray, start: np.ndarray, posture: np.ndarray, part: Part,
-                         model: KinematicModel, rig: Rig, params: FitParams, off: np.ndarray) -> np.ndarray:
-    """Detections ``points`` (n, 3) grouped at ``start`` with a fourth column (``_kernels.Image``):
-    1.0 where the nearest detection of a marker outside ``part``, at ``posture`` (D,), lies
-    within half the fusion distance (at least :data:`CLAIM_PX`) of it: a blob that marker
-    forms, alone or merged with another, which ``part``'s objective must not charge as
-    unexplained.
-
-    Why: where two of a part's own markers merge into one blob, the objective charges every
-    unclaimed detection within the fusion distance (2 marker diameters) of them: the blob a
-    wrong posture that squeezes two markers onto one would leave (``_kernels._unexplained``).
-    A part's detections include its neighbours' blobs, which no marker of the part claims.
-    With 9 px markers the 6-camera hexapod's legs, on the truth, were charged 12-20 px for a
-    neighbouring leg's blob next to their own merged pair, above twice their ε, and ran SA
-    at 29 ms instead of standing in from the warm start."""
-    others = outside(part, len(model.markers))
-    proj = rig.project(model.marker_positions(posture)[others]) + off[:, None, :]  # (V, M - m, 2)
-    radius = max(0.5 * float(params.fusion_px), CLAIM_PX)
-    out = np.zeros((len(points), 4))
-    out[:, :3] = points[:, :3]
-    for v in np.flatnonzero(seen_views(start)):
-        a, b = start[v], start[v + 1]
-        nearest, d2 = nearest_detection(proj[v], points[a:b])
-        out[a + nearest[d2 <= radius * radius], 3] = 1.0
-    return out
-
-
-def _hidden_marker_triangulated(posture: np.ndarray, part: Part, points: np.ndarray, start: np.ndarray,
-                                model: KinematicModel, rig: Rig, params: FitParams, off: np.ndarray,
-                                q: np.ndarray, hidden: np.ndarray) -> bool:
-    """Whether a marker of ``part`` at ``q`` (d,), the rest of the model at ``posture`` (D,),
-    left out as hidden in :data:`HIDDEN_SEEN_VIEWS` or more views (``hidden`` (V, m)), has
-    a 3D point there after all: blobs of that many of those views among ``points`` (N, 3)
-    grouped at ``start`` (V + 1,) (the part's reach) that no marker projection explains
-    (none within half the fusion distance, at least :data:`CLAIM_PX`: where a fusion of two
-    markers puts its blob) and that meet in space (``core.triangulate``).
-
-    A marker hidden from a camera leaves no blob in its view. Unexplained blobs of three
-    such views that meet in space are most likely the marker itself, with the part in
-    another basin, and the part is searched. Two views are not enough: any two blobs on
-    each other's epipolar lines meet, and in the 3-camera fly with 10 % of projections
-    hidden, every pair found (3 images) belonged to markers truly hidden there (ghosts, or
-    blobs of another leg in another basin); searching those legs again changed 5 images
-    for the worse. Asked in a re-analysis only (:func:`refit_tree`), where every other part
-    is fitted: in a first attempt the parts not yet fitted stand at the previous image's
-    posture, pixels off their blobs."""
-    markers = np.flatnonzero(np.count_nonzero(hidden, axis=0) >= HIDDEN_SEEN_VIEWS)
-    if len(markers) == 0:
-        return False
-    at = posture.copy()
-    at[part.dofs] = q
-    proj = rig.project(model.marker_positions(at)) + off[:, None, :]  # (V, M, 2)
-    explained = explained_blobs(proj, points, start, max(0.5 * float(params.fusion_px), CLAIM_PX))
-    unexplained = [points[a:b, :2][~explained[a:b]] for a, b in pairwise(start)]
-    for m in markers:
-        views = [u if hidden[v, m] else u[:0] for v, u in enumerate(unexplained)]
-        found = triangulate(Detections.from_views(views), rig=rig, offsets=off)
-        if np.any(found.n_views >= HIDDEN_SEEN_VIEWS):
-            return True
-    return False
-
-
-def _may_leave_out(left_out: np.ndarray, start: np.ndarray, fused: np.ndarray | None = None) -> bool:
-    """Whether a part's warm start may be judged without its projections ``left_out`` (V, m)
-    (views with detections grouped at ``start`` only): at most :data:`MAX_LOST_SHARE` of its
-    compared projections, and every marker with a projection left out still compared in
-    two views, so that it keeps its depth (with two cameras, a marker left to one view can
-    slide along that camera's ray: a leg of the 2-camera hexapod with 10 % of its markers
-    hidden went 5° off in several DOFs without this), except where the projection left out
-    is ``fused`` (V, m) (:func:`_fusions`: its blob is where it and another part's marker
-    merge, which places it as well as a blob of its own would). Fused projections may take
-    the left-out share to twice :data:`MAX_LOST_SHARE`, no more: a leg lying on another
-    leg's markers would look fused everywhere."""
-    seen = seen_views(start)
-    unexplained = left_out if fused is None else left_out & ~fused
-    compared = seen[:, None] & ~left_out
-    limit = MAX_LOST_SHARE * left_out.shape[1] * np.count_nonzero(seen)
-    return bool(np.count_nonzero(unexplained) <= limit and np.count_nonzero(left_out) <= 2 * limit
-                and (compared.sum(axis=0)[unexplained.any(axis=0)] >= 2).all())
-
-
-def _fusions(q: np.ndarray, part: Part, model: KinematicModel, rig: Rig, points: np.ndarray,
-             start: np.ndarray, off: np.ndarray, near: float) -> np.ndarray:
-    """(V, m) bool: the projections of ``part``'s markers at posture ``q`` (D,) that lie
-    within ``near`` px of a marker of another part whose midpoint with it is within
-    :data:`FUSED_PX` of a detection of the view (``points`` (N, 3) grouped at ``start``):
-    the two markers seen as one blob, where a merged blob's centroid lies.
-
-    Two legs whose joints touch (the hexapod's femur-tibia joints, seed 3, images 65 and 75)
-    fuse in every view; leaving those projections out for being shared would leave the
-    marker in no view, yet each blob is where the two markers' fusion puts it."""
-    proj = rig.project(model.marker_positions(q)) + off[:, None, :]  # (V, M, 2)
-    others = outside(part, len(model.markers))
-    out = np.zeros((len(start) - 1, len(part.markers)), dtype=bool)
-    for v in np.flatnonzero(seen_views(start)):
-        mine, theirs = proj[v, part.markers], proj[v, others]
-        gap = np.linalg.norm(mine[:, None] - theirs[None], axis=2)  # (m, M - m)
-        i, j = np.nonzero(gap <= near)
-        if len(i) == 0:
-            continue
-        d2 = nearest_detection(0.5 * (mine[i] + theirs[j]), points[start[v]:start[v + 1]])[1]
-        out[v, i[d2 <= FUSED_PX ** 2]] = True
-    return out
-
-
-def _explained_without(part: Part, q: np.ndarray, left_out: np.ndarray, det: Detections, points: np.ndarray,
-                       start: np.ndarray, model: KinematicModel, rig: Rig, params: FitParams, off: np.ndarray,
-                       views_seen: int, shared: np.ndarray) -> bool:
-    """Whether branch ``part`` at posture ``q`` (D,), refined as a warm start
-    (:func:`warm_start`), explains the detections ``points`` grouped at ``start`` (those of
-    the image ``det`` no other branch claims) within twice its ε without its projections
-    ``left_out`` (V, m) (those on a detection another branch claims too) and ``shared``
-    (V, m) (next to another part's marker, :func:`shared_projections`), where
-    :func:`_may_leave_out` allows it (fusions read on all of ``det``: the blob two branches
-    share is not among the free ones).
-
-    Why: the conflict sweep searches such a branch again by SA on those detections, for a
-    branch on its neighbour's blobs. A branch in the right basin whose marker projects onto
-    the same blob as a neighbour's in one view (two markers nearly coincide, and the blob is
-    no larger than one) explains everything else: its search ends worse and is thrown away,
-    0.1 s of a 6-camera hexapod image. A branch in another basin is pixels off in the other
-    views as well, and is searched."""
-    if shared.size:
-        left_out = left_out | shared
-    left_out = in_seen_views(left_out, start)
-    near = max(float(params.fusion_px), CLAIM_PX)
-    fused = _fusions(q, part, model, rig, det.kernel_points, det.start, off, near)
-    if not _may_leave_out(left_out, start, fused):
-        return False
-    kin = part.at(*base_frame(q, model, part))
-    tried = warm_start(part.dofs, kin, points, start, q[None], model, rig, params,
-                       part_eps(part, params, views_seen), off, left_out)
-    return tried is not None and tried[2]
 
 
 def _trunk_unexplained(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, tree: Tree,
@@ -1142,10 +668,10 @@ def refine_without_lost(q: np.ndarray, det: Detections, model: KinematicModel, r
     """A whole posture ``q`` (D,) refined by :data:`JOINT_STEPS` LM steps on ``det`` without
     the projections that look hidden at ``q`` itself: (posture, plain Eq. 5 error, objective
     as :func:`refine_whole` reports it, those projections (V, M) bool); None
-    where none look hidden, more than :data:`MAX_LOST_SHARE` of the compared projections do,
-    or those left do not lie in two views (:func:`judged_in_two_views`).
+    where none look hidden, more than :data:`core.ceilings.MAX_LOST_SHARE` of the compared projections do,
+    or those left do not lie in two views (:func:`core.ceilings.judged_in_two_views`).
 
-    Hidden as :func:`left_out_with_lost` reads them, as :func:`_without_lost` does for a
+    Hidden as :func:`left_out_with_lost` reads them, as :func:`core.warm_start._without_lost` does for a
     part's warm start, but before any refinement: refined with them, the posture slides
     until each lands on some other blob, a ghost or a neighbour's marker, and the reading is
     lost with it.

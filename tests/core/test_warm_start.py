@@ -39,11 +39,14 @@ from core.part_objective import EPS_PROJECTIONS, base_frame, kernel_image, part_
 from core.rig import Rig
 from core.sequence import _ceilings, _warm_starts, fit_chunk, fit_sequence
 from core.synth import render_frames
-from core.treefit import (
+from core.treefit import refine_whole, refit_tree, tree_flip_alternatives
+from core.warm_start import (
     WARM_EPS_FACTOR,
-    refine_whole,
-    refit_tree,
-    tree_flip_alternatives,
+    _freed_by_leaving_out,
+    _left_in_too_few_views,
+    hidden_marker_triangulated,
+    one_left_out,
+    warm_start,
 )
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
@@ -205,7 +208,7 @@ def test_a_leg_whose_own_markers_merge_next_to_another_legs_blob_runs_no_sa():
     distance (2 diameters, 18 px) of them. The part's objective charged that blob as one a
     squeeze of two markers would leave unexplained: 12-20 px on the truth, over 2 ε (12 px),
     so the right warm start ran SA. Another part's blob is not the part's to explain
-    (``treefit._explained_elsewhere``): no SA now."""
+    (``core.warm_start._explained_elsewhere``): no SA now."""
     _assert_warm_started_without_sa(seed=0, images=(10, 16), marker_px=9.0)
 
 
@@ -265,7 +268,7 @@ def test_the_free_fly_at_50_hz_whose_hidden_marker_meets_in_space_ends_on_the_tr
     views, and its objective (30 px against a median of 1.4) sent it to re-analysis. There
     the kept posture's warm start stood in again the same way and the image settled, 36°
     off, ``ok``, with no alternative. The unexplained blobs of those views pair up in space
-    (``_hidden_marker_triangulated``, ``test_a_marker_left_out_as_hidden_whose_blobs_meet_in_space_…``):
+    (``hidden_marker_triangulated``, ``test_a_marker_left_out_as_hidden_whose_blobs_meet_in_space_…``):
     the leg is searched, and the image ends on the truth. Since a warm start judged without
     shared projections leaves every DOF placed, the first attempt is right."""
     truth, fits = _fly_at_50_hz("freefly", 38, 26)
@@ -317,7 +320,7 @@ def _fly_at_50_hz(name: str, n: int, first: int) -> tuple[np.ndarray, list[Image
 
 
 def test_a_marker_left_out_as_hidden_whose_blobs_meet_in_space_was_not_hidden(legs):
-    """``_hidden_marker_triangulated`` on leg 0 of the two-legged insect, its knee 30° off
+    """``hidden_marker_triangulated`` on leg 0 of the two-legged insect, its knee 30° off
     the truth so that the claw misses its blobs: the claw left out as hidden in all three
     views, whose claw blobs no marker explains and meet in space, was seen after all.
     Truly hidden (no blob there), or left out of two views only (two blobs on each other's
@@ -337,9 +340,9 @@ def test_a_marker_left_out_as_hidden_whose_blobs_meet_in_space_was_not_hidden(le
         det = Detections.from_views(views)
         hidden = np.zeros((len(rig.views), len(part.markers)), dtype=bool)
         hidden[list(hidden_views), claw] = True
-        return treefit._hidden_marker_triangulated(q, part, det.kernel_points, det.start, model, rig,
-                                                   FitParams(), np.zeros((len(rig.views), 2)),
-                                                   wrong, hidden)
+        return hidden_marker_triangulated(q, part, det.kernel_points, det.start, model, rig,
+                                          FitParams(), np.zeros((len(rig.views), 2)),
+                                          wrong, hidden)
 
     assert seen_after_all(0, 1, 2)
     assert not seen_after_all(0, 1, 2, drawn=())
@@ -347,7 +350,7 @@ def test_a_marker_left_out_as_hidden_whose_blobs_meet_in_space_was_not_hidden(le
 
 
 def test_a_blob_beyond_half_a_fusion_distance_from_every_marker_is_unexplained(legs):
-    """``_hidden_marker_triangulated`` on leg 0 of the two-legged insect, its knee 11° off
+    """``hidden_marker_triangulated`` on leg 0 of the two-legged insect, its knee 11° off
     the truth: the claw lies 7.8-13 px from its blobs in the three views, within the
     fusion distance (14 px) but beyond half of it. Two fused markers put their blob within
     half their distance of each, so no marker explains those blobs; they meet in space, and
@@ -366,9 +369,9 @@ def test_a_blob_beyond_half_a_fusion_distance_from_every_marker_is_unexplained(l
     det = Detections.from_views(list(proj))
     hidden = np.zeros((len(rig.views), len(part.markers)), dtype=bool)
     hidden[:, claw] = True
-    assert treefit._hidden_marker_triangulated(q, part, det.kernel_points, det.start, model, rig,
-                                               FitParams(fusion_px=14.0), np.zeros((len(rig.views), 2)),
-                                               wrong, hidden)
+    assert hidden_marker_triangulated(q, part, det.kernel_points, det.start, model, rig,
+                                      FitParams(fusion_px=14.0), np.zeros((len(rig.views), 2)),
+                                      wrong, hidden)
 
 
 def test_a_warm_start_judged_without_shared_projections_leaves_every_dof_placed(legs):
@@ -388,8 +391,8 @@ def test_a_warm_start_judged_without_shared_projections_leaves_every_dof_placed(
     def tried(*views: int) -> tuple[np.ndarray, float, bool]:
         unseen = np.zeros((len(rig.views), len(part.markers)), dtype=bool)
         unseen[list(views), claw] = True
-        return treefit.warm_start(part.dofs, kin, det.kernel_points, det.start, row[None], model, rig,
-                                  params, part_eps(part, params, 3), np.zeros((3, 2)), unseen)
+        return warm_start(part.dofs, kin, det.kernel_points, det.start, row[None], model, rig,
+                          params, part_eps(part, params, 3), np.zeros((3, 2)), unseen)
 
     assert not tried(1, 2)[2]
     posture, _, stands_in = tried(1)
@@ -422,16 +425,16 @@ def test_leaving_out_a_marker_that_two_dofs_turn_against_each_other_frees_them()
         return unseen
 
     def freed(unseen: np.ndarray) -> bool:
-        return treefit._freed_by_leaving_out(q[part.dofs], rot, kin, rig, image._replace(unseen=unseen), 0.5)
+        return _freed_by_leaving_out(q[part.dofs], rot, kin, rig, image._replace(unseen=unseen), 0.5)
 
     both = left_out((0, 1), (1, 1))
     assert freed(both)
     assert not freed(left_out((0, 1))) and not freed(left_out((1, 3))) and not freed(left_out())
     eps = part_eps(part, params, 2)
     for unseen, stands_in in ((both, False), (left_out(), True)):
-        tried = treefit.warm_start(part.dofs, kin, det.kernel_points, det.start, q[None], model, rig,
-                                   params, eps, off, unseen)
-        assert tried[2] is stands_in and tried[1] < treefit.WARM_EPS_FACTOR * eps
+        tried = warm_start(part.dofs, kin, det.kernel_points, det.start, q[None], model, rig,
+                           params, eps, off, unseen)
+        assert tried[2] is stands_in and tried[1] < WARM_EPS_FACTOR * eps
 
 
 def test_a_warm_start_whose_one_blob_a_glint_moved_stands_in_with_three_views_not_two(legs):
@@ -452,11 +455,11 @@ def test_a_warm_start_whose_one_blob_a_glint_moved_stands_in_with_three_views_no
         filmed = Rig(tuple(rig.views[c] for c in cameras))
         det = Detections.from_views([views[c] for c in cameras])
         eps, off = part_eps(part, params, len(cameras)), np.zeros((len(cameras), 2))
-        first = treefit.warm_start(part.dofs, kin, det.kernel_points, det.start, q[None], model, filmed,
-                                   params, eps, off)
+        first = warm_start(part.dofs, kin, det.kernel_points, det.start, q[None], model, filmed,
+                           params, eps, off)
         assert not first[2]
-        return treefit._one_left_out(first, part, kin, det.kernel_points, det.start, model, filmed,
-                                     params, eps, off, _kernels.NO_UNSEEN)
+        return one_left_out(first, part, kin, det.kernel_points, det.start, model, filmed,
+                            params, eps, off, _kernels.NO_UNSEEN)
 
     posture, _, stands_in = tried([0, 1, 2])
     assert stands_in and angle_errors(posture, q[part.dofs]).max() < 2.0  # the noise's
@@ -483,7 +486,7 @@ def test_a_dof_placed_only_by_hidden_markers_needs_two_views_of_three_and_one_of
             mask[view, marker] = True
         image = kernel_image(np.zeros((views, 3)), np.arange(views + 1), FitParams(),
                              np.zeros((views, 2)), shared)
-        return treefit._left_in_too_few_views(lost, q[part.dofs], kin, image)
+        return _left_in_too_few_views(lost, q[part.dofs], kin, image)
 
     assert not too_few(3, (0, claw))
     assert too_few(3, (0, claw), (1, claw))
@@ -504,8 +507,8 @@ def test_a_warm_start_judged_on_one_view_of_three_stands_in_for_nothing(legs):
     for left_out, stands in (([2], True), ([1, 2], False)):
         unseen = np.zeros((len(rig.views), len(part.markers)), dtype=bool)
         unseen[left_out] = True
-        refined, value, stood = treefit.warm_start(part.dofs, kin, images[1].kernel_points, images[1].start,
-                                                   q[None], model, rig, params, eps, np.zeros((3, 2)), unseen)
+        refined, value, stood = warm_start(part.dofs, kin, images[1].kernel_points, images[1].start,
+                                           q[None], model, rig, params, eps, np.zeros((3, 2)), unseen)
         assert value < WARM_EPS_FACTOR * eps and angle_errors(refined, q[part.dofs]).max() < 1.0
         assert stood is stands
 
