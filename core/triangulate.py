@@ -36,7 +36,8 @@ from core import _kernels
 from core.error import Detections, view_offsets
 from core.rig import Rig, RigArrays
 
-__all__ = ["MAX_BLOBS_PER_VIEW", "MAX_CANDIDATES", "MAX_RAY_PAIRS", "Candidates", "triangulate"]
+__all__ = ["MAX_BLOBS_PER_VIEW", "MAX_CANDIDATES", "MAX_RAY_PAIRS", "Candidates", "ray_meetings",
+           "triangulate"]
 
 MAX_BLOBS_PER_VIEW = 128
 MAX_RAY_PAIRS = 2**16  # blob pairs tested per image: 15 view pairs of 60 blobs each
@@ -112,6 +113,21 @@ def triangulate(detections: Detections, *, rig: Rig, offsets: np.ndarray | None 
     points, error, support = points[keep], error[keep], support[keep]
     keep = _not_contained(support)
     return Candidates(points[keep], error[keep], support[keep])
+
+
+def ray_meetings(detections: Detections, *, rig: Rig, offsets: np.ndarray | None = None,
+                 tolerance_px: float = PAIR_PX) -> np.ndarray:
+    """(P, 3) the points where the rays of two blobs of two views meet: the midpoints of the
+    consistent pairs :func:`triangulate` starts from, neither extended to other views nor
+    refined. For a few blobs whose pairs only propose where to look (a test, not a start)."""
+    V = len(rig.views)
+    if detections.n_views != V or not tolerance_px > 0:
+        return np.zeros((0, 3))
+    off = view_offsets(offsets, rig)
+    blobs = [np.arange(detections.start[v], detections.start[v + 1])[:MAX_BLOBS_PER_VIEW]
+             for v in range(V)]
+    rays = [_back_project(rig, v, detections.points[b] - off[v]) for v, b in enumerate(blobs)]
+    return _pair(rays, blobs, detections, rig, off, tolerance_px)[0]
 
 
 def _back_project(rig: Rig, v: int, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
