@@ -16,7 +16,7 @@ from core.histogram import Histograms
 from core.rig import Rig
 from core.sequence import fit_sequence
 from core.tree import decompose
-from core.triangulate import MAX_BLOBS_PER_VIEW, MAX_CANDIDATES, Candidates, triangulate
+from core.triangulate import MAX_BLOBS_PER_VIEW, MAX_CANDIDATES, Candidates, ray_meetings, triangulate
 from tests.core.tree_subjects import FREE_ROOT, insect, movement, ring_rig
 
 DISTORTION = [-0.12, 0.05, 0.001, -0.002, 0.01]
@@ -82,6 +82,20 @@ def test_every_true_point_is_recovered_exactly(name):
     assert _nearest(truth, found).max() < 1e-6
     assert np.all(found.n_views >= 2)
 
+
+@pytest.mark.parametrize("name", RIGS)
+def test_rays_of_two_views_meet_near_every_true_point_and_nowhere_without_a_second_view(name):
+    """``ray_meetings``: the unrefined midpoints of consistent pairs lie within the pairing
+    tolerance's reach of each true point (to a few hundredths of a model unit here); a view
+    alone gives none."""
+    rig = RIGS[name]()
+    truth = _points(name)
+    det = _detections(rig, truth)
+    found = ray_meetings(det, rig=rig)
+    assert np.linalg.norm(truth[:, None] - found[None], axis=2).min(axis=1).max() < 0.05
+    one = Detections.from_views([det.points[det.start[0]:det.start[1], :2]]
+                                + [np.zeros((0, 2))] * (det.n_views - 1))
+    assert len(ray_meetings(one, rig=rig)) == 0
 
 def test_a_point_seen_by_three_views_is_one_candidate_supported_by_all():
     rig = _distorted(3)
