@@ -33,7 +33,6 @@ import numpy as np
 from core import _kernels
 from core.ceilings import (
     MAX_LOST_SHARE,
-    compared_count,
     judged_in_two_views,
     left_out_with_lost,
     under_ceiling,
@@ -78,7 +77,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     """The warm starts ``warm`` (k, D), each one's posture of the DOFs ``dofs`` (a part posed
     by ``kin``) refined on detections ``points`` (N, 3) grouped at ``start`` (V + 1,) by
     :data:`WARM_STEPS` LM steps: (posture (d,), objective in pixels, whether it stands in
-    for SA) of the first that reaches :data:`WARM_EPS_FACTOR` times ``eps`` (SA's stop), or
+    for SA) of the first that reaches :func:`_stand_in_limit` (twice ``eps``, SA's stop), or
     does on its other projections once those that look hidden are left out
     (:func:`_without_lost`), else of the lowest objective, which stands in for SA where it
     is below ``ceiling()`` (pixels per compared projection, :func:`core.ceilings.warm_ceilings`:
@@ -118,7 +117,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
 
     ``unseen`` (V, m) bool marks projections next to another part's marker
     (:func:`shared_projections`): they are left out of the refinement and of the objective
-    (:func:`part_objective`), and ``eps`` (per projection) shrinks in proportion. Such a
+    (:func:`part_objective`), and the limit shrinks in proportion (:func:`_stand_in_limit`). Such a
     blob is two markers fused, off each by pixels, which no posture of this part alone
     explains: left in, it keeps a leg that fits everywhere else above ε (the joint
     refinement reads it as fused). They are read at the posture the warm start came from,
@@ -143,8 +142,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     if warm is None:
         return None
     unseen = in_seen_views(unseen, start)
-    if unseen.size:
-        eps *= 1.0 - np.count_nonzero(unseen) / max(unseen.shape[1] * np.count_nonzero(seen_views(start)), 1)
+    limit = _stand_in_limit(eps, unseen, start)
     best: tuple[np.ndarray, float, bool] | None = None
     image = kernel_image(points, start, params, off, unseen)
     bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
@@ -156,7 +154,7 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
             q = _kernels.refine(q, bounds, kin, rig.arrays, image, float(params.anneal.huber_px), WARM_STEPS,
                                 _kernels.NO_TARGETS)
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
-        if value < WARM_EPS_FACTOR * eps and views and not (
+        if value < limit and views and not (
                 unseen.any() and (_left_in_too_few_views(unseen, q, kin, image)
                                   or _freed_by_leaving_out(q, rot, kin, rig, image,
                                                            params.alternative_tolerance_px))):
@@ -169,6 +167,24 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     if best is not None and ceiling is not None and views:
         best = (best[0], best[1], under_ceiling(best[0], kin, rig, image, params, ceiling()))
     return best
+
+
+def _stand_in_limit(eps: float, left_out: np.ndarray, start: np.ndarray) -> float:
+    """Pixels under which a part's objective, judged without its projections ``left_out``
+    (V, m) bool (or an empty array: none), lets its warm start stand in for SA:
+    :data:`WARM_EPS_FACTOR` times its ε ``eps`` (SA's stop over all its projections into the
+    views with detections grouped at ``start``), times the share of those projections
+    judged. ε counts per projection (``core.part_objective``), so a part judged on fewer is
+    held to as much per projection.
+
+    >>> round(_stand_in_limit(2.0, np.array([[True, False], [False, False]]), np.array([0, 3, 5])), 6)
+    3.0
+    """
+    if not left_out.size:
+        return WARM_EPS_FACTOR * eps
+    seen = seen_views(start)
+    judged = left_out.shape[1] * int(np.count_nonzero(seen))
+    return WARM_EPS_FACTOR * eps * (1.0 - np.count_nonzero(left_out & seen[:, None]) / max(judged, 1))
 
 
 def _freed_by_leaving_out(q: np.ndarray, rot: np.ndarray, kin, rig: Rig, image: _kernels.Image,
@@ -210,9 +226,8 @@ def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bo
                   unexplained: Callable[[np.ndarray, np.ndarray], bool] | None = None) -> np.ndarray | None:
     """A part's warm start ``row`` (d,) refined within ``bounds`` on its detections
     ``image`` (``_kernels.Image``, the projections its ``unseen`` marks left out) without
-    its projections that look hidden as well, where that reaches :data:`WARM_EPS_FACTOR`
-    times ``eps`` (already shrunk for ``image.unseen``) shrunk in proportion again, else
-    None. Hidden: farther than the empty-view penalty from every blob at ``q`` (d,), the
+    its projections that look hidden as well, where that reaches :func:`_stand_in_limit`
+    without both, else None. Hidden: farther than the empty-view penalty from every blob at ``q`` (d,), the
     warm start refined with them (``_kernels._lost_markers``); at most
     :data:`MAX_LOST_SHARE` of the part's compared projections, and those left in two views
     (:func:`warm_start`), else None.
@@ -243,13 +258,11 @@ def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bo
     lost = without & ~unseen if unseen.size else without  # those left out as hidden
     if _left_in_too_few_views(lost, q, kin, image):
         return None
-    compared = compared_count(unseen, start, len(kin.marker_joint))
-    hidden = int(np.count_nonzero(lost))
     refined = _kernels.refine(np.ascontiguousarray(row), bounds, kin, rig.arrays,
                               image._replace(unseen=without), float(params.anneal.huber_px), WARM_STEPS,
                               _kernels.NO_TARGETS)
     value = part_objective(refined, kin, image.det, start, without, rig, params, image.offset)
-    if value >= WARM_EPS_FACTOR * eps * (1.0 - hidden / compared):
+    if value >= _stand_in_limit(eps, without, start):
         return None
     if unexplained is not None and unexplained(refined, lost):
         return None
@@ -260,7 +273,7 @@ def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bo
 def _lost_blob_reached(q: np.ndarray, lost: np.ndarray, kin, image: _kernels.Image, bounds: _kernels.Bounds,
                        rig: Rig, params: FitParams, eps: float) -> np.ndarray | None:
     """A posture of a part that explains every projection on ``image`` but those
-    ``image.unseen`` leaves out, within :data:`WARM_EPS_FACTOR` times ``eps``, found from its
+    ``image.unseen`` leaves out, within :func:`_stand_in_limit`, found from its
     warm start ``q`` (d,) (posed by ``kin``, refined without its ``lost`` (V, m) projections)
     where a marker left out as lost is compared in one view at most; else None.
 
@@ -299,7 +312,7 @@ def _lost_blob_reached(q: np.ndarray, lost: np.ndarray, kin, image: _kernels.Ima
         for point in points[near][np.argsort(np.linalg.norm(points[near] - world[m], axis=1))][:MAX_REACHED]:
             moved = _moved_to(q, m, point, world, kin, image, bounds, rig, params)
             if (part_objective(moved, kin, image.det, image.start, image.unseen, rig, params, image.offset)
-                    < WARM_EPS_FACTOR * eps):
+                    < _stand_in_limit(eps, image.unseen, image.start)):
                 return moved
     return None
 
@@ -356,8 +369,8 @@ def one_left_out(tried: tuple[np.ndarray, float, bool], part: Part, kin, points:
                  off: np.ndarray, unseen: np.ndarray) -> tuple[np.ndarray, float, bool]:
     """A part's warm start that did not stand in for SA (``tried``, after
     :func:`reshared_warm_start`), refined again without its one projection farthest from a
-    blob, standing in where that reaches :data:`WARM_EPS_FACTOR` times its ``eps`` shrunk in
-    proportion to what is left out (with ``unseen`` (V, m)); ``tried`` otherwise. Only where
+    blob, standing in where that reaches :func:`_stand_in_limit` without it and ``unseen``
+    (V, m); ``tried`` otherwise. Only where
     the part has detections in three or more views, that projection lies within the
     empty-view penalty of a blob, every DOF moving it still moves markers compared in two
     views (:func:`_left_in_too_few_views`) and leaving it out frees no direction
@@ -386,8 +399,7 @@ def one_left_out(tried: tuple[np.ndarray, float, bool], part: Part, kin, points:
             q, model.rotational[part.dofs], kin, rig, image._replace(unseen=left),
             params.alternative_tolerance_px):
         return tried
-    compared = len(part.markers) * np.count_nonzero(seen)
-    reach = WARM_EPS_FACTOR * eps * (1.0 - np.count_nonzero(left) / compared)
+    reach = _stand_in_limit(eps, left, start)
     if part_objective(q, kin, points, start, left, rig, params, off) >= reach:
         return tried  # the rest are off too (sliding skin): no refinement would bring them under
     bounds = _kernels.Bounds(model.lower[part.dofs], model.upper[part.dofs])
@@ -477,8 +489,8 @@ def reshared_warm_start(part: Part, tried: tuple[np.ndarray, float, bool], postu
     warm start on the truth missed twice its ε by a pixel: SA then ran to its patience,
     the triangulated start and the conflict sweeps after it, 0.2 s of a 6-camera hexapod
     image instead of 5 ms, to end where the warm start was. The same checks judge the
-    retry (:func:`warm_start`): the projections left must be explained at twice ε shrunk in
-    proportion, which a leg in another basin, pixels off in the views that do not fuse it,
+    retry (:func:`warm_start`): the projections left must be explained within
+    :func:`_stand_in_limit`, which a leg in another basin, pixels off in the views that do not fuse it,
     is not; and :func:`_may_leave_out` must allow the projections left out."""
     at = posture.copy()
     at[part.dofs] = tried[0]
