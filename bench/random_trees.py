@@ -1,7 +1,7 @@
 """Random kinematic trees: does the engine hold on animals it was not built around?
 
     python bench/random_trees.py [--models 8] [--images 40] [--seed 0] [--cameras 3]
-        [--markers 1|2] [--occlusion F] [--fps 100] [--soft-tissue] [--glints N]
+        [--rig ring|side-top] [--markers 1|2] [--occlusion F] [--fps 100] [--soft-tissue] [--glints N]
 
 The subjects of ``bench/animals.py`` are nine animals; labs bring others. Each model here
 is drawn at random: a root with three markers, fixed or (two models in five) free with
@@ -17,7 +17,10 @@ after a branch's first: a model whose images should determine it, so its accurac
 too.
 
 The cameras stand on a ring 35° above the root, 250 mm away (800×600 px, f = 1400 px:
-about 5.6 px per mm); the movement is ``core.synth.natural_movements`` at ``--fps``. The
+about 5.6 px per mm), or with ``--rig side-top`` two such cameras 80° apart, one 5° above
+the root and one 85° above it (a side and a top view, as a camera and a mirror give: limbs
+seen end-on from above pile their markers onto merged blobs); the movement is
+``core.synth.natural_movements`` at ``--fps``. The
 images are rendered, detected and fitted as ``bench/animals.py`` does (5 px markers, 2
 ghost blobs per view, ``--occlusion`` as there; ``--soft-tissue`` as there: every marker
 slides 2 px RMS, no ghost blobs, an unmodelled marker on the root, :data:`UNMODELLED`;
@@ -112,19 +115,32 @@ def ring_rig(cameras: int) -> Rig:
                               size=SIZE, dist=(0, 0, 0, 0, 0)))
 
 
+def side_top_rig() -> Rig:
+    """Two pinhole cameras 250 mm from the origin at one azimuth, 5° and 85° above it."""
+    views = []
+    for k, (name, elevation) in enumerate((("side", 5.0), ("top", 85.0))):
+        e = np.radians(elevation)
+        view = ring([name], [20.0], radius=250.0 * np.cos(e), height=250.0 * np.sin(e),
+                    target=(0.0, 0.0, 0.0), f=1400.0, size=SIZE, dist=(0, 0, 0, 0, 0))["views"][0]
+        views.append({**view, "video": k})
+    return Rig.from_dict({"views": views})
+
+
 def _natural(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
     return natural_movements(subject.model, subject.rig, n, rng=rng, fps=subject.fps, frame_size=SIZE)
 
 
-def filmed(model: KinematicModel, cameras: int, fps: float) -> Subject:
-    """``model`` filmed by :func:`ring_rig` at ``fps``, moving naturally, with the
-    :data:`UNMODELLED` marker (drawn only under sliding skin, ``bench.animals``)."""
-    return Subject("random", model, ring_rig(cameras), (SIZE,) * cameras, fps, _natural, UNMODELLED)
+def filmed(model: KinematicModel, cameras: int, fps: float, rig: str = "ring") -> Subject:
+    """``model`` filmed by :func:`ring_rig` (or, ``rig`` "side-top", :func:`side_top_rig`) at
+    ``fps``, moving naturally, with the :data:`UNMODELLED` marker (drawn only under sliding
+    skin, ``bench.animals``)."""
+    views = side_top_rig() if rig == "side-top" else ring_rig(cameras)
+    return Subject("random", model, views, (SIZE,) * len(views.views), fps, _natural, UNMODELLED)
 
 
 def run_model(model: KinematicModel, args: argparse.Namespace, rng: np.random.Generator) -> dict:
     """Render, detect and fit ``args.images`` images of ``model``; the figures of its line."""
-    subject = filmed(model, args.cameras, args.fps)
+    subject = filmed(model, args.cameras, args.fps, args.rig)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=0 if args.soft_tissue else 2,
                              rng=rng, occlusion=args.occlusion, glints=args.glints)
     result, timing = fit(subject, data, seed=args.seed, jobs=1)
@@ -146,6 +162,8 @@ def main() -> None:
     parser.add_argument("--images", type=int, default=40)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cameras", type=int, default=3)
+    parser.add_argument("--rig", choices=("ring", "side-top"), default="ring",
+                        help="cameras on a ring 35° up (default), or a side and a top view (2 cameras)")
     parser.add_argument("--markers", type=int, choices=(1, 2), default=2, help="markers per segment")
     parser.add_argument("--occlusion", type=float, default=0.0, metavar="F")
     parser.add_argument("--fps", type=float, default=100.0)
@@ -158,8 +176,11 @@ def main() -> None:
             or not 0 <= args.occlusion <= 0.5):
         parser.error("--models and --images must be >= 1, --cameras >= 2, --glints >= 0, "
                      "--occlusion in [0, 0.5]")
+    if args.rig == "side-top" and args.cameras != 2:
+        parser.error("--rig side-top has 2 cameras: give --cameras 2")
     print(f"bench/random_trees.py: seed {args.seed}, {args.models} models, {args.images} images each, "
-          f"{args.cameras} cameras, {args.markers} marker(s) per segment, {100 * args.occlusion:g} % hidden"
+          f"{args.cameras} cameras" + (" (a side and a top view)" if args.rig == "side-top" else "")
+          + f", {args.markers} marker(s) per segment, {100 * args.occlusion:g} % hidden"
           + (", sliding skin" if args.soft_tissue else "")
           + (f", {args.glints} glints per view" if args.glints else ""))
     totals = {"images": 0, "within": 0, "bad": 0, "cpu": 0.0}
