@@ -114,6 +114,14 @@ __all__ = ["TreeFlips", "attempt_kernel", "epipolar_start", "fit_tree", "refine_
 CONFLICT_SWEEPS = 2
 JOINT_STEPS = 10  # LM steps of the joint refinement: the parts arrive refined
 WARM_JOINT_STEPS = 2  # joint refinement of parts that all came from warm starts
+# A free root's triangulated start pairs blobs the detector may have merged within this
+# share of the fusion distance more (``core.triangulate``): with two views, a random tree's
+# root with two of its three markers on blobs merged with a limb's in one view had no
+# candidate for the third, and SA, searching six DOFs on three markers, ended in another
+# pose in ten images (docs/BENCH_SUBJECTS.md, stop 50). Not for the branches: every
+# branch with two views tries its triangulated start, and the candidates that slack adds
+# cost the 2-camera hexapod with glints a fifth of its rate.
+TRUNK_MERGED_SHARE = 0.5
 
 
 def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
@@ -314,9 +322,14 @@ def _fit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spac
         if tried is not None and lower(tried[0]):
             q[part.dofs], value = tried[0], tried[1]  # SA ended in a worse minimum than the warm start's
         if value >= stop:
-            if not candidates:
-                candidates.append(triangulate(det, rig=rig, offsets=off))
-            proposed = epipolar_start(part, rotation, origin, candidates[0], points, start, model,
+            if part.base < 0:  # the root's trunk: its markers on blobs merged with a limb's pair too
+                found = triangulate(det, rig=rig, offsets=off,
+                                    merged_px=TRUNK_MERGED_SHARE * params.fusion_px)
+            else:
+                if not candidates:
+                    candidates.append(triangulate(det, rig=rig, offsets=off))
+                found = candidates[0]
+            proposed = epipolar_start(part, rotation, origin, found, points, start, model,
                                       rig, space, params, eps, off, unseen)
             if proposed is not None and lower(proposed[0]):
                 q[part.dofs] = proposed[0]
