@@ -1,7 +1,8 @@
 """Random kinematic trees: does the engine hold on animals it was not built around?
 
     python bench/random_trees.py [--models 8] [--images 40] [--seed 0] [--cameras 3]
-        [--rig ring|side-top] [--markers 1|2] [--occlusion F] [--fps 100] [--soft-tissue] [--glints N]
+        [--rig ring|side-top] [--distortion K1] [--markers 1|2] [--occlusion F] [--fps 100]
+        [--soft-tissue] [--glints N]
 
 The subjects of ``bench/animals.py`` are nine animals; labs bring others. Each model here
 is drawn at random: a root with three markers, fixed or (two models in five) free with
@@ -19,7 +20,9 @@ too.
 The cameras stand on a ring 35° above the root, 250 mm away (800×600 px, f = 1400 px:
 about 5.6 px per mm), or with ``--rig side-top`` two such cameras 80° apart, one 5° above
 the root and one 85° above it (a side and a top view, as a camera and a mirror give: limbs
-seen end-on from above pile their markers onto merged blobs); the movement is
+seen end-on from above pile their markers onto merged blobs); ``--distortion K1`` gives
+every lens OpenCV's radial coefficients k1 = K1, k2 = 0.1 |K1| (-0.3: a wide-angle lens's
+barrel, about 19 px at the corners of these images); the movement is
 ``core.synth.natural_movements`` at ``--fps``. The
 images are rendered, detected and fitted as ``bench/animals.py`` does (5 px markers, 2
 ghost blobs per view, ``--occlusion`` as there; ``--soft-tissue`` as there: every marker
@@ -106,41 +109,48 @@ def _segment_markers(rng: np.random.Generator, joint: str, markers: int) -> list
             for k, (x, y, z) in enumerate(at)]
 
 
-def ring_rig(cameras: int) -> Rig:
-    """``cameras`` pinhole cameras on a ring 35° above the origin, 250 mm from it."""
+def ring_rig(cameras: int, k1: float = 0.0) -> Rig:
+    """``cameras`` pinhole cameras on a ring 35° above the origin, 250 mm from it, their
+    lenses' radial distortion k1 (k2 = 0.1 |k1|)."""
     elevation = np.radians(35.0)
     azimuths = list(np.linspace(0.0, 360.0, cameras, endpoint=False) + 20.0)
     return Rig.from_dict(ring([f"c{k}" for k in range(cameras)], azimuths, radius=250.0 * np.cos(elevation),
                               height=250.0 * np.sin(elevation), target=(0.0, 0.0, 0.0), f=1400.0,
-                              size=SIZE, dist=(0, 0, 0, 0, 0)))
+                              size=SIZE, dist=_lens(k1)))
 
 
-def side_top_rig() -> Rig:
-    """Two pinhole cameras 250 mm from the origin at one azimuth, 5° and 85° above it."""
+def side_top_rig(k1: float = 0.0) -> Rig:
+    """Two pinhole cameras 250 mm from the origin at one azimuth, 5° and 85° above it, their
+    lenses' radial distortion k1 (k2 = 0.1 |k1|)."""
     views = []
     for k, (name, elevation) in enumerate((("side", 5.0), ("top", 85.0))):
         e = np.radians(elevation)
         view = ring([name], [20.0], radius=250.0 * np.cos(e), height=250.0 * np.sin(e),
-                    target=(0.0, 0.0, 0.0), f=1400.0, size=SIZE, dist=(0, 0, 0, 0, 0))["views"][0]
+                    target=(0.0, 0.0, 0.0), f=1400.0, size=SIZE, dist=_lens(k1))["views"][0]
         views.append({**view, "video": k})
     return Rig.from_dict({"views": views})
+
+
+def _lens(k1: float) -> tuple[float, ...]:
+    """OpenCV's distortion coefficients (k1, k2, p1, p2, k3) of a lens of radial ``k1``."""
+    return (k1, 0.1 * abs(k1), 0.0, 0.0, 0.0)
 
 
 def _natural(subject: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
     return natural_movements(subject.model, subject.rig, n, rng=rng, fps=subject.fps, frame_size=SIZE)
 
 
-def filmed(model: KinematicModel, cameras: int, fps: float, rig: str = "ring") -> Subject:
-    """``model`` filmed by :func:`ring_rig` (or, ``rig`` "side-top", :func:`side_top_rig`) at
-    ``fps``, moving naturally, with the :data:`UNMODELLED` marker (drawn only under sliding
-    skin, ``bench.animals``)."""
-    views = side_top_rig() if rig == "side-top" else ring_rig(cameras)
+def filmed(model: KinematicModel, cameras: int, fps: float, rig: str = "ring", k1: float = 0.0) -> Subject:
+    """``model`` filmed by :func:`ring_rig` (or, ``rig`` "side-top", :func:`side_top_rig`),
+    lenses of radial distortion ``k1``, at ``fps``, moving naturally, with the
+    :data:`UNMODELLED` marker (drawn only under sliding skin, ``bench.animals``)."""
+    views = side_top_rig(k1) if rig == "side-top" else ring_rig(cameras, k1)
     return Subject("random", model, views, (SIZE,) * len(views.views), fps, _natural, UNMODELLED)
 
 
 def run_model(model: KinematicModel, args: argparse.Namespace, rng: np.random.Generator) -> dict:
     """Render, detect and fit ``args.images`` images of ``model``; the figures of its line."""
-    subject = filmed(model, args.cameras, args.fps, args.rig)
+    subject = filmed(model, args.cameras, args.fps, args.rig, args.distortion)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=0 if args.soft_tissue else 2,
                              rng=rng, occlusion=args.occlusion, glints=args.glints)
     result, timing = fit(subject, data, seed=args.seed, jobs=1)
@@ -164,6 +174,8 @@ def main() -> None:
     parser.add_argument("--cameras", type=int, default=3)
     parser.add_argument("--rig", choices=("ring", "side-top"), default="ring",
                         help="cameras on a ring 35° up (default), or a side and a top view (2 cameras)")
+    parser.add_argument("--distortion", type=float, default=0.0, metavar="K1",
+                        help="every lens's radial distortion k1 (k2 = 0.1 |k1|; default 0)")
     parser.add_argument("--markers", type=int, choices=(1, 2), default=2, help="markers per segment")
     parser.add_argument("--occlusion", type=float, default=0.0, metavar="F")
     parser.add_argument("--fps", type=float, default=100.0)
@@ -176,10 +188,13 @@ def main() -> None:
             or not 0 <= args.occlusion <= 0.5):
         parser.error("--models and --images must be >= 1, --cameras >= 2, --glints >= 0, "
                      "--occlusion in [0, 0.5]")
+    if not -0.5 <= args.distortion <= 0.5:
+        parser.error("--distortion must lie in [-0.5, 0.5]")
     if args.rig == "side-top" and args.cameras != 2:
         parser.error("--rig side-top has 2 cameras: give --cameras 2")
     print(f"bench/random_trees.py: seed {args.seed}, {args.models} models, {args.images} images each, "
           f"{args.cameras} cameras" + (" (a side and a top view)" if args.rig == "side-top" else "")
+          + (f", lens distortion k1 {args.distortion:g}" if args.distortion else "")
           + f", {args.markers} marker(s) per segment, {100 * args.occlusion:g} % hidden"
           + (", sliding skin" if args.soft_tissue else "")
           + (f", {args.glints} glints per view" if args.glints else ""))

@@ -100,8 +100,8 @@ def test_a_tail_swings_inside_every_image(segments, limbs):
 def test_a_random_tree_moves_inside_every_image(seed, markers):
     """``bench/random_trees.py``'s models: a root with three markers and one to six branches
     of two to four joints, ``markers`` markers per segment; with two, at most two DOFs per
-    joint after a branch's first. Filmed by two and by three cameras on the ring, and by a
-    side and a top camera, inside every image."""
+    joint after a branch's first. Filmed by two and by three cameras on the ring (three with
+    wide-angle lenses too), and by a side and a top camera, inside every image."""
     model = random_model(np.random.default_rng([seed, 0]), markers)
     joints = {m.joint for m in model.markers} - {"root"}
     assert 1 <= sum(j.endswith("j0") for j in joints) <= 6
@@ -113,6 +113,7 @@ def test_a_random_tree_moves_inside_every_image(seed, markers):
     for cameras in (2, 3):
         _moves_inside(filmed(model, cameras, 100.0))
     _moves_inside(filmed(model, 2, 100.0, "side-top"))
+    _moves_inside(filmed(model, 3, 100.0, "ring", -0.3))
 
 
 def _moves_inside(subject) -> np.ndarray:
