@@ -117,8 +117,8 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
 
     ``unseen`` (V, m) bool marks projections next to another part's marker
     (:func:`shared_projections`): they are left out of the refinement and of the objective
-    (:func:`part_objective`), and the limit shrinks in proportion (:func:`_stand_in_limit`). Such a
-    blob is two markers fused, off each by pixels, which no posture of this part alone
+    (:func:`part_objective`), and the limit shrinks in proportion (:func:`_stand_in_limit`).
+    Such a blob is two markers fused, off each by pixels, which no posture of this part alone
     explains: left in, it keeps a leg that fits everywhere else above ε (the joint
     refinement reads it as fused). They are read at the posture the warm start came from,
     so a warm start judged without them must leave every DOF placed in two views (one with
@@ -227,8 +227,10 @@ def _without_lost(q: np.ndarray, row: np.ndarray, kin, image: _kernels.Image, bo
     """A part's warm start ``row`` (d,) refined within ``bounds`` on its detections
     ``image`` (``_kernels.Image``, the projections its ``unseen`` marks left out) without
     its projections that look hidden as well, where that reaches :func:`_stand_in_limit`
-    without both, else None. Hidden: farther than the empty-view penalty from every blob at ``q`` (d,), the
-    warm start refined with them (``_kernels._lost_markers``); at most
+    without both, else None; where such a marker is left to one view, a posture that
+    explains it again is preferred (:func:`_lost_blob_reached`). Hidden: farther than the
+    empty-view penalty from every blob at ``q`` (d,), the warm start refined with them
+    (``_kernels._lost_markers``); at most
     :data:`MAX_LOST_SHARE` of the part's compared projections, and those left in two views
     (:func:`warm_start`), else None.
 
