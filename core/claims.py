@@ -39,7 +39,7 @@ if TYPE_CHECKING:
 
 __all__ = ["CLAIM_PX", "FUSED_PX", "claimed", "claiming_at", "claims_of", "contested_projections",
            "explained_blobs", "on_merged_blobs", "reaches", "shared_projections", "subset",
-           "two_sided_error"]
+           "two_sided_error", "within_reach"]
 
 CLAIM_PX = 3.0  # a marker within this of its nearest blob claims it
 FUSED_PX = 1.0  # a blob within this of two markers' midpoint is the two of them fused
@@ -48,22 +48,24 @@ FUSED_PX = 1.0  # a blob within this of two markers' midpoint is the two of them
 def reaches(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, parts: list[Part],
             off: np.ndarray) -> np.ndarray:
     """(len(parts), N) bool: the detections each branch of ``parts`` can reach, its base where
-    ``q`` (D,) puts it (:func:`_within_reach`)."""
+    ``q`` (D,) puts it (:func:`within_reach`)."""
     pos = world_frames(q, model)[1]
-    return _within_reach(det, rig, pos[[p.base for p in parts]], np.array([p.reach for p in parts]), off)
+    return within_reach(det.points, det.start, rig, pos[[p.base for p in parts]],
+                        np.array([p.reach for p in parts]), off)
 
 
-def _within_reach(det: Detections, rig: Rig, origins: np.ndarray, reach: np.ndarray,
-                  off: np.ndarray) -> np.ndarray:
-    """(B, N) bool: the detections each of B branches hanging at ``origins`` (B, 3) with
-    reaches ``reach`` (B,) can reach, those inside its projected reach sphere
+def within_reach(points: np.ndarray, start: np.ndarray, rig: Rig, origins: np.ndarray, reach: np.ndarray,
+                 off: np.ndarray) -> np.ndarray:
+    """(B, N) bool: which of the detections ``points`` (N, 2 or more: u, v first) grouped at
+    ``start`` (V + 1,) each of B branches hanging at ``origins`` (B, 3) with reaches
+    ``reach`` (B,) can reach, those inside its projected reach sphere
     (``core.tree.reach_points``) in their view."""
     proj = rig.project(reach_points(origins, reach).reshape(-1, 3)) + off[:, None, :]
     proj = proj.reshape(len(rig.views), len(reach), -1, 2)  # (V, B, 27, 2), the origin first
     gap = proj[:, :, 1:] - proj[:, :, :1]
     radius = np.sqrt(np.einsum("vbsk,vbsk->vbs", gap, gap).max(axis=2))  # (V, B)
-    view = np.repeat(np.arange(det.n_views), det.counts)  # (N,)
-    offset = det.points[None] - proj[view, :, 0].swapaxes(0, 1)  # (B, N, 2)
+    view = np.repeat(np.arange(len(start) - 1), np.diff(start))  # (N,)
+    offset = points[None, :, :2] - proj[view, :, 0].swapaxes(0, 1)  # (B, N, 2)
     return np.sqrt(np.einsum("bnk,bnk->bn", offset, offset)) <= radius[view].T
 
 

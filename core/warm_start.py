@@ -37,7 +37,7 @@ from core.ceilings import (
     left_out_with_lost,
     under_ceiling,
 )
-from core.claims import CLAIM_PX, FUSED_PX, explained_blobs, on_merged_blobs, shared_projections
+from core.claims import CLAIM_PX, FUSED_PX, explained_blobs, on_merged_blobs, shared_projections, within_reach
 from core.error import Detections, nearest_detection
 from core.identifiability import marker_jacobian
 from core.model import KinematicModel
@@ -303,41 +303,25 @@ def _lost_blob_reached(q: np.ndarray, lost: np.ndarray, kin, image: _kernels.Ima
     proj = rig.project(world) + image.offset[:, None, :]  # (V, m, 2)
     unexplained = ~explained_blobs(proj, image.det, image.start, max(0.5 * float(params.fusion_px), CLAIM_PX))
     joints = _joint_origins(q, kin)
+    limit = _stand_in_limit(eps, image.unseen, image.start)
     for m in single:
         pivot = _pivot(world[m], int(kin.marker_joint[m]), joints, kin.parent)
         arm = float(np.linalg.norm(world[m] - pivot))
-        found = _meetings_within(pivot, arm, unexplained, image, rig)
-        if not (lost[:, m] & found[1]).any():
+        # Blobs a point within the arm of the pivot may project onto, the arm widened by
+        # core.tree.REACH_MARGIN (1.25, no less than 1 + REACHED_SHARE), as a branch's reach is.
+        reachable = unexplained & within_reach(image.det, image.start, rig, pivot[None], np.array([arm]),
+                                               image.offset)[0]
+        views = [image.det[a:b, :2][reachable[a:b]] for a, b in pairwise(image.start)]
+        if not any(len(views[v]) for v in np.flatnonzero(lost[:, m])):
             continue  # no unexplained blob the marker could reach in a view it looks hidden in
-        points = found[0]
+        points = ray_meetings(Detections.from_views(views), rig=rig, offsets=image.offset)
         near = np.abs(np.linalg.norm(points - pivot, axis=1) - arm) <= REACHED_SHARE * arm
         for point in points[near][np.argsort(np.linalg.norm(points[near] - world[m], axis=1))][:MAX_REACHED]:
             moved = _moved_to(q, m, point, world, kin, image, bounds, rig, params)
-            if (part_objective(moved, kin, image.det, image.start, image.unseen, rig, params, image.offset)
-                    < _stand_in_limit(eps, image.unseen, image.start)):
+            if part_objective(moved, kin, image.det, image.start, image.unseen, rig, params,
+                              image.offset) < limit:
                 return moved
     return None
-
-
-def _meetings_within(pivot: np.ndarray, arm: float, unexplained: np.ndarray, image: _kernels.Image,
-                     rig: Rig) -> tuple[np.ndarray, np.ndarray]:
-    """Where the ``unexplained`` (N,) blobs of ``image`` that a point within (1 +
-    :data:`REACHED_SHARE`) ``arm`` of ``pivot`` (3,) may project onto meet in space: (P, 3)
-    points (``core.triangulate.ray_meetings``), and (V,) bool the views with such a blob."""
-    reach = (1.0 + REACHED_SHARE) * arm
-    step = 1e-3 * max(reach, 1e-9)
-    proj = rig.project(np.vstack([pivot, pivot + step * np.eye(3)])) + image.offset[:, None, :]  # (V, 4, 2)
-    # The Frobenius norm of the projection's Jacobian bounds how far a point within reach moves.
-    jacobian = (proj[:, 1:] - proj[:, :1]).reshape(len(proj), -1) / step  # (V, 6)
-    radius = reach * np.linalg.norm(jacobian, axis=1) + CLAIM_PX
-    views = []
-    for v, (a, b) in enumerate(pairwise(image.start)):
-        blobs = image.det[a:b, :2][unexplained[a:b]]
-        views.append(blobs[np.linalg.norm(blobs - proj[v, 0], axis=1) <= radius[v]])
-    within = np.array([len(v) > 0 for v in views])
-    if np.count_nonzero(within) < 2:
-        return np.zeros((0, 3)), within
-    return ray_meetings(Detections.from_views(views), rig=rig, offsets=image.offset), within
 
 
 def _moved_to(q: np.ndarray, m: int, point: np.ndarray, world: np.ndarray, kin, image: _kernels.Image,
