@@ -107,9 +107,7 @@ def triangulate(detections: Detections, *, rig: Rig, offsets: np.ndarray | None 
     if detections.n_views != V or not tolerance_px > 0:
         return Candidates.empty(V)
     off = view_offsets(offsets, rig)
-    blobs = [np.arange(detections.start[v], detections.start[v + 1])[:MAX_BLOBS_PER_VIEW]
-             for v in range(V)]
-    rays = [_back_project(rig, v, detections.points[b] - off[v]) for v, b in enumerate(blobs)]
+    blobs, rays = _rays(detections, rig, off)
     slack = _slack(detections, merged_px)
     points, support, error = _pair(rays, blobs, detections, rig, off, tolerance_px, slack)
     if len(points) == 0:
@@ -132,10 +130,17 @@ def ray_meetings(detections: Detections, *, rig: Rig, offsets: np.ndarray | None
     if detections.n_views != V or not tolerance_px > 0:
         return np.zeros((0, 3))
     off = view_offsets(offsets, rig)
-    blobs = [np.arange(detections.start[v], detections.start[v + 1])[:MAX_BLOBS_PER_VIEW]
-             for v in range(V)]
-    rays = [_back_project(rig, v, detections.points[b] - off[v]) for v, b in enumerate(blobs)]
+    blobs, rays = _rays(detections, rig, off)
     return _pair(rays, blobs, detections, rig, off, tolerance_px, _slack(detections, 0.0))[0]
+
+
+def _rays(detections: Detections, rig: Rig,
+          off: np.ndarray) -> tuple[list[np.ndarray], list[tuple[np.ndarray, np.ndarray]]]:
+    """Per view, the indices of its first :data:`MAX_BLOBS_PER_VIEW` detections and their
+    rays (:func:`_back_project`), ``off`` (V, 2) taken off the pixels first."""
+    blobs = [np.arange(detections.start[v], detections.start[v + 1])[:MAX_BLOBS_PER_VIEW]
+             for v in range(len(rig.views))]
+    return blobs, [_back_project(rig, v, detections.points[b] - off[v]) for v, b in enumerate(blobs)]
 
 
 def _back_project(rig: Rig, v: int, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
