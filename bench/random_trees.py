@@ -122,13 +122,10 @@ def ring_rig(cameras: int, k1: float = 0.0) -> Rig:
 def side_top_rig(k1: float = 0.0) -> Rig:
     """Two pinhole cameras 250 mm from the origin at one azimuth, 5° and 85° above it, their
     lenses' radial distortion k1 (k2 = 0.1 |k1|)."""
-    views = []
-    for k, (name, elevation) in enumerate((("side", 5.0), ("top", 85.0))):
-        e = np.radians(elevation)
-        view = ring([name], [20.0], radius=250.0 * np.cos(e), height=250.0 * np.sin(e),
-                    target=(0.0, 0.0, 0.0), f=1400.0, size=SIZE, dist=_lens(k1))["views"][0]
-        views.append({**view, "video": k})
-    return Rig.from_dict({"views": views})
+    elevations = np.radians([5.0, 85.0])
+    return Rig.from_dict(ring(["side", "top"], [20.0, 20.0], radius=250.0 * np.cos(elevations),
+                              height=250.0 * np.sin(elevations), target=(0.0, 0.0, 0.0), f=1400.0,
+                              size=SIZE, dist=_lens(k1)))
 
 
 def _lens(k1: float) -> tuple[float, ...]:

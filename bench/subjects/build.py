@@ -144,13 +144,14 @@ def look_at(position, target, *, f: float, size: tuple[int, int], dist=(0, 0, 0,
 
 
 def ring(names, azimuths, *, radius, height, target, f, size, dist) -> dict:
-    """Cameras on a circle around ``target`` (azimuth from +x towards +z, degrees) at ``height``,
-    one for all or one per camera."""
+    """Cameras around ``target`` (azimuth from +x towards +z, degrees) at ``radius`` from its
+    vertical axis and at ``height``, each one for all or one per camera."""
     views = []
+    radii = np.broadcast_to(np.asarray(radius, float), (len(names),))
     heights = np.broadcast_to(np.asarray(height, float), (len(names),))
-    for i, (name, az, h) in enumerate(zip(names, azimuths, heights, strict=True)):
+    for i, (name, az, r, h) in enumerate(zip(names, azimuths, radii, heights, strict=True)):
         a = np.radians(az)
-        pos = (target[0] + radius * np.cos(a), h, target[2] + radius * np.sin(a))
+        pos = (target[0] + r * np.cos(a), h, target[2] + r * np.sin(a))
         views.append({"name": name, "video": i,
                       "projection": look_at(pos, target, f=f, size=size, dist=dist)})
     return {"views": views}
