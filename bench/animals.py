@@ -80,6 +80,7 @@ TARGET_HEXAPOD_RATE = 100.0  # images/s on one core, 6 cameras
 TARGET_SOFT_MEDIAN = 1.5  # degrees, median absolute DOF error with soft tissue
 TARGET_SOFT_P90 = 5.0
 FAR_OFF_DEG = 10.0  # an image this far off the truth must never be `ok` without an alternative
+WITHIN_DEG = 5.0  # an image is right when every rotational DOF is this close to the truth
 
 
 @dataclass
@@ -348,7 +349,7 @@ def report(subject: Subject, label: str, data: Rendered, result: SequenceResult,
     off_ok_unflagged = len(far_off_unflagged(per_image, ok, flagged))
     ambiguous = int(flagged.sum())
     median_rmse = float(np.median(rmse[rot]))
-    within = float(np.mean(per_image <= 5.0))
+    within = float(np.mean(per_image <= WITHIN_DEG))
     rate_wall, rate_cpu = n / timing["wall"], n / timing["cpu"]
 
     def line(what: str, value: str, target: str = "", met: bool | None = None,

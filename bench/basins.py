@@ -1,16 +1,21 @@
 """Why images are off with real markers: a wrong basin, or the minimum itself moved?
 
-    python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|freefly|rat|mouse [--images N]
-        [--soft-tissue] [--cameras 6|3|2] [--occlusion F [--everywhere]] [--off DEG] [--fps HZ] [--seed S]
-        [--huber PX] [--model-error F] [--rig-error PX]
+    python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|freefly|rat|mouse|spider
+        [--images N] [--soft-tissue] [--cameras 6|4|3|2] [--occlusion F [--everywhere]] [--glints N]
+        [--off DEG] [--fps HZ] [--seed S] [--huber PX] [--model-error F] [--rig-error PX]
 
 Renders and fits a subject as ``bench/animals.py`` does (same seed, same images), then
 refines the *true* posture on every image (``core.treefit.refine_whole``, as a fit's last
 step): the minimum nearest the truth. Prints
 
-- its median and 90th-percentile absolute DOF error (what no choice of basin can beat with
-  this objective), beside the fitted postures' and the best of each image's candidates'
-  (fit and alternatives: what a perfect choice by continuity would give);
+- its median and 90th-percentile absolute DOF error and its share of images with every DOF
+  within 5° (what no choice of basin can beat with this objective), beside the fitted
+  postures' and the best of each image's candidates' (fit and alternatives: what a perfect
+  choice by continuity would give);
+- why each image more than 5° off is off (:func:`why_off`): the truth's own minimum is as
+  far off (the image's limit), a candidate within 5° was passed over by the choice by
+  continuity, the search missed a lower minimum near the truth, or the image holds a
+  minimum as low as the truth's elsewhere and no attempt found the truth's;
 - for every image more than ``--off`` degrees (10) off reported ``ok``: its objective and
   tolerance, the fit's and the true posture's Eq. 5 read as blobs (``core.error.view_error``
   with the fit's fusion distance: the objective without a lost marker), the refined truth's
@@ -29,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
@@ -36,17 +42,39 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.animals import as_measured, fit, fit_params, render_and_detect
+from bench.animals import WITHIN_DEG, as_measured, fit, fit_params, render_and_detect
 from bench.subjects import NAMES, camera_choice, load
 from core.ambiguity import angle_gaps
 from core.error import view_error, view_offsets
-from core.fit import Status, alternative_tolerance
+from core.fit import Status, alternative_tolerance, tolerance_readings
 from core.treefit import refine_whole
+
+REASONS = ("the truth's own minimum is off too", "a candidate within 5 deg passed over by the choice",
+           "a lower minimum near the truth missed by the search",
+           "a minimum as low as the truth's kept, the truth's not found")
 
 
 def _summary(label: str, errors: np.ndarray) -> None:
+    """``errors`` (T, R): absolute rotational DOF errors (degrees) of T images."""
     print(f"  {label:<46} median {np.median(errors):6.2f}   90th percentile "
-          f"{np.percentile(errors, 90, method='higher'):6.2f}")
+          f"{np.percentile(errors, 90, method='higher'):6.2f}   within {WITHIN_DEG:g} deg "
+          f"{100 * np.mean(errors.max(axis=1) <= WITHIN_DEG):5.1f} %")
+
+
+def why_off(nearest_off: float, best_off: float, lowest: float, truth_objective: float,
+            floor: float) -> str:
+    """Why an image more than :data:`WITHIN_DEG` off is off, one of :data:`REASONS`: its
+    refined truth (``nearest_off`` degrees off the truth, objective ``truth_objective`` px)
+    is off too; else its best candidate is within it (``best_off``); else the refined truth
+    scores lower than the lowest candidate (``lowest`` px, the attempts' best before the
+    choice by continuity) by more than ``floor`` px (the fixed alternative tolerance: what
+    any image tells apart); else the image holds a minimum as low as the truth's elsewhere.
+    """
+    if nearest_off > WITHIN_DEG:
+        return REASONS[0]
+    if best_off <= WITHIN_DEG:
+        return REASONS[1]
+    return REASONS[2] if truth_objective < lowest - floor else REASONS[3]
 
 
 def main() -> None:
@@ -54,12 +82,14 @@ def main() -> None:
     parser.add_argument("--subject", choices=NAMES, required=True)
     parser.add_argument("--images", type=int, default=300)
     parser.add_argument("--soft-tissue", action="store_true")
-    parser.add_argument("--cameras", type=int, choices=(6, 3, 2), default=None,
-                        help="fly cameras (hexapod, freefly: default 6) or rat cameras (default 3)")
+    parser.add_argument("--cameras", type=int, choices=(6, 4, 3, 2), default=None,
+                        help="fly or spider cameras (default 6 and 4) or rat cameras (default 3)")
     parser.add_argument("--occlusion", type=float, default=0.0, metavar="F",
                         help="fraction of marker projections hidden, as bench/animals.py")
     parser.add_argument("--everywhere", action="store_true",
                         help="with --occlusion, hide each marker from every view at once")
+    parser.add_argument("--glints", type=int, default=0, metavar="N",
+                        help="reflections per view and image on the body, as bench/animals.py")
     parser.add_argument("--off", type=float, default=10.0,
                         help="degrees: list the ok images this far off (5: the noise-free target)")
     parser.add_argument("--fps", type=float, default=None, help="the movement's frame rate")
@@ -76,7 +106,7 @@ def main() -> None:
     data = render_and_detect(subject, args.images, soft=args.soft_tissue,
                              ghosts=0 if args.soft_tissue else 2,
                              rng=np.random.default_rng(args.seed), occlusion=args.occlusion,
-                             everywhere=args.everywhere)
+                             everywhere=args.everywhere, glints=args.glints)
     subject = as_measured(subject, args)
     model, rig, rot = subject.model, subject.rig, subject.model.rotational
     result, _ = fit(subject, data, seed=args.seed, jobs=1)
@@ -84,7 +114,7 @@ def main() -> None:
     truth_params = params if args.huber is None else replace(
         params, anneal=replace(params.anneal, huber_px=args.huber))
     off = view_offsets(None, rig)
-    fitted, nearest, best, rows = [], [], [], []
+    fitted, nearest, best, rows, reasons = [], [], [], [], Counter()
     for fit_, det, truth in zip(result.fits, data.detections, data.truth, strict=True):
         q, _, objective = refine_whole(truth.copy(), det, model, rig, truth_params, off)
         gaps = angle_gaps(fit_.dofs, truth)[rot]
@@ -92,6 +122,12 @@ def main() -> None:
         nearest.append(angle_gaps(q, truth)[rot])
         best.append(min((angle_gaps(c, truth)[rot] for c in
                          (fit_.dofs, *(a.dofs for a in fit_.alternatives))), key=np.max))
+        if gaps.max() > WITHIN_DEG:
+            candidates = [fit_.as_candidate(), *fit_.alternatives]
+            choosable = min(angle_gaps(c.dofs, truth)[rot].max() for c in candidates if c.minimum)
+            floor = tolerance_readings(params, det, model, fit_.error, len(model.dofs))[0]
+            reasons[why_off(nearest[-1].max(), choosable, min(c.objective for c in candidates),
+                            objective, floor)] += 1
         if fit_.status is Status.OK and gaps.max() > args.off:
             tolerance = alternative_tolerance(params, det, model, fit_.error, len(model.dofs))
             blobs = [view_error(q_, det, model=model, rig=rig, fusion_px=params.fusion_px,
@@ -105,6 +141,9 @@ def main() -> None:
     _summary("fitted (chosen by continuity)", np.array(fitted))
     _summary("best of each image's candidates", np.array(best))
     _summary("minimum nearest the truth (truth refined)", np.array(nearest))
+    print(f"\n  images more than {WITHIN_DEG:g} deg off: {sum(reasons.values())}")
+    for reason in REASONS:
+        print(f"    {reason:<62} {reasons[reason]:4d}")
     print(f"\n  images more than {args.off:g} deg off reported ok: {len(rows)}")
     print("  sample  off   objective  tolerance  as blobs: fit   truth  truth refined: objective"
           "  off  from fit   alternative_deg")

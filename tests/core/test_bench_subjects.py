@@ -19,6 +19,7 @@ from core.rig import Rig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
+from bench.basins import REASONS, why_off
 from bench.chain import tail
 from bench.random_trees import filmed, random_model
 from bench.subjects import CAMERAS, HEXAPOD_CAMERAS, NAMES, camera_choice, load
@@ -327,3 +328,15 @@ def test_a_measured_model_scales_each_length_by_its_own_factor():
             assert np.allclose(off, factor * true)
             factors.append(factor)
     assert 0.02 < np.std(factors) < 0.08 and not np.allclose(factors, 1.0)
+
+
+def test_an_off_image_is_put_down_to_the_image_before_the_choice_or_the_search():
+    """``bench/basins.py``'s reasons, in their order: an image whose own minimum is off
+    cannot be helped; a candidate within 5° left means the choice; a truth that scores
+    lower by more than the floor means the search; one within it, a tie."""
+    image, choice, search, tie = REASONS
+    assert why_off(8.0, 1.0, 10.0, 2.0, 0.5) == image
+    assert why_off(1.0, 4.0, 10.0, 2.0, 0.5) == choice
+    assert why_off(1.0, 30.0, 10.0, 9.4, 0.5) == search
+    assert why_off(1.0, 30.0, 10.0, 9.6, 0.5) == tie
+    assert why_off(1.0, 30.0, 10.0, 12.0, 0.5) == tie
