@@ -136,8 +136,8 @@ def main() -> None:
             rows.append((fit_.sample, gaps.max(), fit_.objective, tolerance, *blobs, objective,
                          angle_gaps(q, truth)[rot].max(), angle_gaps(q, fit_.dofs)[rot].max(),
                          fit_.alternative_deg(rot)))
-    print(f"\n== {args.subject}{' + soft tissue' if args.soft_tissue else ''}: {args.images} "
-          "images; absolute DOF error (deg), every rotational DOF of every image")
+    print(f"\n== {' '.join(sys.argv[1:])}: absolute DOF error (deg), every rotational DOF of every "
+          "image")
     _summary("fitted (chosen by continuity)", np.array(fitted))
     _summary("best of each image's candidates", np.array(best))
     _summary("minimum nearest the truth (truth refined)", np.array(nearest))
