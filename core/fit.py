@@ -134,7 +134,7 @@ class FitParams:
     restarts: int = 2
     alternative_tolerance_px: float = 0.5
     choose_by_continuity: bool = True
-    outlier_factor: float = 10.0
+    outlier_factor: float = 3.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.error_threshold_px) and self.error_threshold_px > 0):
@@ -848,7 +848,7 @@ def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
     its parts' ε for a tree). The typical objective leaves out what markers the images do
     not show cost (``ImageFit.charged``): a hidden marker costs the empty-view penalty in
     every minimum, so where most images hide one, the median is that penalty, and a wrong
-    minimum a few pixels above the right one hides under ten times it. The image's own
+    minimum a few pixels above the right one hides under three times it. The image's own
     objective is compared whole: a wrong posture that leaves a marker off every blob looks
     just like a hidden one.
 
@@ -859,6 +859,12 @@ def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
     is over the threshold. A tree's parts each stop at their own ε, so a whole
     animal that fits most images far below it would otherwise send every image
     that stops near it to attempts that stop there again.
+
+    Three times, not ten: on a whole animal a wrong leg adds little to the mean error
+    per projection, and footage whose every image fits a few tenths of a pixel off the
+    model (motion blur, sliding skin) leaves one that scores 2.5-4 times the typical
+    objective under the threshold: a spider filmed with motion blur kept two legs 21-38°
+    off, `ok`, without an alternative (docs/BENCH_SUBJECTS.md, stop 51).
     """
     if fit.attempts >= params.max_attempts or fit.status is Status.NO_DETECTIONS or fit.settled:
         return False

@@ -218,7 +218,8 @@ def test_outliers_are_reanalysed_as_if_over_the_threshold(locust):
     fit = ImageFit(0, np.zeros(5), 6.0, 6.0, 1, Status.OK, 500, (4, 4))
     assert typical_objective([fit, replace(fit, objective=0.1), replace(fit, objective=0.2)]) == 0.2
     assert needs_reanalysis(fit, model, params, typical=0.1)  # 60x the typical objective
-    assert not needs_reanalysis(fit, model, params, typical=1.0)  # 6x
+    assert needs_reanalysis(fit, model, params, typical=1.0)  # 6x
+    assert not needs_reanalysis(fit, model, params, typical=2.5)  # 2.4x
     assert not needs_reanalysis(fit, model, replace(params, outlier_factor=0.0), typical=0.1)
     assert not needs_reanalysis(replace(fit, objective=0.9), model, params, typical=0.01)  # below eps
     assert not needs_reanalysis(replace(fit, attempts=params.max_attempts), model, params, typical=0.1)
