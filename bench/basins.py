@@ -49,7 +49,8 @@ from core.error import view_error, view_offsets
 from core.fit import Status, alternative_tolerance, tolerance_readings
 from core.treefit import refine_whole
 
-REASONS = ("the truth's own minimum is off too", "a candidate within 5 deg passed over by the choice",
+REASONS = ("the truth's own minimum is off too",
+           f"a candidate within {WITHIN_DEG:g} deg passed over by the choice",
            "a lower minimum near the truth missed by the search",
            "a minimum as low as the truth's kept, the truth's not found")
 
