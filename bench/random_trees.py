@@ -110,22 +110,23 @@ def _segment_markers(rng: np.random.Generator, joint: str, markers: int) -> list
 
 
 def ring_rig(cameras: int, k1: float = 0.0) -> Rig:
-    """``cameras`` pinhole cameras on a ring 35° above the origin, 250 mm from it, their
-    lenses' radial distortion k1 (k2 = 0.1 |k1|)."""
-    elevation = np.radians(35.0)
+    """``cameras`` pinhole cameras on a ring 35° above the origin (:func:`_aimed`)."""
     azimuths = list(np.linspace(0.0, 360.0, cameras, endpoint=False) + 20.0)
-    return Rig.from_dict(ring([f"c{k}" for k in range(cameras)], azimuths, radius=250.0 * np.cos(elevation),
-                              height=250.0 * np.sin(elevation), target=(0.0, 0.0, 0.0), f=1400.0,
-                              size=SIZE, dist=_lens(k1)))
+    return _aimed([f"c{k}" for k in range(cameras)], azimuths, [35.0] * cameras, k1)
 
 
 def side_top_rig(k1: float = 0.0) -> Rig:
-    """Two pinhole cameras 250 mm from the origin at one azimuth, 5° and 85° above it, their
-    lenses' radial distortion k1 (k2 = 0.1 |k1|)."""
-    elevations = np.radians([5.0, 85.0])
-    return Rig.from_dict(ring(["side", "top"], [20.0, 20.0], radius=250.0 * np.cos(elevations),
-                              height=250.0 * np.sin(elevations), target=(0.0, 0.0, 0.0), f=1400.0,
-                              size=SIZE, dist=_lens(k1)))
+    """Two pinhole cameras at one azimuth, 5° and 85° above the origin (:func:`_aimed`)."""
+    return _aimed(["side", "top"], [20.0, 20.0], [5.0, 85.0], k1)
+
+
+def _aimed(names: list[str], azimuths: list[float], elevations: list[float], k1: float) -> Rig:
+    """Pinhole cameras ``names`` aimed at the origin from 250 mm, at ``azimuths`` and
+    ``elevations`` (degrees), f = 1400 px, :data:`SIZE` images, their lenses' radial
+    distortion k1 (k2 = 0.1 |k1|)."""
+    up = np.radians(elevations)
+    return Rig.from_dict(ring(names, azimuths, radius=250.0 * np.cos(up), height=250.0 * np.sin(up),
+                              target=(0.0, 0.0, 0.0), f=1400.0, size=SIZE, dist=_lens(k1)))
 
 
 def _lens(k1: float) -> tuple[float, ...]:
