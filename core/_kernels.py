@@ -69,7 +69,8 @@ MIN_RADIUS_PX = 0.1
 # ---- records passed to the kernels -----------------------------------------------------------
 # numba passes a named tuple by value, typed by its fields' types: build them in Python with the
 # field types given (float() / int() / bool(), C-contiguous arrays), so one signature serves all.
-# The model and the views travel as core.model.KinematicArrays and core.rig.RigArrays.
+# The model travels as core.model.KinematicArrays, the views as :class:`RigArrays` (built by
+# core.rig.Rig.arrays).
 
 
 class Image(NamedTuple):
@@ -84,6 +85,7 @@ class Image(NamedTuple):
     fuse_px : float, markers projecting closer are one blob; 0: plain Eq. 5.
     lost_px : float, > 0 lets every view lose its worst marker, charged this instead.
     unseen : (V, M) bool, markers charged ``penalty`` whatever they project on; (0, 0): none.
+        A marker outside its view's region is charged so too (:func:`charged_unseen`).
     """
 
     det: np.ndarray
@@ -99,6 +101,21 @@ class Image(NamedTuple):
            fuse_px: float, lost_px: float = 0.0, unseen: np.ndarray = NO_UNSEEN) -> Image:
         """The record, its numbers as float64 (one kernel signature whatever Python passed)."""
         return cls(det, start, offset, float(penalty), float(fuse_px), float(lost_px), unseen)
+
+
+class RigArrays(NamedTuple):
+    """Views encoded for the kernels (``core.rig.Rig.arrays``).
+
+    kind : (V,) int64; P : (V, 3, 4) float64; K : (V, 3, 3) float64; dist : (V, 8) float64.
+    bounds : (V, 4) float64, each view's region (u0, v0, u1, v1), full-frame pixels
+        (``core.rig.Rig.regions``).
+    """
+
+    kind: np.ndarray
+    P: np.ndarray
+    K: np.ndarray
+    dist: np.ndarray
+    bounds: np.ndarray
 
 
 class Bounds(NamedTuple):
@@ -145,6 +162,7 @@ class Workspace(NamedTuple):
     frames : (12·J,) joint frames.  sincos : (2·D,).  world : (M, 3) world markers.
     raw, fused : (V, M, 2) projections, apart and fused.  index : (M,) int64, dist : (M,),
     each marker's detection and distance (:func:`blob_error`).  claims : (N,) int64.
+    hidden : (V, M) bool, the markers :func:`charged_unseen` marks.
     """
 
     frames: np.ndarray
@@ -155,6 +173,7 @@ class Workspace(NamedTuple):
     index: np.ndarray
     dist: np.ndarray
     claims: np.ndarray
+    hidden: np.ndarray
 
 class Assignment(NamedTuple):
     """What :func:`_residuals` chose for a posture in image mode, which its Jacobian keeps.
@@ -487,7 +506,7 @@ def workspace(kin, views, D, N):
     J, M, V = kin.parent.shape[0], kin.marker_joint.shape[0], views.kind.shape[0]
     return Workspace(np.empty(FRAME * J), np.empty(2 * D), np.empty((M, 3)), np.empty((V, M, 2)),
                      np.empty((V, M, 2)), np.empty(M, dtype=np.int64), np.empty(M),
-                     np.empty(N, dtype=np.int64))
+                     np.empty(N, dtype=np.int64), np.empty((V, M), dtype=np.bool_))
 
 
 @njit(cache=True, inline="always")
@@ -503,6 +522,23 @@ def project_posture(q, kin, views, offset, fuse_px, work) -> None:
     project_markers(world, views, offset, raw)
     if fuse_px > 0.0:
         fuse_projections(raw, fuse_px, fused)
+
+
+@njit(cache=True, inline="always")
+def charged_unseen(unseen, bounds, raw, hidden):
+    """The (V, M) markers the objective charges as unseen, written into ``hidden`` and
+    returned: those ``unseen`` marks ((0, 0): none), and each marker whose raw projection
+    ``raw`` (V, M, 2) lies outside its view's region ``bounds`` (V, 4), u0 <= u < u1 and
+    v0 <= v < v1 (``core.rig.RigArrays.bounds``; infinite where not known). A marker out
+    of the frame cannot have been detected; charged its distance to the nearest blob in
+    the frame, it would be pulled back in, and its limb with it."""
+    for v in range(raw.shape[0]):
+        u0, v0, u1, v1 = bounds[v, 0], bounds[v, 1], bounds[v, 2], bounds[v, 3]
+        for m in range(raw.shape[1]):
+            u, w = raw[v, m, 0], raw[v, m, 1]
+            hidden[v, m] = ((unseen.shape[0] > 0 and unseen[v, m])
+                            or not (u0 <= u < u1 and v0 <= w < v1))
+    return hidden
 
 
 # ---- Eq. 5 -------------------------------------------------------------------------------
@@ -791,13 +827,44 @@ def posture_error(q, kin, views, image):
     return _evaluate(q, kin, views, image, np.inf, work)
 
 
+@njit(cache=True, nogil=True)
+def plain_error(q, kin, views, image):
+    """The Eq. 5 a fit reports (``error_px``, FORMATS §3) of posture ``q`` on ``image``: the
+    raw projections' distances to their nearest detections, ``image.fuse_px`` and
+    ``image.lost_px`` not read, a view without detections and a marker ``image.unseen``
+    marks charged ``image.penalty``, and a marker outside its view's region charged its
+    nearest detection all the same (``views.bounds`` not read: the format's sum is over
+    every marker)."""
+    work = workspace(kin, views, q.shape[0], image.det.shape[0])
+    _project(q, kin, views, image.offset, 0.0, work)
+    return eq5(work.raw, image.det, image.start, image.penalty, np.inf, image.unseen)
+
+
+@njit(cache=True, nogil=True)
+def outside_error(q, kin, views, image):
+    """(how many, pixels): the raw projections of posture ``q`` outside their view's region
+    (``views.bounds``) in views with detections, and the sum of their distances to their
+    nearest detections (what they add to :func:`plain_error`)."""
+    work = workspace(kin, views, q.shape[0], image.det.shape[0])
+    _project(q, kin, views, image.offset, 0.0, work)
+    hidden = charged_unseen(_no_unseen(), views.bounds, work.raw, work.hidden)
+    count, px = 0, 0.0
+    for v in range(hidden.shape[0]):
+        a, b = image.start[v], image.start[v + 1]
+        for m in range(hidden.shape[1]):
+            if a < b and hidden[v, m]:
+                count += 1
+                px += math.sqrt(_nearest(work.raw[v, m, 0], work.raw[v, m, 1], image.det, a, b)[0])
+    return count, px
+
+
 @njit(cache=True, inline="always")
 def _evaluate(q, kin, views, image, limit, work):
     """The objective (:func:`blob_error`, summed up to ``limit``) of posture ``q``, projected
     into ``work`` (:class:`Workspace`) by the plain calls :func:`_project` and
     :func:`_objective`; inlined, as a thin wrapper (see the module's docstring)."""
     _project(q, kin, views, image.offset, image.fuse_px, work)
-    return _objective(image, limit, work)
+    return _objective(views, image, limit, work)
 
 
 @njit(cache=True, nogil=True)
@@ -807,12 +874,13 @@ def _project(q, kin, views, offset, fuse_px, work) -> None:
 
 
 @njit(cache=True, nogil=True)
-def _objective(image, limit, work):
+def _objective(views, image, limit, work):
     """:func:`blob_error` of the projections in ``work`` as a plain call, compiled once for the
     kernels that evaluate it outside SA's inner loop (numba types an inlined helper again at
     every call site)."""
     return blob_error(work.raw, work.fused, image.det, image.start, image.penalty, image.fuse_px,
-                      image.lost_px, limit, work.index, work.dist, work.claims, image.unseen)
+                      image.lost_px, limit, work.index, work.dist, work.claims,
+                      charged_unseen(image.unseen, views.bounds, work.raw, work.hidden))
 
 
 @njit(cache=True, nogil=True)
@@ -891,10 +959,10 @@ def _residuals(q, kin, views, image, targets, work, res, chosen):
             for a in range(3):
                 res[m, a] = world[m, a] - targets[m, a] if valid[m] else 0.0
         return
-    det, start, penalty, fuse_px, unseen = (image.det, image.start, image.penalty, image.fuse_px,
-                                            image.unseen)
+    det, start, penalty, fuse_px = image.det, image.start, image.penalty, image.fuse_px
     project_posture(q, kin, views, image.offset, fuse_px, work)
     raw, fused, index, dist, claims = work.raw, work.fused, work.index, work.dist, work.claims
+    unseen = charged_unseen(image.unseen, views.bounds, raw, work.hidden)
     V, M = raw.shape[0], raw.shape[1]
     for v in range(V):
         a, b = start[v], start[v + 1]
@@ -1422,7 +1490,8 @@ def draw_posture(lower, upper, hist, state, out) -> None:
 def _lost_markers(q, kin, views, image, beyond, every):
     """In every view of ``image``, the worst-matched marker if it is farther than ``beyond`` px
     from its detection (what losing it costs), or with ``every`` each marker that far:
-    (V, M) mask, and whether any was found.
+    (V, M) mask, and whether any was found. A marker outside its view's region counts
+    ``image.penalty`` far (:func:`charged_unseen`): the objective charges it that already.
 
     Kernels pass ``every`` as ``np.bool_(...)``, a value: a literal ``True`` or ``False`` would
     make numba compile this kernel once per literal, besides the ``bool`` of Python's calls.
@@ -1432,7 +1501,8 @@ def _lost_markers(q, kin, views, image, beyond, every):
     work = workspace(kin, views, q.shape[0], det.shape[0])
     _project(q, kin, views, image.offset, fuse_px, work)
     raw, fused, index, dist, claims = work.raw, work.fused, work.index, work.dist, work.claims
-    unseen, seen = np.zeros((V, M), dtype=np.bool_), _no_unseen()
+    unseen, seen = np.zeros((V, M), dtype=np.bool_), charged_unseen(_no_unseen(), views.bounds, raw,
+                                                                    work.hidden)
     lost = False
     for v in range(V):
         a, b = start[v], start[v + 1]
@@ -1476,6 +1546,15 @@ def _refit_unseen(q, objective, bounds, kin, views, image, huber_c):
 
 
 @njit(cache=True, nogil=True)
+def _unbounded(views):
+    """``views`` without their regions (``views.bounds`` infinite): every marker may be seen."""
+    edges = np.empty((views.kind.shape[0], 4))
+    for v in range(edges.shape[0]):
+        edges[v, 0], edges[v, 1], edges[v, 2], edges[v, 3] = -np.inf, -np.inf, np.inf, np.inf
+    return RigArrays(views.kind, views.P, views.K, views.dist, edges)
+
+
+@njit(cache=True, nogil=True)
 def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state, runs):
     """One attempt on one image: SA, restarted while above ``eps``, each result refined.
 
@@ -1498,7 +1577,12 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state, runs)
     image that stays above ``eps`` is where a marker may be occluded, and its
     distance to some other blob would otherwise lead the search astray; runs
     are compared, and the objective returned, in that objective (the same as the
-    first run's wherever every marker is within ``penalty``). With ``refine_result``,
+    first run's wherever every marker is within ``penalty``). SA itself reads the views
+    without their regions (:func:`_unbounded`): a marker out of its view's frame is charged
+    its nearest detection, as in the paper's Eq. 5, so that SA is never drawn out of the
+    frames, where a whole limb would cost the penalty a marker and no blob would steer it
+    back; the refinement and the comparisons after it charge such a marker as unseen
+    (:func:`charged_unseen`). With ``refine_result``,
     each run's posture is refined
     and kept if that does not raise the objective. Returns (posture, plain Eq. 5
     error, objective, SA iterations, rows of ``runs`` written); the objective is Eq. 5
@@ -1506,6 +1590,7 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state, runs)
     """
     penalty, fuse_px, unseen = image.penalty, image.fuse_px, image.unseen
     charged = _with(image, fuse_px, penalty, unseen)  # every view may lose a marker
+    searching = _unbounded(views)
     q0, best = start_q.copy(), start_q.copy()
     objective, iterations, written = np.inf, 0, 0
     for run in range(sa.restarts + 1):
@@ -1514,7 +1599,7 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state, runs)
         if run > 0 or draw_start:
             draw_posture(bounds.lower, bounds.upper, sa.hist, state, q0)
         searched = charged if run > 0 else _with(image, fuse_px, 0.0, unseen)
-        q, value, its = anneal(q0, bounds, kin, views, searched, sa, state)
+        q, value, its = anneal(q0, bounds, kin, searching, searched, sa, state)
         iterations += its
         if sa.refine_result:
             polished = refine(q, bounds, kin, views, searched, sa.huber_c, np.int64(50), _no_targets())
@@ -1532,7 +1617,7 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state, runs)
         if value < objective:
             _copy(best, q)
             objective = value
-    error = posture_error(best, kin, views, _with(image, 0.0, 0.0, unseen))
+    error = plain_error(best, kin, views, image)
     return best, error, objective, iterations, written
 
 
@@ -1610,7 +1695,7 @@ def flip_alternatives(q, objective, tolerance, bounds, kin, views, image, huber_
             if image.fuse_px > 0.0:
                 fuse_projections(raw, image.fuse_px, fused)
             limit = objective + tolerance
-            if _objective(image, limit, work) > limit:
+            if _objective(views, image, limit, work) > limit:
                 continue
             if refined == max_refined:
                 return found

@@ -188,7 +188,7 @@ def plain_error(q: np.ndarray, detections: Detections, model: KinematicModel, ri
     ``offsets`` (V, 2); a view without detections costs ``penalty`` px per marker."""
     image = _kernels.Image.of(detections.kernel_points, detections.start, offsets, penalty=penalty,
                               fuse_px=0.0)
-    return float(_kernels.posture_error(q, model.arrays, rig.arrays, image))
+    return float(_kernels.plain_error(q, model.arrays, rig.arrays, image))
 
 
 def angle_gaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -10,6 +10,11 @@ so that the total stays finite, never NaN, does not steer the search, and an
 image that lost a whole view is flagged by the error threshold instead of
 being reported as a confident fit.
 
+A marker projecting outside its view's region (its roi or its frame, ``core.rig.Rig.regions``)
+cannot have been detected: the search charges it the same constant, as a marker the
+camera lost (``core._kernels.charged_unseen``). The reported Eq. 5 charges it its nearest
+detection, as FORMATS §3 defines ``error_px``; :func:`outside_error` says how much of it that is.
+
 Blobs (``fusion_px`` > 0; :func:`fusion_distance` of the marker diameter): a
 camera shows two markers closer than about 1.3 diameters as one blob at their
 centroid, and it merges closer pairs first, so every view is read apart and with
@@ -36,7 +41,7 @@ from core.model import KinematicModel
 from core.rig import Rig
 
 __all__ = ["DEFAULT_EMPTY_VIEW_PENALTY_PX", "Detections", "fusion_distance", "marker_errors",
-           "nearest_detection", "view_error"]
+           "nearest_detection", "outside_error", "view_error"]
 
 DEFAULT_EMPTY_VIEW_PENALTY_PX = 5.0
 # fusion_px in marker diameters: reading every view apart as well makes a generous distance
@@ -170,6 +175,20 @@ def view_error(
                               penalty=empty_view_penalty_px, fuse_px=check_fusion(fusion_px)),
         )
     )
+
+
+def outside_error(dofs: np.ndarray, detections: Detections, *, model: KinematicModel, rig: Rig,
+                  offsets: np.ndarray | None = None) -> tuple[int, float]:
+    """The marker projections of posture ``dofs`` (D,) outside their view's region
+    (``Rig.regions``) in views with detections: how many, and the pixels of Eq. 5 they add
+    (each one's distance to its nearest detection). No attempt can lower that share: no
+    detection can lie where the camera does not look. ``offsets`` (V, 2) as :func:`view_error`."""
+    q = model._check_postures(dofs)[0]
+    check_views(detections, rig)
+    image = _kernels.Image.of(detections.kernel_points, detections.start, view_offsets(offsets, rig),
+                              penalty=0.0, fuse_px=0.0)
+    count, px = _kernels.outside_error(q, model.arrays, rig.arrays, image)
+    return int(count), float(px)
 
 
 def marker_errors(markers: np.ndarray, detections: Detections) -> np.ndarray:

@@ -34,6 +34,7 @@ from core.error import (
     check_fusion,
     check_views,
     marker_errors,
+    outside_error,
     view_offsets,
 )
 from core.histogram import Histograms
@@ -181,6 +182,10 @@ class ImageFit:
         empty-view penalty (``core.ceilings.hidden_charge``), at the posture the attempts
         kept (before the choice by continuity): left out of the sequence's typical objective
         (``core.sequence.typical_objective``).
+    outside : (how many, pixels of ``error``) of the marker projections that lie outside
+        their view's region (``core.error.outside_error``: a limb out of the frame), at the
+        posture the attempts kept: an image over the threshold by those alone is not
+        re-analysed (:func:`needs_reanalysis`).
     """
 
     sample: int
@@ -194,6 +199,7 @@ class ImageFit:
     alternatives: tuple[Candidate, ...] = ()
     settled: bool = False
     charged: float = 0.0
+    outside: tuple[int, float] = (0, 0.0)
 
     def as_candidate(self) -> Candidate:
         """The posture as one of the image's candidates (``core.ambiguity``), beside its
@@ -279,6 +285,7 @@ class ImageFit:
                 for c in self.alternatives
             ],
             "settled": self.settled, "charged": self.charged,
+            "outside": [self.outside[0], self.outside[1]],
         }
 
     @classmethod
@@ -299,6 +306,7 @@ class ImageFit:
             ),
             settled=bool(record.get("settled", False)),
             charged=float(record.get("charged", 0.0)),
+            outside=_outside(record.get("outside", (0, 0.0))),
         )
 
 
@@ -417,7 +425,8 @@ def first_attempt(
     status = image_status(best.error, counts, len(model.markers), params)
     charged = hidden_charge(best.dofs, det, model, rig, params, view_offsets(offsets, rig))
     return ImageFit(sample, best.dofs, best.error, best.objective, 1, status, its, counts,
-                    alternatives, charged=charged)
+                    alternatives, charged=charged,
+                    outside=outside_error(best.dofs, det, model=model, rig=rig, offsets=offsets))
 
 
 def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None,
@@ -826,16 +835,18 @@ def reanalyse_image(
     else:
         settled = settled or not best.objective < previous.objective
     if not best.objective < previous.objective:
-        best, charged = previous.as_candidate(), previous.charged
+        best, charged, outside = previous.as_candidate(), previous.charged, previous.outside
         alternatives = previous.alternatives
     else:
         charged = hidden_charge(best.dofs, detections, model, rig, params, view_offsets(offsets, rig))
+        outside = outside_error(best.dofs, detections, model=model, rig=rig, offsets=offsets)
         alternatives = tuple(sorted(
             alternatives + _still_alternatives(best, alternatives, previous, detections, model, params),
             key=lambda c: c.objective))
     status = image_status(best.error, previous.detections, len(model.markers), params)
     return ImageFit(previous.sample, best.dofs, best.error, best.objective, attempt, status,
-                    previous.iterations + its, previous.detections, alternatives, settled, charged)
+                    previous.iterations + its, previous.detections, alternatives, settled, charged,
+                    outside)
 
 
 def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
@@ -850,7 +861,9 @@ def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
     every minimum, so where most images hide one, the median is that penalty, and a wrong
     minimum a few pixels above the right one hides under three times it. The image's own
     objective is compared whole: a wrong posture that leaves a marker off every blob looks
-    just like a hidden one.
+    just like a hidden one. Only what its projections outside their views' regions
+    (``ImageFit.outside``) cost is left out, as it is from the threshold's test: no
+    detection can lie there, whatever the posture.
 
     The paper's 10 px threshold was "clearly larger than the expected analysis
     result" (2.9 px); clean footage now fits at ~0.1 px, so a local minimum at
@@ -868,11 +881,17 @@ def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
     """
     if fit.attempts >= params.max_attempts or fit.status is Status.NO_DETECTIONS or fit.settled:
         return False
-    if fit.status is Status.OVER_THRESHOLD:
+    if fit.status is Status.OVER_THRESHOLD and not _over_by_outside(fit, len(model.markers), params):
         return True
     views_seen = sum(1 for c in fit.detections if c > 0)
     limit = max(search_floor(model, params, views_seen), params.outlier_factor * typical)
-    return params.outlier_factor > 0 and math.isfinite(limit) and fit.objective > limit
+    seen = fit.objective - params.empty_view_penalty_px * fit.outside[0]
+    return params.outlier_factor > 0 and math.isfinite(limit) and seen > limit
+
+
+def _outside(value: Sequence[float]) -> tuple[int, float]:
+    count, px = value
+    return int(count), float(px)
 
 
 def _json_float(value: float) -> float | None:
@@ -885,6 +904,13 @@ def _float(value: float | None) -> float:
 
 def _float_array(values: Sequence[float | None]) -> np.ndarray:
     return np.array([_float(v) for v in values], dtype=np.float64)
+
+
+def _over_by_outside(fit: ImageFit, n_markers: int, params: FitParams) -> bool:
+    """Whether only projections outside their views' regions (``ImageFit.outside``) put
+    ``fit`` over the threshold: the rest are within it per projection."""
+    count, px = fit.outside
+    return count > 0 and fit.error - px <= params.error_threshold_px * (fit.compared(n_markers) - count)
 
 
 def image_status(error: float, detections: tuple[int, ...], n_markers: int, params: FitParams) -> Status:

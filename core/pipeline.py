@@ -86,6 +86,12 @@ class VideoSource(Sequence[Detections]):
         self.rig.check_videos([(info.width, info.height) for info in videos.infos])
         return videos
 
+    @cached_property
+    def framed_rig(self) -> Rig:
+        """:attr:`rig` filming these videos (``Rig.framed``): what the fit reads, so that a
+        marker out of a frame is charged as one its camera could not see."""
+        return self.rig.framed([(info.width, info.height) for info in self._videos.infos])
+
     @property
     def fps(self) -> float:
         return self._videos.fps
@@ -226,7 +232,7 @@ def run_fit(
         job = replace(job, chunk_size=max(1, math.ceil(len(job.source) / chunks)))
     steps = plan(job)
     kwargs: dict[str, Any] = dict(
-        model=job.model, rig=job.source.rig, histograms=histograms, params=job.params,
+        model=job.model, rig=job.source.framed_rig, histograms=histograms, params=job.params,
         seed=job.seed, chunk_size=job.chunk_size, offsets=steps.offsets,
     )
     if jobs == 1:

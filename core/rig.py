@@ -7,6 +7,11 @@ Three projection types map a world point (model units) to full-frame pixels
 - ``pinhole``: OpenCV ``projectPoints`` semantics (Rodrigues ``rvec``, ``tvec``,
   ``K``, distortion ``k1 k2 p1 p2 [k3 [k4 k5 k6]]``);
 - ``matrix``: DLT, ``(u, v) = (p1·X / p3·X, p2·X / p3·X)``, P 3×4.
+
+A view sees the part of its video's frame its roi gives, or the whole frame. A rig
+read from a file knows its rois; the frames' sizes come with the videos
+(:meth:`Rig.framed`). The fit charges a marker projecting outside its view's region as
+one the camera could not see (``core._kernels.charged_unseen``).
 """
 
 from __future__ import annotations
@@ -15,16 +20,17 @@ import copy
 import json
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import cv2
 import numpy as np
 
 from core import _kernels
 from core._files import read_bounded
+from core._kernels import RigArrays
 
 __all__ = ["MAX_NAME_CHARS", "MAX_RIG_BYTES", "MAX_ROI_PIXELS", "MAX_VIEWS", "Rig", "RigArrays", "RigError",
            "View"]
@@ -61,23 +67,16 @@ class View:
     projection: dict[str, Any]
 
 
-class RigArrays(NamedTuple):
-    """Views encoded for the kernels (see ``core._kernels``).
-
-    kind : (V,) int64; P : (V, 3, 4) float64; K : (V, 3, 3) float64; dist : (V, 8) float64.
-    """
-
-    kind: np.ndarray
-    P: np.ndarray
-    K: np.ndarray
-    dist: np.ndarray
-
-
 @dataclass(frozen=True)
 class Rig:
-    """A validated camera rig. Build it with :meth:`from_json` or :meth:`from_dict`."""
+    """A validated camera rig. Build it with :meth:`from_json` or :meth:`from_dict`.
+
+    frames : (width, height) of each video's frames, in ``video`` index order, once the
+        videos are known (:meth:`framed`); None before.
+    """
 
     views: tuple[View, ...]
+    frames: tuple[tuple[int, int], ...] | None = None
 
     @classmethod
     def from_json(cls, source: str | bytes | Path) -> Rig:
@@ -127,6 +126,27 @@ class Rig:
     def n_videos(self) -> int:
         """How many video files the rig expects: its views use video indices 0 .. n_videos - 1."""
         return max(v.video for v in self.views) + 1
+
+    def framed(self, sizes: Sequence[tuple[int, int]], labels: Sequence[str] | None = None) -> Rig:
+        """This rig filming videos of frame ``sizes`` ((width, height) each, in ``video``
+        index order), checked by :meth:`check_videos` (``labels`` as there)."""
+        self.check_videos(sizes, labels)
+        return replace(self, frames=tuple((int(w), int(h)) for w, h in sizes))
+
+    @cached_property
+    def regions(self) -> np.ndarray:
+        """(V, 4) float64: the part of its frame each view sees, (u0, v0, u1, v1) full-frame
+        pixels: its roi, else its whole frame (:attr:`frames`), else the whole plane
+        (infinite: a frame of unknown size)."""
+        out = np.tile([-np.inf, -np.inf, np.inf, np.inf], (len(self.views), 1))
+        for k, v in enumerate(self.views):
+            if v.roi is not None:
+                x, y, w, h = v.roi
+                out[k] = (x, y, x + w, y + h)
+            elif self.frames is not None:
+                out[k, 2:] = self.frames[v.video]
+                out[k, :2] = 0.0
+        return out
 
     def check_videos(self, sizes: Sequence[tuple[int, int]], labels: Sequence[str] | None = None) -> None:
         """Refuse videos that do not fit the rig, before any frame is decoded.
@@ -185,7 +205,7 @@ class Rig:
                 K[i] = p["K"]
                 coeffs = list(p.get("dist", []))
                 dist[i, : len(coeffs)] = coeffs
-        return RigArrays(kind, P, K, dist)
+        return RigArrays(kind, P, K, dist, self.regions)
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Project world points into every view.

@@ -671,7 +671,7 @@ def refine_whole(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig
             q, value = polished, e
     if params.refine:
         value = _kernels._refit_unseen(q, value, bounds, kin, views, image, float(a.huber_px))
-    error = _kernels.posture_error(q, kin, views, image._replace(fuse_px=0.0))
+    error = _kernels.plain_error(q, kin, views, image)
     return q, float(error), float(value)
 
 
@@ -695,7 +695,7 @@ def refine_without_lost(q: np.ndarray, det: Detections, model: KinematicModel, r
     refined = _kernels.refine(np.ascontiguousarray(q), _kernels.Bounds(model.lower, model.upper),
                               model.arrays, rig.arrays, image._replace(unseen=lost),
                               float(params.anneal.huber_px), JOINT_STEPS, _kernels.NO_TARGETS)
-    error = _kernels.posture_error(refined, model.arrays, rig.arrays, image._replace(fuse_px=0.0))
+    error = _kernels.plain_error(refined, model.arrays, rig.arrays, image)
     return refined, float(error), _whole_objective(refined, det, model, rig, params, off), lost
 
 
@@ -759,7 +759,7 @@ def tree_flip_alternatives(fit: Candidate, detections: Detections, *, model: Kin
             objective = float(_kernels.posture_error(whole, model.arrays, views,
                                                      image._replace(lost_px=image.penalty)))
             if objective <= fit.objective + tolerance_px:
-                error = _kernels.posture_error(whole, model.arrays, views, image._replace(fuse_px=0.0))
+                error = _kernels.plain_error(whole, model.arrays, views, image)
                 found.append(Candidate(whole, float(error), objective))
     return sorted(found, key=lambda c: c.objective)[:MAX_ALTERNATIVES]
 

@@ -145,7 +145,8 @@ def _rays(detections: Detections, rig: Rig,
 
 def _back_project(rig: Rig, v: int, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rays of ``pixels`` (n, 2) in view ``v``: origins (n, 3) and unit directions (n, 3)."""
-    kind, P, K, dist = (a[v] for a in rig.arrays)
+    a = rig.arrays
+    kind, P, K, dist = a.kind[v], a.P[v], a.K[v], a.dist[v]
     n = len(pixels)
     if kind == _kernels.AFFINE:
         A, b = P[:2, :3], P[:2, 3]

@@ -186,7 +186,7 @@ def run_chunk(chunk_id: int, *, worker: str) -> None:
         _crash_if_told(job_id, index)
         seen: list[Detections] = []
         fit = loaded.fit
-        result = fit_chunk(_kept(fit.source[first:last], seen), model=fit.model, rig=fit.source.rig,
+        result = fit_chunk(_kept(fit.source[first:last], seen), model=fit.model, rig=fit.source.framed_rig,
                            histograms=loaded.prior, params=fit.params, seed=fit.seed, first_sample=first,
                            offsets=_root_offsets(job_id, fit, first, last),
                            should_stop=_canceled_check(job_id))
@@ -356,8 +356,9 @@ def run_attempt(job_id: int, sample: int, attempt: int, *, worker: str) -> None:
     merged = histstore.load(get_storage(), f"jobs/{job_id}/merged.npz", loaded.fit.model)
     fit_job = loaded.fit
     offsets = _root_offsets(job_id, fit_job, sample, sample + 1)
-    fit = reanalyse_image(fit_job.source[sample], previous, model=fit_job.model, rig=fit_job.source.rig,
-                          histograms=merged, params=fit_job.params, seed=fit_job.seed, typical=typical,
+    fit = reanalyse_image(fit_job.source[sample], previous, model=fit_job.model,
+                          rig=fit_job.source.framed_rig, histograms=merged, params=fit_job.params,
+                          seed=fit_job.seed, typical=typical,
                           offsets=None if offsets is None else offsets[0])
     again = needs_reanalysis(fit, fit_job.model, fit_job.params, typical)
     over = int(fit.status is Status.OVER_THRESHOLD) - int(previous.status is Status.OVER_THRESHOLD)

@@ -63,6 +63,10 @@ class Subject:
     movement: Callable[[Subject, int, np.random.Generator], np.ndarray]
     unmodelled: tuple[tuple[str, tuple[float, float, float]], ...]
 
+    def __post_init__(self) -> None:
+        """The rig filming ``frame_sizes`` (``core.rig.Rig.framed``), as a job's videos give it."""
+        object.__setattr__(self, "rig", self.rig.framed(self.frame_sizes))
+
     def size_of(self, video: int) -> tuple[int, int]:
         """The frame size of video ``video``."""
         return self.frame_sizes[video]

@@ -1,0 +1,100 @@
+"""Markers that leave a view's region (its roi or its frame): the fit charges them as unseen.
+
+The scene: a root translating in the image plane with four markers in two columns 30 px
+apart, seen through a roi 100 px wide. At tx 85 the right column lies beyond the roi; two
+blobs of something else in the roi, (70, 50) and (70, 60), sit where the right column would
+lie if the animal stood 30 px to the left.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scenes import dots_model, pixel_rig
+from tree_subjects import angle_errors, insect, movement, ring_rig
+
+from core.ambiguity import plain_error
+from core.error import Detections, outside_error, view_error
+from core.fit import FitParams, ImageFit, Status, needs_reanalysis
+from core.histogram import Histograms
+from core.rig import Rig, RigError
+from core.sequence import fit_sequence
+
+MARKERS = ((0.0, 0.0), (0.0, 10.0), (30.0, 0.0), (30.0, 10.0))
+TRUTH = np.array([85.0, 50.0])
+BLOBS = [[(85.0, 50.0), (85.0, 60.0), (70.0, 50.0), (70.0, 60.0)]]  # two markers, two other blobs
+ROI = [0, 0, 100, 96]
+
+
+def _scene(roi: list[int] | None) -> tuple:
+    return dots_model(*MARKERS), pixel_rig(roi), Detections.from_views(BLOBS)
+
+
+def test_a_view_sees_its_roi_or_its_frame_once_the_videos_are_known():
+    rig = Rig.from_dict({"views": [
+        {"name": "a", "video": 0, "roi": [10, 20, 100, 50],
+         "projection": {"type": "affine", "matrix": [[1, 0, 0, 0], [0, 1, 0, 0]]}},
+        {"name": "b", "video": 1, "projection": {"type": "affine", "matrix": [[1, 0, 0, 0], [0, 1, 0, 0]]}},
+    ]})
+    assert rig.regions[0].tolist() == [10, 20, 110, 70]
+    assert np.isinf(rig.regions[1]).all()
+    framed = rig.framed([(200, 100), (640, 480)])
+    assert framed.regions[1].tolist() == [0, 0, 640, 480]
+    assert framed.to_dict() == rig.to_dict()  # the rig file does not change
+    with pytest.raises(RigError, match="roi"):
+        rig.framed([(100, 100), (640, 480)])
+
+
+def test_a_marker_outside_the_roi_costs_the_penalty_in_the_objective_and_its_distance_in_error_px():
+    model, rig, det = _scene(ROI)
+    penalty = 5.0
+    objective = view_error(TRUTH, det, model=model, rig=rig, empty_view_penalty_px=penalty)
+    assert objective == pytest.approx(2 * penalty)
+    unbounded = view_error(TRUTH, det, model=model, rig=pixel_rig(None), empty_view_penalty_px=penalty)
+    assert unbounded == pytest.approx(60.0)  # each outside marker 30 px from a blob in the roi
+    off = np.zeros((1, 2))
+    assert plain_error(TRUTH, det, model, rig, off, penalty) == pytest.approx(60.0)  # FORMATS §3
+    assert outside_error(TRUTH, det, model=model, rig=rig) == (2, pytest.approx(60.0))
+    assert outside_error(TRUTH, det, model=model, rig=pixel_rig(None)) == (0, 0.0)
+
+
+@pytest.mark.parametrize("bounded", [True, False])
+def test_an_insect_whose_legs_leave_one_cameras_roi_is_fitted_without_pulling_them_back(bounded):
+    """Two legs, three cameras; the first camera sees only the left of its frame (a roi up
+    to the 80th percentile of the markers' u there): a quarter of its projections lie beyond
+    it. Fitted with the roi, every image lies within 1° of the truth at the first attempt;
+    fitted as if that camera saw everything it projects to, the markers beyond are pulled
+    onto the blobs it does see, and images end tens of degrees off."""
+    model, rig = insect(legs=2), ring_rig(3)
+    truth = movement(model, 16)
+    projected = rig.project(model.marker_positions(truth)) + np.random.default_rng(1).normal(
+        0.0, 0.05, (16, 3, len(model.markers), 2))
+    edge = int(np.quantile(projected[:, 0, :, 0], 0.8))
+    images = [Detections.from_views([p[0][p[0][:, 0] < edge], p[1], p[2]]) for p in projected]
+    if bounded:
+        rig = Rig((replace(rig.views[0], roi=(0, 0, edge, 480)), *rig.views[1:]))
+    result = fit_sequence(images, model=model, rig=rig, histograms=Histograms.uniform(model),
+                          params=FitParams(), seed=0)
+    worst = angle_errors(np.array([f.dofs for f in result.fits]), truth)[:, model.rotational].max(axis=1)
+    if bounded:
+        assert worst.max() < 1.0
+        assert all(f.attempts == 1 for f in result.fits)  # over the threshold by the unseen alone
+        assert sum(f.outside[0] for f in result.fits) > 0
+    else:
+        assert worst.max() > 10.0
+
+
+def test_an_image_over_the_threshold_by_markers_outside_alone_is_not_reanalysed():
+    model = dots_model(*MARKERS)
+    params = FitParams()
+    # 4 markers x 1 view: the threshold is 5 px; 60 px of the 61 are two projections outside
+    fit = ImageFit(0, TRUTH, 61.0, 11.0, 1, Status.OVER_THRESHOLD, 500, (4,), outside=(2, 60.0))
+    assert not needs_reanalysis(fit, model, params, typical=0.5)  # 11 - 10 px: not an outlier
+    assert needs_reanalysis(replace(fit, error=64.0), model, params)  # 4 px on two projections
+    assert needs_reanalysis(replace(fit, outside=(0, 0.0)), model, params)
+    assert needs_reanalysis(replace(fit, objective=12.0), model, params, typical=0.5)  # 2 px: 4x
+    assert ImageFit.from_record(fit.to_record()).outside == (2, 60.0)
+    legacy = {k: v for k, v in fit.to_record().items() if k != "outside"}
+    assert ImageFit.from_record(legacy).outside == (0, 0.0)
