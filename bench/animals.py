@@ -2,7 +2,7 @@
 
     python bench/animals.py [--subject hexapod|freefly|biped|fullbody|stick|locust|rat|mouse|spider|all]
         [--images N] [--cameras 6|4|3|2] [--soft-tissue] [--ghosts N] [--occlusion F [--everywhere]]
-        [--lost-claw] [--glints N] [--seed S] [--jobs 1]
+        [--lost-claw] [--glints N] [--beyond F] [--seed S] [--jobs 1]
         [--threshold auto|otsu|100] [--model-error F] [--rig-error PX]
 
 Each subject (``bench/subjects``, sources in ``docs/BENCH_SUBJECTS.md``) moves naturally,
@@ -27,13 +27,16 @@ claw or a toe in most subjects) is missing from every view of every image, as a 
 that fell off before the trial (:func:`lost_marker`). With ``--glints N``, N reflections
 per view and image lie on the animal's segments (:func:`glint_pixels`), among the markers
 where a lab's clutter is, unlike the ghosts drawn anywhere in the view.
+With ``--beyond F`` each view sees only the part of its frame (or roi) left of the column
+beyond which the share F of its markers' projections over the movement lies: a roi there,
+so that legs walk out of the frame and back (:func:`cut_at_edge`); the fit is given the rois.
 With ``--model-error F`` the fit is given the subject's model with every segment length and
 marker placement off by a relative N(0, F) (a model measured by hand), and with
 ``--rig-error PX`` its rig with every view's image shifted by PX pixels (a calibration's
 error); the images are rendered with the true ones (``bench/imperfect.py``).
 Prints, per subject, the per-DOF RMSE and the issue's figures next to its targets, and
 writes every image's fit to
-``bench/out/animals-<subject>[-<cameras>cams][-soft][-occ<percent>[all]]…[-glints<N>].csv``
+``bench/out/animals-<subject>[-<cameras>cams][-soft][-occ<percent>[all]]…[-glints<N>][-beyond<percent>].csv``
 (angles.csv).
 """
 
@@ -62,6 +65,7 @@ from core.fit import FitParams, ImageFit, Status
 from core.histogram import Histograms
 from core.model import KinematicModel, Marker
 from core.results import SampleClock, write_angles_csv
+from core.rig import Rig
 from core.sequence import SequenceResult, fit_sequence
 from core.synth import render_frames
 from core.warmup import compile_kernels
@@ -409,6 +413,10 @@ def run(name: str, args: argparse.Namespace) -> None:
              + (f" + model off {100 * args.model_error:g} %" if args.model_error else "")
              + (f" + rig off {args.rig_error:g} px" if args.rig_error else "")
              + (f" + {args.glints} glints per view" if args.glints else ""))
+    if args.beyond:
+        subject = cut_at_edge(subject, subject.trajectory(args.images, np.random.default_rng(args.seed)),
+                              args.beyond)
+        label += f" + {100 * args.beyond:g} % beyond the frames' edge"
     rng = np.random.default_rng(args.seed)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts,
                              rng=rng, occlusion=args.occlusion, everywhere=args.everywhere,
@@ -429,11 +437,29 @@ def run(name: str, args: argparse.Namespace) -> None:
            + (f"-rig{args.rig_error:g}" if args.rig_error else "")
            + (f"-marker{args.marker_px:g}" if args.marker_px != MARKER_DIAMETER_PX else "")
            + ("-lostclaw" if args.lost_claw else "")
-           + (f"-glints{args.glints}" if args.glints else ""))
+           + (f"-glints{args.glints}" if args.glints else "")
+           + (f"-beyond{round(100 * args.beyond)}" if args.beyond else ""))
     OUT.mkdir(parents=True, exist_ok=True)
     csv_path = OUT / f"animals-{tag}.csv"
     write_angles_csv(csv_path, subject.model, result.fits, SampleClock(subject.fps))
     report(subject, label, data, result, timing, csv_path, soft=args.soft_tissue)
+
+
+def cut_at_edge(subject: Subject, truth: np.ndarray, share: float) -> Subject:
+    """``subject`` with every view's roi ending at the column (a whole pixel) beyond which
+    the share ``share`` of its markers' projections over the movement ``truth`` (T, D) lies,
+    inside the view's own roi where it has one: an animal that walks out of the frame. It
+    moves as ``subject`` does (a movement kept inside the rois would not leave them)."""
+    projected = subject.rig.project(subject.model.marker_positions(truth))  # (T, V, M, 2)
+    views = []
+    for v, view in enumerate(subject.rig.views):
+        x, y, w, h = view.roi or (0, 0, *subject.size_of(view.video))
+        edge = int(np.quantile(projected[:, v, :, 0], 1.0 - share))
+        views.append(replace(view, roi=(x, y, min(w, max(1, edge - x)), h)))
+    def movement(_: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
+        return subject.trajectory(n, rng)
+
+    return replace(subject, rig=Rig(tuple(views)), movement=movement)
 
 
 def as_measured(subject: Subject, args: argparse.Namespace) -> Subject:
@@ -472,6 +498,9 @@ def main() -> None:
     parser.add_argument("--glints", type=int, default=0, metavar="N",
                         help="reflections off the animal's body per view and image, on its segments "
                              "(default 0)")
+    parser.add_argument("--beyond", type=float, default=0.0, metavar="F",
+                        help="the share of each view's marker projections beyond its frame's edge "
+                             "(a roi; default 0)")
     parser.add_argument("--lost-claw", action="store_true",
                         help="the first branch's last marker (a claw, a toe) is missing from every image")
     parser.add_argument("--fps", type=float, default=None,
@@ -498,11 +527,11 @@ def main() -> None:
     if args.ghosts is None:
         args.ghosts = 0 if args.soft_tissue else 2
     if (args.images < 1 or args.jobs < 1 or min(args.ghosts, args.glints) < 0
-            or not 0 <= args.occlusion <= 0.5
+            or not 0 <= args.occlusion <= 0.5 or not 0 <= args.beyond <= 0.5
             or (args.fps is not None and args.fps <= 0)
             or not (0 <= args.model_error <= 0.5 and 0 <= args.rig_error <= 50)):
-        parser.error("--images and --jobs must be >= 1, --ghosts and --glints >= 0, --occlusion in [0, 0.5], "
-                     "--fps > 0, --model-error in [0, 0.5], --rig-error in [0, 50]")
+        parser.error("--images and --jobs must be >= 1, --ghosts and --glints >= 0, --occlusion and "
+                     "--beyond in [0, 0.5], --fps > 0, --model-error in [0, 0.5], --rig-error in [0, 50]")
     names = NAMES if args.subject == "all" else (args.subject,)
     print(f"bench/animals.py: seed {args.seed}, {args.images} images per subject, "
           f"{args.marker_px:g} px markers, {args.ghosts} ghost blobs per view"
@@ -513,6 +542,8 @@ def main() -> None:
           + (f", model off {100 * args.model_error:g} %" if args.model_error else "")
           + (f", rig off {args.rig_error:g} px" if args.rig_error else "")
           + (f", {args.glints} glints per view on the body" if args.glints else "")
+          + (f", {100 * args.beyond:g} % of marker projections beyond the frames' edge"
+             if args.beyond else "")
           + f", threshold {args.detector.threshold}")
     for name in names:
         run(name, args)

@@ -340,3 +340,24 @@ def test_an_off_image_is_put_down_to_the_image_before_the_choice_or_the_search()
     assert why_off(1.0, 30.0, 10.0, 9.4, 0.5) == search
     assert why_off(1.0, 30.0, 10.0, 9.6, 0.5) == tie
     assert why_off(1.0, 30.0, 10.0, 12.0, 0.5) == tie
+
+
+@pytest.mark.parametrize("name", ["rat", "stick"])
+def test_a_subject_cut_at_its_frames_edge_moves_as_before_with_that_share_beyond(name):
+    """``--beyond``: each view's roi ends where about the share of its projections lies
+    beyond (more where many share that column: the stick insect's fixed coxa marker), inside
+    its own roi where it has one (the stick insect's two views share a frame); the rig fitted
+    with knows it, and the movement is the subject's own."""
+    from bench.animals import cut_at_edge
+
+    subject = load(name)
+    truth = subject.trajectory(30, np.random.default_rng(0))
+    cut = cut_at_edge(subject, truth, 0.2)
+    assert np.array_equal(cut.trajectory(30, np.random.default_rng(0)), truth)
+    projected = subject.rig.project(subject.model.marker_positions(truth))
+    for v, (view, was) in enumerate(zip(cut.rig.views, subject.rig.views, strict=True)):
+        beyond = np.mean(projected[:, v, :, 0] >= view.roi[0] + view.roi[2])
+        assert 0.15 < beyond < (0.25 if name == "rat" else 0.35)
+        if was.roi is not None:
+            assert view.roi[:2] == was.roi[:2] and view.roi[2] < was.roi[2] and view.roi[3] == was.roi[3]
+        assert np.isfinite(cut.rig.regions[v]).all()
