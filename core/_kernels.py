@@ -60,6 +60,10 @@ FRAME = 12  # numbers per joint frame: rotation (row-major 3×3), then origin (3
 # ``np.int64``.
 NO_TARGETS = np.zeros((0, 3))  # refine in image mode
 NO_UNSEEN = np.zeros((0, 0), dtype=np.bool_)  # every marker may be seen
+# fusion_px in marker diameters (core.error.fusion_distance): reading every view apart as well
+# makes a generous distance safe, and it must cover what the detector merges (up to ~1.3
+# diameters; smaller distances read merged pairs apart: docs/ENGINE_NOTES.md, "Fusion distance").
+FUSION_DIAMETERS = 2.0
 # refine tightens its Huber radius to MIN_RADIUS_PX (px; nearly Eq. 5's own loss, the sum of
 # lengths) where the residuals' median length is under TIGHTEN_BELOW of the radius.
 TIGHTEN_BELOW = 0.5
@@ -525,15 +529,18 @@ def project_posture(q, kin, views, offset, fuse_px, work) -> None:
 
 
 @njit(cache=True, inline="always")
-def charged_unseen(unseen, bounds, raw, hidden):
+def charged_unseen(unseen, bounds, raw, hidden, fuse_px):
     """The (V, M) markers the objective charges as unseen, written into ``hidden`` and
     returned: those ``unseen`` marks ((0, 0): none), and each marker whose raw projection
     ``raw`` (V, M, 2) lies outside its view's region ``bounds`` (V, 4), u0 <= u < u1 and
-    v0 <= v < v1 (``core.rig.RigArrays.bounds``; infinite where not known). A marker out
-    of the frame cannot have been detected; charged its distance to the nearest blob in
-    the frame, it would be pulled back in, and its limb with it."""
+    v0 <= v < v1 (``core.rig.RigArrays.bounds``; infinite where not known), by more than
+    half a marker's diameter (``fuse_px`` / :data:`FUSION_DIAMETERS`; closer, part of its
+    disc shows inside). A marker out of the frame cannot have been detected; charged its
+    distance to the nearest blob in the frame, it would be pulled back in, and its limb
+    with it."""
+    r = 0.5 * fuse_px / FUSION_DIAMETERS
     for v in range(raw.shape[0]):
-        u0, v0, u1, v1 = bounds[v, 0], bounds[v, 1], bounds[v, 2], bounds[v, 3]
+        u0, v0, u1, v1 = bounds[v, 0] - r, bounds[v, 1] - r, bounds[v, 2] + r, bounds[v, 3] + r
         for m in range(raw.shape[1]):
             u, w = raw[v, m, 0], raw[v, m, 1]
             hidden[v, m] = ((unseen.shape[0] > 0 and unseen[v, m])
@@ -842,12 +849,13 @@ def plain_error(q, kin, views, image):
 
 @njit(cache=True, nogil=True)
 def outside_error(q, kin, views, image):
-    """(how many, pixels): the raw projections of posture ``q`` outside their view's region
-    (``views.bounds``) in views with detections, and the sum of their distances to their
-    nearest detections (what they add to :func:`plain_error`)."""
+    """(how many, pixels): the raw projections of posture ``q`` in views with detections that
+    the objective charges as unseen beyond their view's region (:func:`charged_unseen`, half
+    a marker's diameter read from ``image.fuse_px``), and the sum of their distances to
+    their nearest detections (what they add to :func:`plain_error`)."""
     work = workspace(kin, views, q.shape[0], image.det.shape[0])
     _project(q, kin, views, image.offset, 0.0, work)
-    hidden = charged_unseen(_no_unseen(), views.bounds, work.raw, work.hidden)
+    hidden = charged_unseen(_no_unseen(), views.bounds, work.raw, work.hidden, image.fuse_px)
     count, px = 0, 0.0
     for v in range(hidden.shape[0]):
         a, b = image.start[v], image.start[v + 1]
@@ -880,7 +888,7 @@ def _objective(views, image, limit, work):
     every call site)."""
     return blob_error(work.raw, work.fused, image.det, image.start, image.penalty, image.fuse_px,
                       image.lost_px, limit, work.index, work.dist, work.claims,
-                      charged_unseen(image.unseen, views.bounds, work.raw, work.hidden))
+                      charged_unseen(image.unseen, views.bounds, work.raw, work.hidden, image.fuse_px))
 
 
 @njit(cache=True, nogil=True)
@@ -962,7 +970,7 @@ def _residuals(q, kin, views, image, targets, work, res, chosen):
     det, start, penalty, fuse_px = image.det, image.start, image.penalty, image.fuse_px
     project_posture(q, kin, views, image.offset, fuse_px, work)
     raw, fused, index, dist, claims = work.raw, work.fused, work.index, work.dist, work.claims
-    unseen = charged_unseen(image.unseen, views.bounds, raw, work.hidden)
+    unseen = charged_unseen(image.unseen, views.bounds, raw, work.hidden, fuse_px)
     V, M = raw.shape[0], raw.shape[1]
     for v in range(V):
         a, b = start[v], start[v + 1]
@@ -1501,8 +1509,8 @@ def _lost_markers(q, kin, views, image, beyond, every):
     work = workspace(kin, views, q.shape[0], det.shape[0])
     _project(q, kin, views, image.offset, fuse_px, work)
     raw, fused, index, dist, claims = work.raw, work.fused, work.index, work.dist, work.claims
-    unseen, seen = np.zeros((V, M), dtype=np.bool_), charged_unseen(_no_unseen(), views.bounds, raw,
-                                                                    work.hidden)
+    unseen = np.zeros((V, M), dtype=np.bool_)
+    seen = charged_unseen(_no_unseen(), views.bounds, raw, work.hidden, fuse_px)
     lost = False
     for v in range(V):
         a, b = start[v], start[v + 1]

@@ -11,8 +11,9 @@ image that lost a whole view is flagged by the error threshold instead of
 being reported as a confident fit.
 
 A marker projecting outside its view's region (its roi or its frame, ``core.rig.Rig.regions``)
-cannot have been detected: the search charges it the same constant, as a marker the
-camera lost (``core._kernels.charged_unseen``). The reported Eq. 5 charges it its nearest
+by more than half its diameter (closer, part of its disc shows) cannot have been detected:
+the search charges it the same constant, as a marker the camera lost
+(``core._kernels.charged_unseen``). The reported Eq. 5 charges it its nearest
 detection, as FORMATS §3 defines ``error_px``; :func:`outside_error` says how much of it that is.
 
 Blobs (``fusion_px`` > 0; :func:`fusion_distance` of the marker diameter): a
@@ -37,6 +38,7 @@ from functools import cached_property
 import numpy as np
 
 from core import _kernels
+from core._kernels import FUSION_DIAMETERS
 from core.model import KinematicModel
 from core.rig import Rig
 
@@ -44,10 +46,6 @@ __all__ = ["DEFAULT_EMPTY_VIEW_PENALTY_PX", "Detections", "fusion_distance", "ma
            "nearest_detection", "outside_error", "view_error"]
 
 DEFAULT_EMPTY_VIEW_PENALTY_PX = 5.0
-# fusion_px in marker diameters: reading every view apart as well makes a generous distance
-# safe, and it must cover what the detector merges (up to ~1.3 diameters; smaller distances
-# read merged pairs apart: docs/ENGINE_NOTES.md, "Fusion distance").
-FUSION_DIAMETERS = 2.0
 
 
 def fusion_distance(marker_diameter_px: float) -> float:
@@ -178,15 +176,18 @@ def view_error(
 
 
 def outside_error(dofs: np.ndarray, detections: Detections, *, model: KinematicModel, rig: Rig,
-                  offsets: np.ndarray | None = None) -> tuple[int, float]:
-    """The marker projections of posture ``dofs`` (D,) outside their view's region
-    (``Rig.regions``) in views with detections: how many, and the pixels of Eq. 5 they add
-    (each one's distance to its nearest detection). No attempt can lower that share: no
-    detection can lie where the camera does not look. ``offsets`` (V, 2) as :func:`view_error`."""
+                  offsets: np.ndarray | None = None, fusion_px: float = 0.0,
+                  empty_view_penalty_px: float = DEFAULT_EMPTY_VIEW_PENALTY_PX) -> tuple[int, float]:
+    """The marker projections of posture ``dofs`` (D,) beyond their view's region
+    (``Rig.regions``) by more than half a marker's diameter (``fusion_px`` /
+    :data:`FUSION_DIAMETERS`), in views with detections: the objective charges them
+    ``empty_view_penalty_px`` each. How many, and the pixels of Eq. 5 they add (each one's
+    distance to its nearest detection). No attempt can lower that share: no detection can
+    lie where the camera does not look. ``offsets`` (V, 2) as :func:`view_error`."""
     q = model._check_postures(dofs)[0]
     check_views(detections, rig)
     image = _kernels.Image.of(detections.kernel_points, detections.start, view_offsets(offsets, rig),
-                              penalty=0.0, fuse_px=0.0)
+                              penalty=empty_view_penalty_px, fuse_px=check_fusion(fusion_px))
     count, px = _kernels.outside_error(q, model.arrays, rig.arrays, image)
     return int(count), float(px)
 

@@ -182,8 +182,9 @@ class ImageFit:
         empty-view penalty (``core.ceilings.hidden_charge``), at the posture the attempts
         kept (before the choice by continuity): left out of the sequence's typical objective
         (``core.sequence.typical_objective``).
-    outside : (how many, pixels of ``error``) of the marker projections that lie outside
-        their view's region (``core.error.outside_error``: a limb out of the frame), at the
+    outside : (how many, pixels of ``error``) of the marker projections that lie beyond
+        their view's region, far from every blob (``core.error.outside_error``: a limb out of
+        the frame), at the
         posture the attempts kept: an image over the threshold by those alone is not
         re-analysed (:func:`needs_reanalysis`).
     """
@@ -426,7 +427,9 @@ def first_attempt(
     charged = hidden_charge(best.dofs, det, model, rig, params, view_offsets(offsets, rig))
     return ImageFit(sample, best.dofs, best.error, best.objective, 1, status, its, counts,
                     alternatives, charged=charged,
-                    outside=outside_error(best.dofs, det, model=model, rig=rig, offsets=offsets))
+                    outside=outside_error(best.dofs, det, model=model, rig=rig, offsets=offsets,
+                                          fusion_px=params.fusion_px,
+                                          empty_view_penalty_px=params.empty_view_penalty_px))
 
 
 def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None,
@@ -839,7 +842,9 @@ def reanalyse_image(
         alternatives = previous.alternatives
     else:
         charged = hidden_charge(best.dofs, detections, model, rig, params, view_offsets(offsets, rig))
-        outside = outside_error(best.dofs, detections, model=model, rig=rig, offsets=offsets)
+        outside = outside_error(best.dofs, detections, model=model, rig=rig, offsets=offsets,
+                                fusion_px=params.fusion_px,
+                                empty_view_penalty_px=params.empty_view_penalty_px)
         alternatives = tuple(sorted(
             alternatives + _still_alternatives(best, alternatives, previous, detections, model, params),
             key=lambda c: c.objective))
