@@ -98,8 +98,8 @@ def hidden_charge(q: np.ndarray, det: Detections, model: KinematicModel, rig: Ri
     """Pixels of the whole objective of posture ``q`` (D,) on ``det`` (view offsets ``off``
     (V, 2)) that what the image does not show costs: the empty-view penalty for each
     projection that looks hidden (:func:`_lost`: farther than the penalty from every blob of
-    its view), for each one outside its view's region (``Rig.outside``) and for each marker
-    of a view without detections, the least the objective charges each of those."""
+    its view), for each one beyond its view's region (``core.error.outside_error``) and for
+    each marker of a view without detections, the least the objective charges each of those."""
     image = whole_image(det, params, off)
     lost = np.count_nonzero(_lost(q, model.arrays, rig, image))
     outside = _kernels.outside_error(q, model.arrays, rig.arrays, image)[0]

@@ -183,10 +183,9 @@ class ImageFit:
         kept (before the choice by continuity): left out of the sequence's typical objective
         (``core.sequence.typical_objective``).
     outside : (how many, pixels of ``error``) of the marker projections that lie beyond
-        their view's region, far from every blob (``core.error.outside_error``: a limb out of
-        the frame), at the
-        posture the attempts kept: an image over the threshold by those alone is not
-        re-analysed (:func:`needs_reanalysis`).
+        their view's region by more than half a marker's diameter (``core.error.outside_error``:
+        a limb out of the frame), at the posture the attempts kept: an image over the
+        threshold by those alone is not re-analysed (:func:`needs_reanalysis`).
     """
 
     sample: int
