@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 from scenes import dots_model, pixel_rig
@@ -19,6 +20,7 @@ from core.ambiguity import plain_error
 from core.error import Detections, outside_error, view_error
 from core.fit import FitParams, ImageFit, Status, needs_reanalysis
 from core.histogram import Histograms
+from core.pipeline import VideoSource
 from core.rig import Rig, RigError
 from core.sequence import fit_sequence
 
@@ -45,6 +47,18 @@ def test_a_view_sees_its_roi_or_its_frame_once_the_videos_are_known():
     assert framed.to_dict() == rig.to_dict()  # the rig file does not change
     with pytest.raises(RigError, match="roi"):
         rig.framed([(100, 100), (640, 480)])
+
+
+def test_the_fit_reads_the_frame_off_the_video(tmp_path):
+    """What ``mocap fit`` and the workers fit with: the rig of the job, framed by its video."""
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 25.0, (64, 48), False)
+    for _ in range(3):
+        writer.write(np.zeros((48, 64), dtype=np.uint8))
+    writer.release()
+    source = VideoSource((path,), pixel_rig(None, [8, 0, 16, 48]))
+    assert source.rig.frames is None
+    assert source.framed_rig.regions.tolist() == [[0, 0, 64, 48], [8, 0, 24, 48]]
 
 
 def test_a_marker_outside_the_roi_costs_the_penalty_in_the_objective_and_its_distance_in_error_px():
