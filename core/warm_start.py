@@ -142,7 +142,6 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     if warm is None:
         return None
     unseen = in_seen_views(unseen, start)
-    limit = _stand_in_limit(eps, unseen, start)
     best: tuple[np.ndarray, float, bool] | None = None
     image = kernel_image(points, start, params, off, unseen)
     bounds = _kernels.Bounds(model.lower[dofs], model.upper[dofs])
@@ -154,10 +153,14 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
             q = _kernels.refine(q, bounds, kin, rig.arrays, image, float(params.anneal.huber_px), WARM_STEPS,
                                 _kernels.NO_TARGETS)
         value = part_objective(q, kin, points, start, unseen, rig, params, off)
-        if value < limit and views and not (
-                unseen.any() and (_left_in_too_few_views(unseen, q, kin, image)
-                                  or _freed_by_leaving_out(q, rot, kin, rig, image,
-                                                           params.alternative_tolerance_px))):
+        left = _beyond_left_out(q, kin, rig, image, unseen)
+        judged = image._replace(unseen=left)
+        seen_value = (value if left is unseen
+                      else part_objective(q, kin, points, start, left, rig, params, off))
+        if (seen_value < _stand_in_limit(eps, left, start) and judged_in_two_views(left, start) and not (
+                left.any() and (_left_in_too_few_views(left, q, kin, judged)
+                                or _freed_by_leaving_out(q, rot, kin, rig, judged,
+                                                         params.alternative_tolerance_px)))):
             return q, value, True
         if params.refine and views and (seen := _without_lost(q, row[dofs], kin, image, bounds, rig,
                                                               params, eps, unexplained)) is not None:
@@ -167,6 +170,16 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     if best is not None and ceiling is not None and views:
         best = (best[0], best[1], under_ceiling(best[0], kin, rig, image, params, ceiling()))
     return best
+
+
+def _beyond_left_out(q: np.ndarray, kin, rig: Rig, image: _kernels.Image, unseen: np.ndarray) -> np.ndarray:
+    """``unseen`` (V, m), with the projections of a part's posture ``q`` that lie beyond
+    their view's edge (``_kernels.beyond_edges``) left out too: a warm start is judged on
+    what the cameras could see, as it is without the blobs it shares."""
+    beyond = _kernels.beyond_edges(q, kin, rig.arrays, image)
+    if not beyond.any():
+        return unseen
+    return in_seen_views(unseen | beyond if unseen.size else beyond, image.start)
 
 
 def _stand_in_limit(eps: float, left_out: np.ndarray, start: np.ndarray) -> float:
