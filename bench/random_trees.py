@@ -2,7 +2,7 @@
 
     python bench/random_trees.py [--models 8] [--images 40] [--seed 0] [--cameras 3]
         [--rig ring|side-top] [--distortion K1] [--markers 1|2] [--occlusion F] [--fps 100]
-        [--soft-tissue] [--glints N]
+        [--soft-tissue] [--glints N] [--beyond F]
 
 The subjects of ``bench/animals.py`` are nine animals; labs bring others. Each model here
 is drawn at random: a root with three markers, fixed or (two models in five) free with
@@ -27,7 +27,8 @@ barrel, about 19 px at the corners of these images); the movement is
 images are rendered, detected and fitted as ``bench/animals.py`` does (5 px markers, 2
 ghost blobs per view, ``--occlusion`` as there; ``--soft-tissue`` as there: every marker
 slides 2 px RMS, no ghost blobs, an unmodelled marker on the root, :data:`UNMODELLED`;
-``--glints`` as there: reflections on the segments).
+``--glints`` as there: reflections on the segments; ``--beyond`` as there: every view's roi ending
+where the share F of its projections lies beyond).
 Prints one line per model (DOFs, the parts ``core.tree`` fits, the median absolute
 rotational DOF error, the worst image, the share of images with every DOF within 5°,
 ``ok`` images more than 10° off without an alternative, statuses, fit images per CPU
@@ -37,6 +38,7 @@ second) and the totals.
 from __future__ import annotations
 
 import argparse
+import copy
 import sys
 from pathlib import Path
 
@@ -44,7 +46,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.animals import OUT, ambiguous_flags, angle_errors, far_off_unflagged, fit, render_and_detect
+from bench.animals import (
+    OUT,
+    ambiguous_flags,
+    angle_errors,
+    cut_at_edge,
+    far_off_unflagged,
+    fit,
+    render_and_detect,
+)
 from bench.subjects import Subject
 from bench.subjects.build import ring
 from core.fit import Status
@@ -149,6 +159,8 @@ def filmed(model: KinematicModel, cameras: int, fps: float, rig: str = "ring", k
 def run_model(model: KinematicModel, args: argparse.Namespace, rng: np.random.Generator) -> dict:
     """Render, detect and fit ``args.images`` images of ``model``; the figures of its line."""
     subject = filmed(model, args.cameras, args.fps, args.rig, args.distortion)
+    if args.beyond:  # the movement render_and_detect will draw from rng, drawn from a copy
+        subject = cut_at_edge(subject, subject.trajectory(args.images, copy.deepcopy(rng)), args.beyond)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=0 if args.soft_tissue else 2,
                              rng=rng, occlusion=args.occlusion, glints=args.glints)
     result, timing = fit(subject, data, seed=args.seed, jobs=1)
@@ -181,11 +193,13 @@ def main() -> None:
                         help="markers slide 2 px RMS; an unmodelled marker; no ghost blobs")
     parser.add_argument("--glints", type=int, default=0, metavar="N",
                         help="reflections off the body per view and image, on its segments")
+    parser.add_argument("--beyond", type=float, default=0.0, metavar="F",
+                        help="the share of each view's marker projections beyond its frame's edge (a roi)")
     args = parser.parse_args()
     if (args.models < 1 or args.images < 1 or args.cameras < 2 or args.glints < 0
-            or not 0 <= args.occlusion <= 0.5):
+            or not 0 <= args.occlusion <= 0.5 or not 0 <= args.beyond <= 0.5):
         parser.error("--models and --images must be >= 1, --cameras >= 2, --glints >= 0, "
-                     "--occlusion in [0, 0.5]")
+                     "--occlusion and --beyond in [0, 0.5]")
     if not -0.5 <= args.distortion <= 0.5:
         parser.error("--distortion must lie in [-0.5, 0.5]")
     if args.rig == "side-top" and args.cameras != 2:
@@ -195,7 +209,8 @@ def main() -> None:
           + (f", lens distortion k1 {args.distortion:g}" if args.distortion else "")
           + f", {args.markers} marker(s) per segment, {100 * args.occlusion:g} % hidden"
           + (", sliding skin" if args.soft_tissue else "")
-          + (f", {args.glints} glints per view" if args.glints else ""))
+          + (f", {args.glints} glints per view" if args.glints else "")
+          + (f", {100 * args.beyond:g} % beyond the frames' edge" if args.beyond else ""))
     totals = {"images": 0, "within": 0, "bad": 0, "cpu": 0.0}
     errors = []
     for k in range(args.models):
