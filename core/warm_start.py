@@ -126,7 +126,9 @@ def warm_start(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray, war
     to another leg's marker in the previous image, was left out in enough views to free
     the tarsus, and the warm start stood in 25° off. Nor may leaving them out free a
     direction that no single DOF shows, two DOFs turning against each other
-    (:func:`_freed_by_leaving_out`).
+    (:func:`_freed_by_leaving_out`). The projections that lie beyond their view's edge at the
+    refined posture are judged the same way (:func:`_beyond_left_out`): their 5 px each
+    kept a leg that walked out of a frame above ε in every image, and SA searched it again.
 
     A warm start stands in only where the projections it is judged on lie in two views,
     wherever the part has detections in two or more (:func:`judged_in_two_views`): the claim
