@@ -24,7 +24,8 @@ Settings and why:
   counts), the source of truth the API reads; a result backend would be a second,
   unbounded copy nobody reads.
 - Embedded mode (``filesystem://``): kombu's filesystem transport in
-  ``MOCAP_DATA_DIR/broker``, polled every ``MOCAP_FILESYSTEM_POLL_S``; it has no
+  ``MOCAP_DATA_DIR/broker``, polled every ``MOCAP_FILESYSTEM_POLL_S``, each message
+  written whole before it appears in the queue (``service.fs_broker``); it has no
   broadcast, so remote control (used by ``celery inspect`` and flower) is off there.
 """
 
@@ -51,12 +52,12 @@ def make_celery(settings: Settings) -> Celery:
     embedded = settings.broker_url.startswith("filesystem")
     if embedded:
         folder = settings.broker_dir.resolve()
-        for sub in ("queue", "processed", "control"):
+        for sub in ("queue", "processed", "control", "incoming"):
             (folder / sub).mkdir(parents=True, exist_ok=True)
         # control_folder: kombu's exchange table, else ./control in whatever directory runs us.
         transport |= {"data_folder_in": str(folder / "queue"), "data_folder_out": str(folder / "queue"),
                       "processed_folder": str(folder / "processed"), "store_processed": False,
-                      "control_folder": str(folder / "control"),
+                      "control_folder": str(folder / "control"), "incoming_folder": str(folder / "incoming"),
                       "polling_interval": settings.filesystem_poll_s}
     app.conf.update(
         task_acks_late=True,
@@ -70,6 +71,7 @@ def make_celery(settings: Settings) -> Celery:
         task_serializer="json",
         accept_content=["json"],
         broker_connection_retry_on_startup=True,
+        broker_transport="service.fs_broker:Transport" if embedded else None,
         worker_enable_remote_control=not embedded,
         worker_send_task_events=not embedded,  # flower's live view (Redis)
         task_send_sent_event=not embedded,
