@@ -456,6 +456,7 @@ def cut_at_edge(subject: Subject, truth: np.ndarray, share: float) -> Subject:
         x, y, w, h = view.roi or (0, 0, *subject.size_of(view.video))
         edge = int(np.quantile(projected[:, v, :, 0], 1.0 - share))
         views.append(replace(view, roi=(x, y, min(w, max(1, edge - x)), h)))
+
     def movement(_: Subject, n: int, rng: np.random.Generator) -> np.ndarray:
         return subject.trajectory(n, rng)
 

@@ -852,23 +852,15 @@ def beyond_edges(q, kin, views, image):
     """(V, M) bool: the raw projections of posture ``q`` in views with detections that the
     objective charges as unseen beyond their view's region (:func:`charged_unseen`, half a
     marker's diameter read from ``image.fuse_px``)."""
-    work = workspace(kin, views, q.shape[0], image.det.shape[0])
-    _project(q, kin, views, image.offset, 0.0, work)
-    hidden = charged_unseen(_no_unseen(), views.bounds, work.raw, work.hidden, image.fuse_px)
-    for v in range(hidden.shape[0]):
-        if image.start[v] == image.start[v + 1]:
-            for m in range(hidden.shape[1]):
-                hidden[v, m] = False
-    return hidden
+    return _beyond(q, kin, views, image, workspace(kin, views, q.shape[0], image.det.shape[0]))
 
 
 @njit(cache=True, nogil=True)
 def outside_error(q, kin, views, image):
     """(how many, pixels): the projections :func:`beyond_edges` marks, and the sum of their
     distances to their nearest detections (what they add to :func:`plain_error`)."""
-    beyond = beyond_edges(q, kin, views, image)
     work = workspace(kin, views, q.shape[0], image.det.shape[0])
-    _project(q, kin, views, image.offset, 0.0, work)
+    beyond = _beyond(q, kin, views, image, work)
     count, px = 0, 0.0
     for v in range(beyond.shape[0]):
         a, b = image.start[v], image.start[v + 1]
@@ -877,6 +869,18 @@ def outside_error(q, kin, views, image):
                 count += 1
                 px += math.sqrt(_nearest(work.raw[v, m, 0], work.raw[v, m, 1], image.det, a, b)[0])
     return count, px
+
+
+@njit(cache=True, inline="always")
+def _beyond(q, kin, views, image, work):
+    """:func:`beyond_edges` into ``work.hidden``, the raw projections left in ``work.raw``."""
+    _project(q, kin, views, image.offset, 0.0, work)
+    hidden = charged_unseen(_no_unseen(), views.bounds, work.raw, work.hidden, image.fuse_px)
+    for v in range(hidden.shape[0]):
+        if image.start[v] == image.start[v + 1]:
+            for m in range(hidden.shape[1]):
+                hidden[v, m] = False
+    return hidden
 
 
 @njit(cache=True, inline="always")
