@@ -94,17 +94,16 @@ def _ceiling_level(q: np.ndarray, kin, rig: Rig, image: _kernels.Image, params: 
 
 
 def hidden_charge(q: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
-                  off: np.ndarray) -> float:
+                  off: np.ndarray, beyond: int) -> float:
     """Pixels of the whole objective of posture ``q`` (D,) on ``det`` (view offsets ``off``
     (V, 2)) that what the image does not show costs: the empty-view penalty for each
     projection that looks hidden (:func:`_lost`: farther than the penalty from every blob of
-    its view), for each one beyond its view's region (``core.error.outside_error``) and for
-    each marker of a view without detections, the least the objective charges each of those."""
-    image = whole_image(det, params, off)
-    lost = np.count_nonzero(_lost(q, model.arrays, rig, image))
-    outside = _kernels.outside_error(q, model.arrays, rig.arrays, image)[0]
+    its view), for each of the ``beyond`` beyond its view's region (``core.error.outside_error``
+    counts them) and for each marker of a view without detections, the least the objective
+    charges each of those."""
+    lost = np.count_nonzero(_lost(q, model.arrays, rig, whole_image(det, params, off)))
     empty = np.count_nonzero(~seen_views(det.start)) * len(model.markers)
-    return float(params.empty_view_penalty_px) * (lost + outside + empty)
+    return float(params.empty_view_penalty_px) * (lost + beyond + empty)
 
 
 def _lost(q: np.ndarray, kin, rig: Rig, image: _kernels.Image) -> np.ndarray:

@@ -423,12 +423,17 @@ def first_attempt(
         False, offsets, geometry, warm, ceilings, carried=carried, previous=previous,
     )
     status = image_status(best.error, counts, len(model.markers), params)
-    charged = hidden_charge(best.dofs, det, model, rig, params, view_offsets(offsets, rig))
+    charged, outside = _unshown(best.dofs, det, model, rig, params, offsets)
     return ImageFit(sample, best.dofs, best.error, best.objective, 1, status, its, counts,
-                    alternatives, charged=charged,
-                    outside=outside_error(best.dofs, det, model=model, rig=rig, offsets=offsets,
-                                          fusion_px=params.fusion_px,
-                                          empty_view_penalty_px=params.empty_view_penalty_px))
+                    alternatives, charged=charged, outside=outside)
+
+
+def _unshown(dofs: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
+             offsets: np.ndarray | None) -> tuple[float, tuple[int, float]]:
+    """``ImageFit.charged`` and ``ImageFit.outside`` of the posture ``dofs`` an image keeps."""
+    outside = outside_error(dofs, det, model=model, rig=rig, offsets=offsets, fusion_px=params.fusion_px,
+                            empty_view_penalty_px=params.empty_view_penalty_px)
+    return hidden_charge(dofs, det, model, rig, params, view_offsets(offsets, rig), outside[0]), outside
 
 
 def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None,
@@ -840,10 +845,7 @@ def reanalyse_image(
         best, charged, outside = previous.as_candidate(), previous.charged, previous.outside
         alternatives = previous.alternatives
     else:
-        charged = hidden_charge(best.dofs, detections, model, rig, params, view_offsets(offsets, rig))
-        outside = outside_error(best.dofs, detections, model=model, rig=rig, offsets=offsets,
-                                fusion_px=params.fusion_px,
-                                empty_view_penalty_px=params.empty_view_penalty_px)
+        charged, outside = _unshown(best.dofs, detections, model, rig, params, offsets)
         alternatives = tuple(sorted(
             alternatives + _still_alternatives(best, alternatives, previous, detections, model, params),
             key=lambda c: c.objective))
