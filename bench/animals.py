@@ -59,7 +59,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.imperfect import calibrated_rig, measured_model
 from bench.subjects import NAMES, Subject, camera_choice, load
-from core.detect import DetectorParams, detect, marker_diameter
+from core.detect import DetectorParams, detect, marker_diameter, restored_at_edges
 from core.error import Detections, fusion_distance
 from core.fit import FitParams, ImageFit, Status
 from core.histogram import Histograms
@@ -144,7 +144,10 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
         t0 = time.perf_counter()
         detections.append(detect(list(image), rig=subject.rig, params=detector))
         seconds += time.perf_counter() - t0
-    return Rendered(truth, detections, seconds, hidden)
+    t0 = time.perf_counter()  # blobs cut by a view's edge restored, as `mocap fit`'s source does
+    diameter = marker_diameter(detections[:50]) or 0.0
+    detections = [restored_at_edges(d, subject.rig, diameter) for d in detections]
+    return Rendered(truth, detections, seconds + time.perf_counter() - t0, hidden)
 
 
 def glint_pixels(subject: Subject, truth: np.ndarray, per_view: int, marker_px: float,

@@ -38,7 +38,7 @@ from core.video import MAX_FRAME_PIXELS
 
 __all__ = [
     "CHANNELS", "DetectorParams", "auto_threshold", "detect", "detect_views", "marker_diameter",
-    "marker_mask", "threshold_level", "view_images",
+    "marker_mask", "restored_at_edges", "threshold_level", "view_images",
 ]
 
 # OpenCV's threads per process, set when this module is imported. One: the filters run on
@@ -58,6 +58,7 @@ _KERNEL3 = np.ones((3, 3), dtype=np.uint8)
 # labelling as 64-bit integers. Markers are a few pixels across; these are far beyond.
 MAX_MORPHOLOGY_ITERATIONS = 20
 MAX_BLUR = 99
+_BISECTIONS = 31  # halvings of [-1, 1] that place a cut disc's centre to 1e-9 of its radius
 
 
 @dataclass(frozen=True)
@@ -184,6 +185,57 @@ def marker_diameter(images: Iterable[Detections]) -> float | None:
     if not areas:
         return None
     return 2.0 * float(np.sqrt(np.median(np.concatenate(areas)) / np.pi))
+
+
+def restored_at_edges(det: Detections, rig: Rig, diameter_px: float) -> Detections:
+    """``det`` with each blob that its view's edge cuts moved to the centre of the marker's
+    disc (diameter ``diameter_px``) it is a part of.
+
+    A marker whose disc crosses the edge of its view's region (``Rig.regions``: its roi,
+    else its frame) shows only the part inside, and that part's centroid lies inside the
+    disc's centre: by 0.42 of the radius where the centre is on the edge, by up to the
+    radius where a sliver shows. Eq. 5 charged the true posture that bias, and a wrong
+    posture that put the marker deeper inside scored lower. Across the edge the centroid's
+    depth ``g`` from it gives the centre's depth ``d`` exactly for a disc
+    (:func:`_disc_centre_depth`); along the edge the centroid is unbiased.
+
+    A whole disc's centroid lies at least a radius from every edge, so a blob whose centroid
+    lies nearer is a cut disc, or a blob smaller than a marker (moved at most 0.42 radii
+    outward). Blobs that may be merged markers (``Detections.kernel_points``) are left
+    where they are, as is every blob where ``diameter_px`` is 0 (no marker size known)
+    and wherever the region has no edge (a frame of unknown size).
+    """
+    radius = 0.5 * diameter_px
+    if radius <= 0 or not len(det.points):
+        return det
+    regions = rig.regions[np.repeat(np.arange(det.n_views), det.counts)]  # (N, 4)
+    before, after = det.points - regions[:, :2], regions[:, 2:] - det.points  # (N, 2) depths
+    depth = np.minimum(before, after)
+    cut = (depth >= 0) & (depth < radius) & (det.kernel_points[:, 2:] == 0)
+    if not cut.any():
+        return det
+    outward = np.where(after < before, 1.0, -1.0)
+    shift = depth - radius * _disc_centre_depth(np.clip(depth / radius, 0.0, 1.0))
+    points = det.points + np.where(cut, outward * shift, 0.0)
+    return Detections(points, det.start, det.areas)
+
+
+def _disc_centre_depth(seen: np.ndarray) -> np.ndarray:
+    """The depth inside an edge of a unit disc's centre (in [-1, 1]; negative: beyond it)
+    whose part inside has its centroid at depth ``seen`` (in [0, 1]), elementwise.
+
+    The part of a unit disc at depth ``t`` inside the edge has area
+    ``A = t sqrt(1 - t^2) + asin(t) + pi / 2`` and its centroid lies ``(2/3) (1 - t^2)^1.5 / A``
+    deeper than the centre; that depth grows with ``t`` from 0 (t = -1) to 1 (t = 1), and is
+    inverted by bisection to 1e-9.
+    """
+    low, high = np.full(seen.shape, -1.0), np.full(seen.shape, 1.0)
+    for _ in range(_BISECTIONS):
+        t = 0.5 * (low + high)
+        chord = np.sqrt(1.0 - t * t)
+        deeper = t + (2.0 / 3.0) * chord**3 / (t * chord + np.arcsin(t) + 0.5 * np.pi) > seen
+        high, low = np.where(deeper, t, high), np.where(deeper, low, t)
+    return 0.5 * (low + high)
 
 
 def view_image(frames: Sequence[np.ndarray], rig: Rig, index: int, channel: str) -> np.ndarray:

@@ -19,7 +19,7 @@ SA's schedule); its own defaults are the paper's plain Eq. 5, not what ``mocap f
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from core.anneal import AnnealParams
@@ -128,6 +128,8 @@ def build_fit(options: FitOptions, model: KinematicModel, rig: Rig, videos: Sequ
     marker_diameter_px 'auto' is estimated from the detections of the first images
     (``core.pipeline.estimate_marker_diameter``; 0, the plain Eq. 5, if none has any); the
     estimate is deterministic, so every process building the same fit gets the same one.
+    The fit's source restores the blobs its views' edges cut to markers of that diameter
+    (``VideoSource.marker_px``).
     start : the starting histograms; None: uniform, worth ``options.prior_weight`` counts.
     """
     if len(videos) != rig.n_videos:
@@ -138,6 +140,7 @@ def build_fit(options: FitOptions, model: KinematicModel, rig: Rig, videos: Sequ
     diameter = options.marker_diameter_px
     if diameter == "auto":
         diameter = estimate_marker_diameter(source) or 0.0
+    source = replace(source, marker_px=float(diameter))
     job = FitJob(source, model, options.fit_params(float(diameter)), options.seed, options.chunk_size, root)
     return Fit(job, start if start is not None else options.uniform_prior(model))
 

@@ -34,7 +34,7 @@ from typing import Any, overload
 
 import numpy as np
 
-from core.detect import DetectorParams, detect, marker_diameter
+from core.detect import DetectorParams, detect, marker_diameter, restored_at_edges
 from core.error import Detections
 from core.fields import detect_fields, field_parities, field_rig
 from core.fit import FitParams, ImageFit, Status
@@ -60,6 +60,8 @@ class VideoSource(Sequence[Detections]):
 
     videos : one file per camera, in the rig's ``video`` index order.
     deinterlace : every frame gives two images, its fields in ``field_order`` (``core.fields``).
+    marker_px : the markers' diameter in pixels: a blob a view's edge cuts is moved to its
+        marker's centre (``core.detect.restored_at_edges``); 0: blobs as detected.
     """
 
     videos: tuple[Path, ...]
@@ -67,6 +69,7 @@ class VideoSource(Sequence[Detections]):
     detector: DetectorParams = field(default_factory=DetectorParams)
     deinterlace: bool = False
     field_order: str = "even-first"
+    marker_px: float = 0.0
 
     def __post_init__(self) -> None:
         field_parities(self.field_order)
@@ -133,7 +136,7 @@ class VideoSource(Sequence[Detections]):
                 if self.deinterlace
                 else (detect(frames, rig=self.rig, params=self.detector),)
             )
-            yield frames, images
+            yield frames, tuple(restored_at_edges(det, self.framed_rig, self.marker_px) for det in images)
 
     def _range(self, start: int, stop: int) -> Iterator[Detections]:
         """Detections of images [start, stop), decoding frames in one pass."""

@@ -1,4 +1,5 @@
-"""Markers that leave a view's region (its roi or its frame): the fit charges them as unseen.
+"""Markers that leave a view's region (its roi or its frame): the fit charges them as unseen,
+and a blob the edge cuts is moved to its marker's centre.
 
 The scene: a root translating in the image plane with four markers in two columns 30 px
 apart, seen through a roi 100 px wide. At tx 85 the right column lies beyond the roi; two
@@ -17,10 +18,13 @@ from scenes import dots_model, pixel_rig
 from tree_subjects import angle_errors, insect, movement, ring_rig
 
 from core.ambiguity import plain_error
-from core.error import Detections, outside_error, view_error
+from core.detect import _disc_centre_depth, detect, restored_at_edges
+from core.error import FUSION_DIAMETERS, Detections, fusion_distance, outside_error, view_error
 from core.fit import FitParams, ImageFit, Status, needs_reanalysis
 from core.histogram import Histograms
+from core.options import FitOptions, build_fit
 from core.pipeline import VideoSource
+from core.render import render_frames
 from core.rig import Rig, RigError
 from core.sequence import fit_sequence
 
@@ -28,6 +32,7 @@ MARKERS = ((0.0, 0.0), (0.0, 10.0), (30.0, 0.0), (30.0, 10.0))
 TRUTH = np.array([85.0, 50.0])
 BLOBS = [[(85.0, 50.0), (85.0, 60.0), (70.0, 50.0), (70.0, 60.0)]]  # two markers, two other blobs
 ROI = [0, 0, 100, 96]
+FUSION_PX = fusion_distance(5.0)  # 5 px markers
 
 
 def _scene(roi: list[int] | None) -> tuple:
@@ -112,3 +117,70 @@ def test_an_image_over_the_threshold_by_markers_outside_alone_is_not_reanalysed(
     assert ImageFit.from_record(fit.to_record()).outside == (2, 60.0)
     legacy = {k: v for k, v in fit.to_record().items() if k != "outside"}
     assert ImageFit.from_record(legacy).outside == (0, 0.0)
+
+
+def _cut_scene(tx: float) -> tuple:
+    """The right column's markers ``tx + 30 - 100`` px from the roi's edge (negative:
+    inside), the left column's 30 px further in; rendered with 5 px discs, detected."""
+    model, rig = dots_model(*MARKERS), pixel_rig(ROI).framed([(128, 96)])
+    truth = np.array([[tx, 40.0]])
+    frame = next(render_frames(model, rig, truth, rng=np.random.default_rng(0), frame_size=(128, 96),
+                               marker_diameter_px=5.0))
+    return model, rig, truth[0], detect([frame], rig=rig)
+
+
+@pytest.mark.parametrize("depth", [1.4, 0.0, -1.5])
+def test_a_blob_the_edge_cuts_is_moved_to_its_markers_centre(depth):
+    """A 5 px disc whose centre lies 1.4 px inside the roi's edge, on it, or 1.5 px beyond
+    (a sliver shows): the part inside has its centroid 0.4-2.0 px inside the centre, and
+    Eq. 5 charged the true posture that much. Restored, each centre is within 0.25 px;
+    the whole discs of the left column do not move."""
+    model, rig, truth, det = _cut_scene(70.0 - depth)
+    restored = restored_at_edges(det, rig, 5.0)
+    projected = rig.project(model.marker_positions(truth))[0]  # left column first, as found
+    order = np.lexsort((det.points[:, 1], np.round(det.points[:, 0] / 10)))
+    found, moved = det.points[order], restored.points[order]
+    assert len(det.points) == 4
+    assert np.abs(found[2:, 0] - projected[2:, 0]).min() > 0.3  # cut: biased inwards
+    assert np.abs(moved - projected).max() < 0.25
+    assert np.array_equal(moved[:2], found[:2])  # whole discs
+    error = [view_error(truth, d, model=model, rig=rig, fusion_px=FUSION_PX) for d in (det, restored)]
+    assert error[1] < 0.5 * error[0]
+
+
+def test_blobs_are_left_as_detected_without_a_marker_size_an_edge_or_where_they_may_be_merged():
+    _, rig, _, det = _cut_scene(70.0)
+    assert restored_at_edges(det, rig, 0.0) is det
+    assert restored_at_edges(det, pixel_rig(None), 5.0) is det  # a frame of unknown size
+    big = np.where(det.points[:, 0] > 90, 40.0, 20.0)  # the cut blobs 4/3 of the median area
+    merged = Detections(det.points, det.start, big)
+    assert np.array_equal(restored_at_edges(merged, rig, 5.0).points, det.points)
+    unknown = Detections(det.points, det.start, None)  # made by hand: any blob may be merged markers
+    assert np.array_equal(restored_at_edges(unknown, rig, 5.0).points, det.points)
+
+
+def test_a_cut_discs_centre_is_found_from_its_parts_centroid():
+    t = np.linspace(-0.999, 1.0, 41)
+    area = t * np.sqrt(1 - t * t) + np.arcsin(t) + 0.5 * np.pi
+    seen = t + (2.0 / 3.0) * (1 - t * t) ** 1.5 / area
+    assert np.abs(_disc_centre_depth(seen) - t).max() < 1e-8
+    assert seen[20] == pytest.approx(4 / (3 * np.pi), abs=1e-3)  # centre on the edge: 4r / 3π
+
+
+def test_the_fits_source_restores_cut_blobs_to_the_estimated_marker_size(tmp_path):
+    model, rig, truth, _ = _cut_scene(70.0)
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 25.0, (128, 96), False)
+    for frame in render_frames(model, rig, np.tile(truth, (3, 1)), rng=np.random.default_rng(0),
+                               frame_size=(128, 96), marker_diameter_px=5.0):
+        writer.write(frame)
+    writer.release()
+    auto = build_fit(FitOptions(), model, pixel_rig(ROI), [path]).job
+    assert auto.source.marker_px > 0
+    assert auto.source.marker_px == pytest.approx(auto.params.fusion_px / FUSION_DIAMETERS)
+    source = build_fit(FitOptions(marker_diameter_px=5.0), model, pixel_rig(ROI), [path]).job.source
+    raw = replace(source, marker_px=0.0)[0]
+    restored = source[0]
+    assert np.abs(restored.points[:, 0] - raw.points[:, 0]).max() > 0.5
+    error = [view_error(truth, d, model=model, rig=rig, fusion_px=FUSION_PX) for d in (raw, restored)]
+    assert error[1] < 0.5 * error[0]
