@@ -3,6 +3,7 @@
     python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|freefly|rat|mouse|spider
         [--images N] [--soft-tissue] [--cameras 6|4|3|2] [--occlusion F [--everywhere]] [--glints N]
         [--off DEG] [--fps HZ] [--seed S] [--huber PX] [--model-error F] [--rig-error PX]
+        [--beyond F]
 
 Renders and fits a subject as ``bench/animals.py`` does (same seed, same images), then
 refines the *true* posture on every image (``core.treefit.refine_whole``, as a fit's last
@@ -42,7 +43,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.animals import WITHIN_DEG, as_measured, fit, fit_params, render_and_detect
+from bench.animals import WITHIN_DEG, as_measured, cut_at_edge, fit, fit_params, render_and_detect
 from bench.subjects import NAMES, camera_choice, load
 from core.ambiguity import angle_gaps
 from core.error import view_error, view_offsets
@@ -100,10 +101,15 @@ def main() -> None:
                         help="fit with segment lengths and marker placements off by N(0, F)")
     parser.add_argument("--rig-error", type=float, default=0.0, metavar="PX",
                         help="fit with every view's image shifted by PX pixels")
+    parser.add_argument("--beyond", type=float, default=0.0, metavar="F",
+                        help="the share of each view's marker projections beyond its frame's edge")
     args = parser.parse_args()
     subject = load(args.subject, camera_choice(args.subject, args.cameras))
     if args.fps:
         subject = replace(subject, fps=args.fps)
+    if args.beyond:
+        subject = cut_at_edge(subject, subject.trajectory(args.images, np.random.default_rng(args.seed)),
+                              args.beyond)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue,
                              ghosts=0 if args.soft_tissue else 2,
                              rng=np.random.default_rng(args.seed), occlusion=args.occlusion,
