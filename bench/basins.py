@@ -136,7 +136,8 @@ def main() -> None:
             reasons[why_off(nearest[-1].max(), choosable, min(c.objective for c in candidates),
                             objective, floor)] += 1
         if fit_.status is Status.OK and gaps.max() > args.off:
-            tolerance = alternative_tolerance(params, det, model, fit_.error, len(model.dofs))
+            seen = fit_.error - fit_.outside[1]  # without the projections beyond the edges, as core.fit
+            tolerance = alternative_tolerance(params, det, model, seen, len(model.dofs))
             blobs = [view_error(q_, det, model=model, rig=rig, fusion_px=params.fusion_px,
                                 empty_view_penalty_px=params.empty_view_penalty_px)
                      for q_ in (fit_.dofs, truth)]

@@ -473,7 +473,8 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             det, model, rig, model.tree, space, params, stream, view_offsets(offsets, rig), keep, typical)
     fit = Candidate(dofs, error, objective)
     others = []
-    tolerance = alternative_tolerance(params, det, model, error, len(model.dofs))
+    tolerance = alternative_tolerance(params, det, model, _seen_error(fit, det, model, rig, params, offsets),
+                                      len(model.dofs))
     if tolerance > 0:
         flips = flip_alternatives if model.tree is None else tree_flip_alternatives
         others = flips(
@@ -490,6 +491,20 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
         witness = _undetermined_witness(ranked[0], det, model, rig, params, offsets)
         ranked += [witness] if witness is not None else []
     return ranked[0], tuple(ranked[1:]), its, settled
+
+
+def _seen_error(c: Candidate, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
+                offsets: np.ndarray | None) -> float:
+    """Candidate ``c``'s plain Eq. 5 error (px) without what its projections beyond their
+    view's edge add (``core.error.outside_error``): the residual that widens the tolerance of
+    its alternatives. Eq. 5 charges such a projection its distance to a blob inside the
+    frame, often hundreds of pixels that tell nothing of how closely the image fixes the
+    posture: read as residual, they widened the tolerance until postures 20-30 px above the
+    fit were its alternatives, and the choice by continuity took one 45° off
+    (docs/BENCH_SUBJECTS.md, stop 53)."""
+    beyond = outside_error(c.dofs, det, model=model, rig=rig, offsets=offsets, fusion_px=params.fusion_px,
+                           empty_view_penalty_px=params.empty_view_penalty_px)
+    return c.error - beyond[1]
 
 
 def _warm_then_cold(det: Detections, model: KinematicModel, rig: Rig, space: SearchSpace,
@@ -750,10 +765,12 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
 
 
 def _still_alternatives(best: Candidate, alternatives: tuple[Candidate, ...], previous: ImageFit,
-                        det: Detections, model: KinematicModel, params: FitParams) -> tuple[Candidate, ...]:
+                        det: Detections, model: KinematicModel, params: FitParams,
+                        seen_error: float) -> tuple[Candidate, ...]:
     """The kept posture of a re-analysed image, and its alternatives, where a re-analysis
     found a lower minimum ``best``, distinct from it and from its ``alternatives``: those
-    that are minima while still within :func:`alternative_tolerance` of it, those reported
+    that are minima while still within :func:`alternative_tolerance` of it (read from
+    ``seen_error``, its error without its projections beyond the edges, :func:`_seen_error`), those reported
     only (``Candidate.minimum`` False) where ``best`` is the kept posture's own minimum
     found again.
 
@@ -765,7 +782,7 @@ def _still_alternatives(best: Candidate, alternatives: tuple[Candidate, ...], pr
     was found beside: an attempt ending a hair lower in that same, wrong, minimum must not
     leave the image `ok` with no alternative.
     """
-    tolerance = alternative_tolerance(params, det, model, best.error, len(model.dofs))
+    tolerance = alternative_tolerance(params, det, model, seen_error, len(model.dofs))
     rot = model.rotational
     again = not distinct(best.dofs, previous.dofs, rot)
     kept: list[Candidate] = []
@@ -846,9 +863,9 @@ def reanalyse_image(
         alternatives = previous.alternatives
     else:
         charged, outside = _unshown(best.dofs, detections, model, rig, params, offsets)
-        alternatives = tuple(sorted(
-            alternatives + _still_alternatives(best, alternatives, previous, detections, model, params),
-            key=lambda c: c.objective))
+        kept = _still_alternatives(best, alternatives, previous, detections, model, params,
+                                   best.error - outside[1])
+        alternatives = tuple(sorted(alternatives + kept, key=lambda c: c.objective))
     status = image_status(best.error, previous.detections, len(model.markers), params)
     return ImageFit(previous.sample, best.dofs, best.error, best.objective, attempt, status,
                     previous.iterations + its, previous.detections, alternatives, settled, charged,
