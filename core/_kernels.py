@@ -138,7 +138,7 @@ class SAParams(NamedTuple):
     c_tau : float, start temperature and step factor, their cooling factors.  eps : float, ε
     (px).  polish_every, patience, draws : int (:func:`anneal`).  huber_c : float, the
     refinement's least-squares radius (px) where it starts (:func:`refine`).
-    refine_result : bool, restarts : int (:func:`fit_attempt`).
+    refine_result : bool, restarts : int, search_edges : bool (:func:`fit_attempt`).
     """
 
     sigma: np.ndarray
@@ -158,6 +158,7 @@ class SAParams(NamedTuple):
     huber_c: float
     refine_result: bool
     restarts: int
+    search_edges: bool
 
 
 class Workspace(NamedTuple):
@@ -1603,11 +1604,11 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state, runs)
     distance to some other blob would otherwise lead the search astray; runs
     are compared, and the objective returned, in that objective (the same as the
     first run's wherever every marker is within ``penalty``). SA itself reads the views
-    without their regions (:func:`_unbounded`): a marker out of its view's frame is charged
-    its nearest detection, as in the paper's Eq. 5, so that SA is never drawn out of the
-    frames, where a whole limb would cost the penalty a marker and no blob would steer it
-    back; the refinement and the comparisons after it charge such a marker as unseen
-    (:func:`charged_unseen`). With ``refine_result``,
+    without their regions (:func:`_unbounded`) unless ``search_edges``: a marker out of its
+    view's frame is charged its nearest detection, as in the paper's Eq. 5, so that SA is
+    never drawn out of the frames, where a whole limb would cost the penalty a marker and
+    no blob would steer it back; the refinement and the comparisons after it charge such a
+    marker as unseen (:func:`charged_unseen`). With ``refine_result``,
     each run's posture is refined
     and kept if that does not raise the objective. Returns (posture, plain Eq. 5
     error, objective, SA iterations, rows of ``runs`` written); the objective is Eq. 5
@@ -1615,7 +1616,7 @@ def fit_attempt(start_q, draw_start, bounds, kin, views, image, sa, state, runs)
     """
     penalty, fuse_px, unseen = image.penalty, image.fuse_px, image.unseen
     charged = _with(image, fuse_px, penalty, unseen)  # every view may lose a marker
-    searching = _unbounded(views)
+    searching = views if sa.search_edges else _unbounded(views)
     q0, best = start_q.copy(), start_q.copy()
     objective, iterations, written = np.inf, 0, 0
     for run in range(sa.restarts + 1):

@@ -171,11 +171,11 @@ def search_space(model: KinematicModel, histograms: Histograms) -> SearchSpace:
 
 
 def kernel_params(params: AnnealParams, sigma: np.ndarray, table: np.ndarray, *, eps: float,
-                  refine_result: bool, restarts: int) -> _kernels.SAParams:
+                  refine_result: bool, restarts: int, search_edges: bool = False) -> _kernels.SAParams:
     """``params`` as the kernels take them, for DOFs of step scales ``sigma`` (D,) and
     plausibility ``table`` (D, B) (:class:`SearchSpace`'s, or a part's rows of them); ``eps``
-    in pixels; ``refine_result`` and ``restarts`` as ``core.fit.FitParams``'s ``refine`` and
-    ``restarts``."""
+    in pixels; ``refine_result``, ``restarts`` and ``search_edges`` as ``core.fit.FitParams``'s
+    ``refine``, ``restarts`` and ``search_edges``."""
     p = params
     return _kernels.SAParams(
         sigma=np.ascontiguousarray(sigma, dtype=np.float64),
@@ -184,6 +184,7 @@ def kernel_params(params: AnnealParams, sigma: np.ndarray, table: np.ndarray, *,
         tau0=float(p.tau0), l0=float(p.l0), c_l=float(p.c_l), c_tau=float(p.c_tau), eps=float(eps),
         polish_every=int(p.polish_every), patience=int(p.patience), draws=int(p.draws),
         huber_c=float(p.huber_px), refine_result=bool(refine_result), restarts=int(restarts),
+        search_edges=bool(search_edges),
     )
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -124,6 +124,9 @@ class FitParams:
         median (and above where the search itself stops, ``core.treefit.search_floor``:
         ε, or the smallest of its parts' for a tree) is re-analysed as if over the threshold; 0: only
         the threshold (the paper).
+    search_edges : SA charges a marker beyond its view's edge as unseen, as every step after
+        it does (``core._kernels.fit_attempt``); False, SA reads plain Eq. 5 there. Set by
+        :func:`reanalyse_image` where the kept posture has projections beyond the edges.
     """
 
     anneal: AnnealParams = field(default_factory=AnnealParams)
@@ -136,6 +139,7 @@ class FitParams:
     alternative_tolerance_px: float = 0.5
     choose_by_continuity: bool = True
     outlier_factor: float = 3.0
+    search_edges: bool = False
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.error_threshold_px) and self.error_threshold_px > 0):
@@ -832,6 +836,13 @@ def reanalyse_image(
     that finds a lower minimum, or a posture more than :data:`~core.ambiguity.DISTINCT_DEG` away, leaves it
     unsettled: the search goes on, as the paper's re-analysis.
 
+    Where the kept posture has projections beyond their views' edges, SA reads the edges too
+    (``FitParams.search_edges``). A first attempt's SA reads plain Eq. 5 there, so that a
+    limb out of the frame is never lost off it; but it charges such a marker its distance to
+    a blob inside, and a spider's leg that had walked out of one of two cameras' frames
+    was pulled back in, 60-80° off and 40 px above the truth, in every attempt
+    (docs/BENCH_SUBJECTS.md, stop 53).
+
     A tree (``model.tree``) is re-analysed part by part given the kept posture
     (``core.treefit.refit_tree``, each part's SA stopping as low as its kept posture, and a
     part no worse than the ``typical`` image's by what its residual can tell apart not
@@ -848,8 +859,9 @@ def reanalyse_image(
     if not needs_reanalysis(previous, model, params, typical):
         return previous
     tree = model.tree is not None
+    searched = replace(params, search_edges=previous.outside[0] > 0)
     best, alternatives, its, settled = _attempt(
-        detections, model, rig, search_space(model, histograms), params,
+        detections, model, rig, search_space(model, histograms), searched,
         image_stream(seed, previous.sample, attempt), True, offsets, flip_geometry(model, rig),
         keep=previous.dofs if tree else None, typical=typical,
     )

@@ -132,7 +132,8 @@ def attempt_kernel(dofs: np.ndarray, kin, points: np.ndarray, start: np.ndarray,
     (N, 3) grouped by view at ``start`` (V + 1,); returns (dofs (d,), error, objective,
     iterations, each SA run's final posture (r, d), the first's first)."""
     sa = kernel_params(params.anneal, space.sigma[dofs], space.table[dofs], eps=eps,
-                       refine_result=params.refine, restarts=params.restarts)
+                       refine_result=params.refine, restarts=params.restarts,
+                       search_edges=params.search_edges)
     image = kernel_image(points, start, params, off)
     runs = np.empty((params.restarts + 1, len(dofs)))
     q, error, objective, iterations, written = _kernels.fit_attempt(

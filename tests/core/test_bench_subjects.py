@@ -361,3 +361,31 @@ def test_a_subject_cut_at_its_frames_edge_moves_as_before_with_that_share_beyond
         if was.roi is not None:
             assert view.roi[:2] == was.roi[:2] and view.roi[2] < was.roi[2] and view.roi[3] == was.roi[3]
         assert np.isfinite(cut.rig.regions[v]).all()
+
+
+def test_a_leg_out_of_one_of_two_frames_pulled_back_in_is_searched_again_reading_the_edges():
+    """The spider filmed by two cameras, each seeing the left of its frame (``--beyond
+    0.1``), image 0: the first attempt's SA reads plain Eq. 5, which charges the markers of
+    a hind leg beyond the edge their distance to blobs inside, and pulls the leg in, tens of
+    degrees off. Its re-analysis reads the edges (``FitParams.search_edges``) and finds the
+    truth's minimum, 40 px lower; reading plain Eq. 5 again, every attempt pulled it back in
+    (docs/BENCH_SUBJECTS.md, stop 53)."""
+    from bench.animals import angle_errors, cut_at_edge, fit_params, render_and_detect
+    from core.fit import first_attempt, flip_geometry, reanalyse_image
+    from core.histogram import Histograms
+
+    subject = load("spider", 2)
+    subject = cut_at_edge(subject, subject.trajectory(60, np.random.default_rng(0)), 0.1)
+    data = render_and_detect(subject, 1, soft=False, ghosts=2, rng=np.random.default_rng(0))
+    model, det, params = subject.model, data.detections[0], fit_params(data)[0]
+    prior = Histograms.uniform(model, prior_weight=100.0)
+    fit = first_attempt(det, 0, model=model, rig=subject.rig, histograms=prior, params=params, seed=0,
+                        geometry=flip_geometry(model, subject.rig))
+
+    def off(dofs: np.ndarray) -> float:
+        return float(np.abs(angle_errors(model, dofs[None], data.truth[:1])[0][model.rotational]).max())
+
+    assert off(fit.dofs) > 30.0 and fit.outside[0] > 0
+    for _ in range(2):
+        fit = reanalyse_image(det, fit, model=model, rig=subject.rig, histograms=prior, params=params, seed=0)
+    assert off(fit.dofs) < 1.0
