@@ -876,7 +876,7 @@ def reanalyse_image(
     else:
         charged, outside = _unshown(best.dofs, detections, model, rig, params, offsets)
         kept = _still_alternatives(best, alternatives, previous, detections, model, params,
-                                   best.error - outside[1])
+                                   _seen_error(best, detections, model, rig, params, offsets))
         alternatives = tuple(sorted(alternatives + kept, key=lambda c: c.objective))
     status = image_status(best.error, previous.detections, len(model.markers), params)
     return ImageFit(previous.sample, best.dofs, best.error, best.objective, attempt, status,
