@@ -203,7 +203,8 @@ def distinct(a: np.ndarray, b: np.ndarray, rotational: np.ndarray) -> bool:
     return bool(angle_gaps(a, b)[rotational].max(initial=0.0) > DISTINCT_DEG)
 
 
-def choose_candidates(candidates: Sequence[Sequence[Candidate]]) -> list[int]:
+def choose_candidates(candidates: Sequence[Sequence[Candidate]],
+                      beyond_px: Sequence[float] | None = None) -> list[int]:
     """Index of the chosen candidate of every image (step 2), by one Viterbi pass.
 
     ``candidates[t]``: image t's candidates, its fit first; an empty list (no
@@ -212,12 +213,19 @@ def choose_candidates(candidates: Sequence[Sequence[Candidate]]) -> list[int]:
     half the squared move from the previous image's choice in units of the
     sequence's typical per-image movement of each DOF (capped: a sequence may
     jump). Images with a single candidate keep it.
+
+    ``beyond_px[t]`` (px, optional): what image t's fit is charged for projections beyond
+    their views' edges, left out of the typical objective. A limb out of the frame costs
+    every image the same penalty, which tells no posture from another: read as misfit it
+    made the typical objective five times the images' residual, and a candidate 10 px
+    above the right one cost the choice less than the right one's move
+    (docs/BENCH_SUBJECTS.md, stop 53).
     """
     n = len(candidates)
     choice = [0] * n
     if all(len(c) <= 1 for c in candidates):
         return choice
-    error_scale, step = _scales(candidates)
+    error_scale, step = _scales(candidates, [0.0] * n if beyond_px is None else beyond_px)
     t = 0
     while t < n:
         end = t
@@ -229,9 +237,11 @@ def choose_candidates(candidates: Sequence[Sequence[Candidate]]) -> list[int]:
     return choice
 
 
-def _scales(candidates: Sequence[Sequence[Candidate]]) -> tuple[float, np.ndarray]:
-    """Typical objective of a fit, and typical per-image move of each DOF (closest pairs)."""
-    objectives = [c[0].objective for c in candidates if c]
+def _scales(candidates: Sequence[Sequence[Candidate]],
+            beyond_px: Sequence[float]) -> tuple[float, np.ndarray]:
+    """Typical objective of a fit without its charge ``beyond_px`` (one per image), and
+    typical per-image move of each DOF (closest pairs)."""
+    objectives = [c[0].objective - b for c, b in zip(candidates, beyond_px, strict=True) if c]
     error_scale = max(_MIN_ERROR_SCALE_PX, float(np.median(objectives)))
     moves = []
     for prev, cur in pairwise(candidates):

@@ -92,6 +92,17 @@ def test_a_much_better_objective_wins_over_continuity():
     assert choose_candidates(run)[2] == 1
 
 
+def test_a_charge_for_projections_beyond_the_edges_does_not_dilute_a_much_better_objective():
+    """Every image pays 25 px for markers beyond a frame's edge, its fit 1 px more. At
+    image 2 the candidate that stays put scores 10 px worse than one that jumps: read
+    against a typical objective of 26 px, the move outweighs it; read against the 1 px the
+    images do not explain, the objective wins, as it does without the charge."""
+    run = [_cands([0.0], objective=26.0), _cands([0.5], objective=26.0),
+           [Candidate(np.array([1.0]), 36.0, 36.0), Candidate(np.array([30.0]), 26.0, 26.0)]]
+    assert choose_candidates(run)[2] == 0
+    assert choose_candidates(run, [25.0, 25.0, 25.0])[2] == 1
+
+
 def test_an_image_without_detections_breaks_the_chain():
     run = [_cands([10.0]), [], _cands([-11.0], [11.0]), _cands([-12.0], [12.0])]
     assert choose_candidates(run) == [0, 0, 0, 0]  # after the break nothing pins the branch
