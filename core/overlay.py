@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from core.detect import DetectorParams
-from core.error import Detections, marker_errors
+from core.error import FUSION_DIAMETERS, Detections, marker_errors
 from core.fit import Status
 from core.model import KinematicModel
 from core.pipeline import FitJob, VideoSource, plan
@@ -219,21 +219,24 @@ def overlay_job(job: FitJob, results: Path, *, worst: int = 12) -> dict[str, Any
 def job_from_report(report: dict[str, Any], videos: Sequence[Path], *, model: KinematicModel,
                     rig: Rig) -> FitJob:
     """The job a ``report.json`` (``core.pipeline.write_outputs``) describes, as far as drawing
-    needs it: the videos, de-interlacing, detector and root tracking; not the fit settings."""
+    needs it: the videos, de-interlacing, detector, root tracking and the marker diameter
+    its source restored cut blobs with (``VideoSource.marker_px``, from the fit's fusion
+    distance: the points drawn are those the fit compared with); not the other fit settings."""
     try:
         settings = report["settings"]
+        marker_px = float(settings["fit"].get("fusion_px", 0.0)) / FUSION_DIAMETERS
         detector = DetectorParams(**settings["detector"])
         deinterlace = bool(report["deinterlaced"])
         field_order = settings["field_order"] or "even-first"
         root = settings["root_tracking"]
-    except (KeyError, TypeError) as exc:
+    except (KeyError, TypeError, AttributeError) as exc:
         raise ValueError(f"report.json lacks the setting {exc} (not written by mocap fit?)") from None
     if root is not None:
         start = None if root["start"] is None else tuple(tuple(p) for p in root["start"])
         root = RootTracking(root["marker"], start, root["max_jump_px"])
     if len(videos) != rig.n_videos:
         raise ValueError(f"the rig expects {rig.n_videos} video(s), got {len(videos)}")
-    source = VideoSource(tuple(videos), rig, detector, deinterlace, field_order)
+    source = VideoSource(tuple(videos), rig, detector, deinterlace, field_order, marker_px)
     return FitJob(source, model, root=root)
 
 

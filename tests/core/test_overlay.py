@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from core.error import Detections, marker_errors, view_error
+from core.error import Detections, fusion_distance, marker_errors, view_error
 from core.fit import Status
 from core.model import KinematicModel
 from core.overlay import (
@@ -18,6 +20,7 @@ from core.overlay import (
     draw,
     header,
     image_marks,
+    job_from_report,
     select_images,
 )
 from core.results import AnglesTable
@@ -123,3 +126,19 @@ def test_selection_is_the_worst_errors_then_every_ambiguous_image():
     assert select_images(t, 2) == [1, 3, 4]
     assert select_images(t, 0) == [4]
     assert select_images(t, 10) == [1, 3, 4, 0]
+
+
+def test_an_overlay_from_a_report_reads_the_blobs_the_fit_read():
+    """``mocap overlay`` on a finished fit: its source restores the blobs a view's edge cuts
+    with the marker diameter the fit used (its fusion distance's), so the detections drawn
+    are the points the fit compared with; a fit without fusion restores none."""
+    settings = {"detector": {}, "field_order": None, "root_tracking": None,
+                "fit": {"fusion_px": fusion_distance(5.0)}}
+    report = {"deinterlaced": False, "settings": settings}
+    job = job_from_report(report, [Path("clip.avi")], model=STICK, rig=PIXELS)
+    assert job.source.marker_px == pytest.approx(5.0)
+    report["settings"]["fit"] = {"fusion_px": 0.0}
+    assert job_from_report(report, [Path("clip.avi")], model=STICK, rig=PIXELS).source.marker_px == 0.0
+    report["settings"]["fit"] = None
+    with pytest.raises(ValueError, match=r"report\.json lacks"):
+        job_from_report(report, [Path("clip.avi")], model=STICK, rig=PIXELS)
