@@ -435,9 +435,16 @@ def first_attempt(
 def _unshown(dofs: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
              offsets: np.ndarray | None) -> tuple[float, tuple[int, float]]:
     """``ImageFit.charged`` and ``ImageFit.outside`` of the posture ``dofs`` an image keeps."""
-    outside = outside_error(dofs, det, model=model, rig=rig, offsets=offsets, fusion_px=params.fusion_px,
-                            empty_view_penalty_px=params.empty_view_penalty_px)
+    outside = _beyond_edges(dofs, det, model, rig, params, offsets)
     return hidden_charge(dofs, det, model, rig, params, view_offsets(offsets, rig), outside[0]), outside
+
+
+def _beyond_edges(dofs: np.ndarray, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
+                  offsets: np.ndarray | None) -> tuple[int, float]:
+    """``core.error.outside_error`` of posture ``dofs`` as the objective of ``params`` reads it
+    (its fusion distance and penalty): ``ImageFit.outside``."""
+    return outside_error(dofs, det, model=model, rig=rig, offsets=offsets, fusion_px=params.fusion_px,
+                         empty_view_penalty_px=params.empty_view_penalty_px)
 
 
 def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geometry, warm=None,
@@ -477,8 +484,8 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
             det, model, rig, model.tree, space, params, stream, view_offsets(offsets, rig), keep, typical)
     fit = Candidate(dofs, error, objective)
     others = []
-    tolerance = alternative_tolerance(params, det, model, _seen_error(fit, det, model, rig, params, offsets),
-                                      len(model.dofs))
+    seen = _seen_error(error, _beyond_edges(dofs, det, model, rig, params, offsets))
+    tolerance = alternative_tolerance(params, det, model, seen, len(model.dofs))
     if tolerance > 0:
         flips = flip_alternatives if model.tree is None else tree_flip_alternatives
         others = flips(
@@ -497,18 +504,15 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
     return ranked[0], tuple(ranked[1:]), its, settled
 
 
-def _seen_error(c: Candidate, det: Detections, model: KinematicModel, rig: Rig, params: FitParams,
-                offsets: np.ndarray | None) -> float:
-    """Candidate ``c``'s plain Eq. 5 error (px) without what its projections beyond their
-    view's edge add (``core.error.outside_error``): the residual that widens the tolerance of
-    its alternatives. Eq. 5 charges such a projection its distance to a blob inside the
+def _seen_error(error: float, outside: tuple[int, float]) -> float:
+    """A posture's plain Eq. 5 ``error`` (px) without what its projections beyond their
+    view's edge add (``outside``, :func:`_beyond_edges`): the residual that widens the
+    tolerance of its alternatives. Eq. 5 charges such a projection its distance to a blob inside the
     frame, often hundreds of pixels that tell nothing of how closely the image fixes the
     posture: read as residual, they widened the tolerance until postures 20-30 px above the
     fit were its alternatives, and the choice by continuity took one 45° off
     (docs/BENCH_SUBJECTS.md, stop 53)."""
-    beyond = outside_error(c.dofs, det, model=model, rig=rig, offsets=offsets, fusion_px=params.fusion_px,
-                           empty_view_penalty_px=params.empty_view_penalty_px)
-    return c.error - beyond[1]
+    return error - outside[1]
 
 
 def _warm_then_cold(det: Detections, model: KinematicModel, rig: Rig, space: SearchSpace,
@@ -876,7 +880,7 @@ def reanalyse_image(
     else:
         charged, outside = _unshown(best.dofs, detections, model, rig, params, offsets)
         kept = _still_alternatives(best, alternatives, previous, detections, model, params,
-                                   _seen_error(best, detections, model, rig, params, offsets))
+                                   _seen_error(best.error, outside))
         alternatives = tuple(sorted(alternatives + kept, key=lambda c: c.objective))
     status = image_status(best.error, previous.detections, len(model.markers), params)
     return ImageFit(previous.sample, best.dofs, best.error, best.objective, attempt, status,
