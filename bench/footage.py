@@ -33,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.animals import FAR_OFF_DEG, angle_errors, far_off_unflagged  # noqa: E402
+from core.error import fused_marker_diameter  # noqa: E402
 from core.examples import LOCUST  # noqa: E402
 from core.model import KinematicModel  # noqa: E402
 from core.rig import Rig  # noqa: E402
@@ -184,7 +185,7 @@ def evaluate(truth_csv: Path, fitted: Path, model: KinematicModel) -> str:
             f"{100 * np.mean(worst <= 5):5.1f} %  > 10° {np.sum(far):3d} "
             f"(ok {np.sum(far & ok)}, no alternative {len(unflagged)})"
             f"  ok/over/none {counts:9s} ambiguous {report['ambiguous']:3d}  "
-            f"diameter {report['settings']['fit']['fusion_px'] / 2:.2f} px")
+            f"diameter {fused_marker_diameter(report['settings']['fit']['fusion_px']):.2f} px")
 
 
 def main() -> None:

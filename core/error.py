@@ -42,8 +42,8 @@ from core._kernels import FUSION_DIAMETERS
 from core.model import KinematicModel
 from core.rig import Rig
 
-__all__ = ["DEFAULT_EMPTY_VIEW_PENALTY_PX", "Detections", "fusion_distance", "marker_errors",
-           "nearest_detection", "outside_error", "view_error"]
+__all__ = ["DEFAULT_EMPTY_VIEW_PENALTY_PX", "Detections", "fused_marker_diameter", "fusion_distance",
+           "marker_errors", "nearest_detection", "outside_error", "view_error"]
 
 DEFAULT_EMPTY_VIEW_PENALTY_PX = 5.0
 
@@ -55,6 +55,16 @@ def fusion_distance(marker_diameter_px: float) -> float:
     8.0
     """
     return FUSION_DIAMETERS * float(marker_diameter_px)
+
+
+def fused_marker_diameter(fusion_px: float) -> float:
+    """The markers' diameter in pixels whose ``fusion_px`` this is (:func:`fusion_distance`
+    inverted): what a fit's settings, which keep the fusion distance, say of its markers.
+
+    >>> fused_marker_diameter(8.0)
+    4.0
+    """
+    return float(fusion_px) / FUSION_DIAMETERS
 
 
 # A detection this many times the image's median area is large enough to be markers the

@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from core.detect import DetectorParams
-from core.error import FUSION_DIAMETERS, Detections, marker_errors
+from core.error import Detections, fused_marker_diameter, marker_errors
 from core.fit import Status
 from core.model import KinematicModel
 from core.pipeline import FitJob, VideoSource, plan
@@ -224,7 +224,7 @@ def job_from_report(report: dict[str, Any], videos: Sequence[Path], *, model: Ki
     distance: the points drawn are those the fit compared with); not the other fit settings."""
     try:
         settings = report["settings"]
-        marker_px = float(settings["fit"].get("fusion_px", 0.0)) / FUSION_DIAMETERS
+        marker_px = fused_marker_diameter(settings["fit"].get("fusion_px", 0.0))
         detector = DetectorParams(**settings["detector"])
         deinterlace = bool(report["deinterlaced"])
         field_order = settings["field_order"] or "even-first"

@@ -25,7 +25,7 @@ from core import _kernels
 from core.ambiguity import Candidate, angle_gaps, plain_error
 from core.ceilings import MAX_LOST_SHARE
 from core.claims import FUSED_PX
-from core.error import FUSION_DIAMETERS, Detections, marker_errors, nearest_detection, view_offsets
+from core.error import Detections, fused_marker_diameter, marker_errors, nearest_detection, view_offsets
 from core.model import KinematicModel
 from core.part_objective import world_frames
 from core.rig import Rig
@@ -222,9 +222,9 @@ def crossed_markers(projected: np.ndarray, detections: Detections, fusion_px: fl
                     rigid: np.ndarray) -> np.ndarray:
     """(M,) bool: the markers at one point with a marker on another joint (``rigid`` (M, M)
     bool, :func:`rigid_markers`, marks the pairs on one joint): on one blob with it, less
-    than half a marker's diameter away (``fusion_px`` / ``core.error.FUSION_DIAMETERS`` is
-    the diameter), in every view with blobs, two or more. Two real markers cannot lie that
-    close in two views (each is a marker's diameter across); the images cannot tell one
+    than half a marker's diameter away (``core.error.fused_marker_diameter``), in every view
+    with blobs, two or more. Two real markers cannot lie that close in two views (each is a
+    marker's diameter across); the images cannot tell one
     marker there from two, so they place neither segment's DOFs that only it places.
 
     Why: a rat whose right ankle and toe no camera saw was fitted with its right leg folded
@@ -241,7 +241,7 @@ def crossed_markers(projected: np.ndarray, detections: Detections, fusion_px: fl
     views = np.flatnonzero(detections.counts)
     if len(views) < 2:
         return np.zeros(projected.shape[1], bool)
-    limit = 0.5 * fusion_px / FUSION_DIAMETERS
+    limit = 0.5 * fused_marker_diameter(fusion_px)
     crossed = _close_pairs(projected[views], limit).all(axis=0) & ~rigid
     for v in views if crossed.any() else ():  # close in every view: on one blob in each?
         nearest = nearest_detection(projected[v], detections.view(v))[0]
