@@ -19,7 +19,7 @@ SA's schedule); its own defaults are the paper's plain Eq. 5, not what ``mocap f
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from core.anneal import AnnealParams
@@ -140,7 +140,7 @@ def build_fit(options: FitOptions, model: KinematicModel, rig: Rig, videos: Sequ
     diameter = options.marker_diameter_px
     if diameter == "auto":
         diameter = estimate_marker_diameter(source) or 0.0
-    source = replace(source, marker_px=float(diameter))
+    source = source.restoring(float(diameter))
     job = FitJob(source, model, options.fit_params(float(diameter)), options.seed, options.chunk_size, root)
     return Fit(job, start if start is not None else options.uniform_prior(model))
 

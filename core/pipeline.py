@@ -138,6 +138,15 @@ class VideoSource(Sequence[Detections]):
             )
             yield frames, tuple(restored_at_edges(det, self.framed_rig, self.marker_px) for det in images)
 
+    def restoring(self, marker_px: float) -> VideoSource:
+        """This source with :attr:`marker_px` set; the videos it has probed are not probed
+        again (each probe decodes the end of every video)."""
+        source = replace(self, marker_px=float(marker_px))
+        for name in ("_field_rigs", "_videos", "framed_rig"):
+            if name in self.__dict__:
+                source.__dict__[name] = self.__dict__[name]
+        return source
+
     def _range(self, start: int, stop: int) -> Iterator[Detections]:
         """Detections of images [start, stop), decoding frames in one pass."""
         k = self.per_frame

@@ -17,9 +17,10 @@ import pytest
 from scenes import dots_model, pixel_rig
 from tree_subjects import angle_errors, insect, movement, ring_rig
 
+import core.video
 from core.ambiguity import plain_error
 from core.detect import _disc_centre_depth, detect, restored_at_edges
-from core.error import FUSION_DIAMETERS, Detections, fusion_distance, outside_error, view_error
+from core.error import Detections, fused_marker_diameter, fusion_distance, outside_error, view_error
 from core.fit import FitParams, ImageFit, Status, alternative_tolerance, needs_reanalysis
 from core.histogram import Histograms
 from core.options import FitOptions, build_fit
@@ -27,6 +28,7 @@ from core.pipeline import VideoSource
 from core.render import render_frames
 from core.rig import Rig, RigError
 from core.sequence import fit_sequence
+from core.video import probe
 
 MARKERS = ((0.0, 0.0), (0.0, 10.0), (30.0, 0.0), (30.0, 10.0))
 TRUTH = np.array([85.0, 50.0])
@@ -175,7 +177,7 @@ def test_a_cut_discs_centre_is_found_from_its_parts_centroid():
     assert seen[20] == pytest.approx(4 / (3 * np.pi), abs=1e-3)  # centre on the edge: 4r / 3π
 
 
-def test_the_fits_source_restores_cut_blobs_to_the_estimated_marker_size(tmp_path):
+def test_the_fits_source_restores_cut_blobs_to_the_estimated_marker_size(tmp_path, monkeypatch):
     model, rig, truth, _ = _cut_scene(70.0)
     path = tmp_path / "clip.avi"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 25.0, (128, 96), False)
@@ -183,9 +185,12 @@ def test_the_fits_source_restores_cut_blobs_to_the_estimated_marker_size(tmp_pat
                                frame_size=(128, 96), marker_diameter_px=5.0):
         writer.write(frame)
     writer.release()
+    probed = []
+    monkeypatch.setattr(core.video, "probe", lambda p: probed.append(p) or probe(p))
     auto = build_fit(FitOptions(), model, pixel_rig(ROI), [path]).job
+    assert len(auto.source) == 3 and len(probed) == 1  # the estimate's probe serves the fit
     assert auto.source.marker_px > 0
-    assert auto.source.marker_px == pytest.approx(auto.params.fusion_px / FUSION_DIAMETERS)
+    assert auto.source.marker_px == pytest.approx(fused_marker_diameter(auto.params.fusion_px))
     source = build_fit(FitOptions(marker_diameter_px=5.0), model, pixel_rig(ROI), [path]).job.source
     raw = replace(source, marker_px=0.0)[0]
     restored = source[0]
