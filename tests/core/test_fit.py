@@ -30,6 +30,7 @@ from core.fit import (
 from core.histogram import Histograms
 from core.rig import Rig
 from core.sequence import fit_chunk, fit_sequence, plan_reanalysis, typical_objective
+from core.treefit import refine_whole
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
@@ -247,18 +248,32 @@ def test_what_hidden_markers_cost_is_left_out_of_the_typical_objective(locust):
 def test_an_image_in_a_wrong_minimum_among_images_with_hidden_markers_is_reanalysed():
     """The benchmark stick insect (2 views, 2 ghost blobs per view) with 10 % of its
     projections hidden, seed 0: most images pay the empty-view penalty for a hidden marker
-    and the median objective is 4 px. Image 40 shows every marker, but SA put two of them
-    on one blob (2.88 px, the truth 0.07): 12° off in γ, `ok`, with no alternative, and no
-    outlier against 10x the median. Read without the hidden markers' charge, the typical
-    objective is 0.07 px; the image is re-analysed and lands on the truth."""
+    and the median objective is 4 px. Image 40 shows every marker and has a minimum that
+    puts two of them on one blob (2.89 px, the truth 0.07), 12° off in γ, under the
+    threshold, where SA ended on one machine: `ok`, with no alternative, and no outlier
+    against 10x the median. Read without the hidden markers' charge, the typical objective
+    is 0.07 px; the image is re-analysed and lands on the truth. The wrong minimum is set
+    by hand (refined from γ 15° off): where SA ends depends on the machine's arithmetic."""
     subject = load("stick", None)
+    model, rig = subject.model, subject.rig
     data = render_and_detect(subject, 60, soft=False, ghosts=2, rng=np.random.default_rng(0),
                              occlusion=0.1)
-    result = fit_sequence(data.detections, model=subject.model, rig=subject.rig,
-                          histograms=Histograms.uniform(subject.model, prior_weight=100.0),
-                          params=fit_params(data)[0], seed=0)
-    assert result.fits[40].attempts > 1
-    assert np.abs(angle_errors(result.fits[40].dofs, data.truth[40])).max() < 1.0
+    params, prior = fit_params(data)[0], Histograms.uniform(model, prior_weight=100.0)
+    chunk = fit_chunk(data.detections, model=model, rig=rig, histograms=prior, params=params, seed=0)
+    det, truth = data.detections[40], data.truth[40]
+    start = truth + np.where(np.arange(len(truth)) == 5, 15.0, 0.0)
+    q, error, objective = refine_whole(start, det, model, rig, params, np.zeros((len(rig.views), 2)))
+    assert 2.0 < objective < 4.0 and 10.0 < angle_gaps(q, truth)[5] < 15.0
+    fits = list(chunk.fits)
+    fits[40] = ImageFit(40, q, error, objective, 1, Status.OK, 100, tuple(det.counts.tolist()))
+    assert float(np.median([f.objective for f in fits])) > 3.0
+    todo = plan_reanalysis(prior, [chunk.observed], fits, model, params)
+    assert todo.typical < 0.2 and 40 in [sample for sample, _ in todo.images]
+    fit = fits[40]
+    while needs_reanalysis(fit, model, params, todo.typical):
+        fit = reanalyse_image(det, fit, model=model, rig=rig, histograms=todo.histograms, params=params,
+                              seed=0, typical=todo.typical)
+    assert fit.attempts > 1 and np.abs(angle_errors(fit.dofs, truth)).max() < 1.0
 
 
 def test_a_tree_image_under_its_smallest_part_eps_is_no_outlier(locust):

@@ -1032,14 +1032,17 @@ def test_the_previous_images_alternative_is_followed_where_the_warm_start_carrie
 
 def test_a_reanalysis_ending_in_the_same_wrong_minimum_keeps_the_reported_alternative(stick_hidden):
     """Image 249 of the chunk above: its right posture is a reported alternative (not a
-    minimum). Re-analysed, SA ends in the same wrong minimum, lower by 1e-13 px: the
-    alternative must stay, or the image is `ok`, 32° off, with none."""
+    minimum). Re-analysed, SA ends in the same wrong minimum, lower by 1e-13 px on one
+    machine (equal on another: the first attempt's objective is raised by 1e-9 px, so that
+    the re-analysis's is lower on any): the alternative must stay, or the image is `ok`, 32°
+    off, with none."""
     subject, data = stick_hidden
     model, rot = subject.model, subject.model.rotational
     prior = Histograms.uniform(model, prior_weight=100.0)
     params = fit_params(data)[0]
     first = fit_chunk(data.detections[247:250], model=model, rig=subject.rig, histograms=prior,
                       params=params, seed=0, first_sample=247).fits[2]
+    first = replace(first, objective=first.objective + 1e-9)
     again = reanalyse_image(data.detections[249], first, model=model, rig=subject.rig, histograms=prior,
                             params=params, seed=0, typical=0.05)
 
