@@ -8,8 +8,9 @@ these same functions; the workers add only the database, the queue and idempoten
    adds the root tracking of a video job).
 2. :func:`fit_chunk` fits a chunk's images once each (``core.fit.first_attempt``), starting
    from the given histograms and updating a working copy after every image whose error is
-   within the threshold (Eq. 4). It returns the fits and the *observed* histograms of its
-   images alone.
+   within the threshold (Eq. 4), then offers each image, last to first, the posture its
+   next images predict (``core.fit.seen_from_after``). It returns the fits and the
+   *observed* histograms of its images alone.
 3. :func:`plan_reanalysis`: the prior merged with every chunk's observed histograms
    (count-weighted; exactly the sequential Eq. 4 update when there is one chunk), the
    sequence's :func:`typical_objective`, and the images ``core.fit.needs_reanalysis``
@@ -21,9 +22,10 @@ these same functions; the workers add only the database, the queue and idempoten
    continuity, and the prior updated by the final posture of every image within the
    threshold. ``core.pipeline.outputs`` then gives the result files' contents.
 
-An image's random stream depends only on ``(seed, sample, attempt)`` and a chunk's first
-image starts cold, so any chunk can be fitted by any worker, in any order, and give the
-same postures as a single process fitting the same chunks.
+An image's random stream depends only on ``(seed, sample, attempt)``, a chunk's first
+image starts cold and its last is offered nothing from after it, so any chunk can be fitted
+by any worker, in any order, and give the same postures as a single process fitting the
+same chunks.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ from core.fit import (
     image_status,
     needs_reanalysis,
     reanalyse_image,
+    seen_from_after,
 )
 from core.histogram import Histograms
 from core.model import KinematicModel
@@ -150,8 +153,12 @@ def fit_chunk(
         (warm starts, :func:`_warm_starts`, each part's taken up to its level in the
         previous image, :func:`_ceilings`, computed only where a part's warm start misses
         twice its ε) and tries the previous one as an alternative;
-        the chunk's first image starts cold, so a chunk's fits depend on its first sample
-        and nothing before it: fitted anywhere, the same chunks give the same fits.
+        the chunk's first image starts cold. Then each image but the last is offered the
+        posture its next images predict (:func:`_backward_start`), last image first, and
+        keeps it where, refined, it lands in a lower minimum (``core.fit.seen_from_after``):
+        the warm starts run forward only, and carry a wrong minimum on until an image's SA
+        leaves it. A chunk's fits depend on its images and nothing outside them: fitted
+        anywhere, the same chunks give the same fits.
     offsets : optional per-image (V, 2) view offsets (root tracking), same length as images.
     should_stop : checked between images; returning True ends the chunk early (cancel).
     progress : called with every finished image.
@@ -162,11 +169,13 @@ def fit_chunk(
     geometry = flip_geometry(model, rig)
     offset_iter = iter(offsets) if offsets is not None else None
     fits: list[ImageFit] = []
+    seen: list[tuple[Detections, np.ndarray | None]] = []
     ceilings: Callable[[], dict[str, float]] | None = None
     for k, det in enumerate(images):
         if should_stop is not None and should_stop():
             break
         off = next(offset_iter) if offset_iter is not None else None
+        seen.append((det, off))
         warm = _warm_starts(fits, model)
         fit = first_attempt(
             det, first_sample + k, model=model, rig=rig, histograms=working, params=params,
@@ -179,11 +188,36 @@ def fit_chunk(
             ceilings = partial(_ceilings, fit, det, model, rig, params, off)
         if fit.status is Status.OK:
             working.update(fit.dofs[rot])
-            observed.update(fit.dofs[rot])
         fits.append(fit)
         if progress is not None:
             progress(fit)
+    _offer_backward(fits, seen, model, rig, params)
+    for fit in fits:
+        if fit.status is Status.OK:
+            observed.update(fit.dofs[rot])
     return ChunkResult(fits, observed)
+
+
+def _offer_backward(fits: list[ImageFit], seen: list[tuple[Detections, np.ndarray | None]],
+                    model: KinematicModel, rig: Rig, params: FitParams) -> None:
+    """Offer each of a chunk's ``fits`` but the last, last first, the posture its next images
+    predict (``core.fit.seen_from_after``), in place; ``seen`` holds each image's detections
+    and view offsets. Last first, so that a right posture found again is carried back
+    through a run of images a wrong minimum held."""
+    for k in range(len(fits) - 2, -1, -1):
+        det, off = seen[k]
+        fits[k] = seen_from_after(fits[k], _backward_start(fits[k + 1:k + 3], model), det, model=model,
+                                  rig=rig, params=params, offsets=off)
+
+
+def _backward_start(after: list[ImageFit], model: KinematicModel) -> np.ndarray:
+    """The posture the next images ``after`` (the next, then the one after it, if any)
+    predict for the image before them: the next one's moved back by its step from the one
+    after it (constant velocity, within the ranges), or itself alone."""
+    last = after[0].dofs
+    if len(after) < 2 or not np.all(np.isfinite(after[1].dofs)):
+        return last
+    return np.clip(2.0 * last - after[1].dofs, model.lower, model.upper)
 
 
 def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:

@@ -389,3 +389,66 @@ def test_a_leg_out_of_one_of_two_frames_pulled_back_in_is_searched_again_reading
     for _ in range(2):
         fit = reanalyse_image(det, fit, model=model, rig=subject.rig, histograms=prior, params=params, seed=0)
     assert off(fit.dofs) < 1.0
+
+
+def _stick_beyond():
+    """The stick insect leg with 10 % of its projections beyond its views' rois (``bench/animals.py
+    --subject stick --images 60 --beyond 0.1``, seed 0): subject, rendered images and the fit's
+    settings."""
+    from bench.animals import cut_at_edge, fit_params, render_and_detect
+
+    subject = load("stick")
+    subject = cut_at_edge(subject, subject.trajectory(60, np.random.default_rng(0)), 0.1)
+    data = render_and_detect(subject, 60, soft=False, ghosts=2, rng=np.random.default_rng(0))
+    return subject, data, fit_params(data)[0]
+
+
+def test_an_image_left_in_a_wrong_minimum_by_its_warm_starts_is_searched_from_the_next_image():
+    """Images 32-35 of the stick insect leg (``--beyond 0.1``, seed 0): SA at image 32 ends
+    in a minimum 26° off, and the warm starts carry it on; image 35 kept it at 0.66 px, ``ok``,
+    with no alternative, while its truth scores 0.34 px. Image 36 is right, and its posture,
+    refined on image 35, finds the truth's minimum: the chunk's backward sweep
+    (``core.fit.seen_from_after``) keeps it, the wrong one as its alternative."""
+    from bench.animals import angle_errors
+    from core.histogram import Histograms
+    from core.sequence import fit_chunk
+
+    subject, data, params = _stick_beyond()
+    model = subject.model
+    fits = fit_chunk(data.detections[:37], model=model, rig=subject.rig, params=params, seed=0,
+                     histograms=Histograms.uniform(model, prior_weight=100.0)).fits
+    off = np.abs(angle_errors(model, np.array([f.dofs for f in fits]), data.truth[:37])[:, model.rotational])
+    assert off[35].max() < 1.0 and off[36].max() < 1.0
+    alpha = [abs(a.dofs[2] - fits[35].dofs[2]) for a in fits[35].alternatives]
+    assert fits[35].objective < 0.4 and max(alpha) > 20
+
+
+def test_the_next_images_posture_is_kept_only_where_it_lands_lower():
+    """``seen_from_after`` on image 35 of the same run: the wrong minimum (alpha and psi
+    26.8° and 18.3° off, 0.66 px) offered the right posture becomes it, and keeps the wrong
+    one as its alternative (within the tolerance); the right fit offered the wrong posture,
+    or a posture a few degrees from its own (nothing to search), stays as it is."""
+    from core.error import view_offsets
+    from core.fit import ImageFit, Status, seen_from_after
+    from core.treefit import refine_whole
+
+    subject, data, params = _stick_beyond()
+    model, rig, det = subject.model, subject.rig, data.detections[35]
+
+    def fitted(start: np.ndarray) -> ImageFit:
+        q, error, objective = refine_whole(start.copy(), det, model, rig, params, view_offsets(None, rig))
+        return ImageFit(35, q, error, objective, 1, Status.OK, 100, tuple(det.counts.tolist()))
+
+    right = fitted(data.truth[35])
+    wrong = fitted(data.truth[35] + np.array([0.0, 0.0, 26.8, 18.3, 0.0, 0.0]))
+    assert wrong.objective > right.objective + 0.2 and abs(wrong.dofs[2] - right.dofs[2]) > 20
+
+    def offered(fit: ImageFit, after: np.ndarray) -> ImageFit:
+        return seen_from_after(fit, after, det, model=model, rig=rig, params=params)
+
+    assert offered(right, wrong.dofs) is right
+    assert offered(right, right.dofs + 2.0) is right
+    lowered = offered(wrong, right.dofs)
+    assert lowered.objective == pytest.approx(right.objective, abs=1e-6)
+    assert lowered.status is Status.OK and not lowered.settled
+    assert [a.objective for a in lowered.alternatives] == pytest.approx([wrong.objective])
