@@ -779,28 +779,29 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
 
 def seen_from_after(fit: ImageFit, after: np.ndarray, det: Detections, *, model: KinematicModel,
                     rig: Rig, params: FitParams, offsets: np.ndarray | None = None) -> ImageFit:
-    """``fit`` offered ``after`` (D,), the posture the next images predict for it
-    (``core.sequence.fit_chunk``), as one more start: where it differs from the fit (in a
-    tree, each part that does, the rest of the fit kept), it is refined on this image, and
-    kept where it lands in a lower minimum (by more than :data:`TIE_PX`), distinct from the
-    fit (more than :data:`~core.ambiguity.DISTINCT_DEG` away); the old fit and its alternatives stay
-    alternatives while within the tolerance of it (:func:`_still_alternatives`). ``fit``
-    itself otherwise: a start that lands no lower adds no alternative, so a part the image
-    does not determine (a leg beyond the frame) is not flagged for it.
+    """``fit`` offered ``after`` (k, D), postures the next images predict for it
+    (``core.sequence.fit_chunk``), as more starts: each that differs from the fit (more than
+    :data:`~core.ambiguity.DISTINCT_DEG` in some angle) is refined on this image, whole, and
+    the lowest is kept where it lands in a lower minimum (by more than :data:`TIE_PX`),
+    distinct from the fit; the old fit and its alternatives stay alternatives while within
+    the tolerance of it (:func:`_still_alternatives`). ``fit`` itself otherwise: a start
+    that lands no lower adds no alternative, so a part the image does not determine (a leg
+    beyond the frame) is not flagged for it.
 
     Why: a chunk's warm starts run forward only. Where SA ends in a wrong minimum that the
     image supports almost as well as the right one, the next images' warm starts carry it
     on, until one image's SA finds the right one again; the images before it keep the
-    wrong posture, ``ok``, with no alternative. The stick insect leg (seed 0, a leg beyond
-    a roi) kept images 32-35 26-30° off that way, image 35 at 0.66 px while its truth
+    wrong posture. The stick insect leg (seed 0, a leg beyond a roi) kept images 32-35
+    26-30° off that way, image 35 ``ok`` at 0.66 px with no alternative while its truth
     scores 0.34 px; image 36 was right (docs/BENCH_SUBJECTS.md, stop 54)."""
-    if fit.status is Status.NO_DETECTIONS or not np.all(np.isfinite(after)):
+    if fit.status is Status.NO_DETECTIONS:
         return fit
-    start = _moved_parts(fit.dofs, after, model)
-    if start is None:
+    starts = [a for a in after if np.all(np.isfinite(a)) and distinct(a, fit.dofs, model.rotational)]
+    if not starts:
         return fit
     off = view_offsets(offsets, rig)
-    q, error, objective = refine_whole(start, det, model, rig, params, off)
+    q, error, objective = min((refine_whole(start.copy(), det, model, rig, params, off) for start in starts),
+                              key=lambda refined: refined[2])
     if not (objective < fit.objective - TIE_PX and distinct(q, fit.dofs, model.rotational)):
         return fit
     best = Candidate(q, error, objective)
@@ -809,21 +810,6 @@ def seen_from_after(fit: ImageFit, after: np.ndarray, det: Detections, *, model:
     return replace(fit, dofs=q, error=error, objective=objective,
                    status=image_status(error, fit.detections, len(model.markers), params),
                    alternatives=kept, settled=False, charged=charged, outside=outside)
-
-
-def _moved_parts(dofs: np.ndarray, other: np.ndarray, model: KinematicModel) -> np.ndarray | None:
-    """``dofs`` (D,) with each part of ``model`` (the whole posture for a chain) in which
-    ``other`` (D,) differs from it (``core.ambiguity.distinct``) taken from ``other``; None
-    where none does."""
-    rot = model.rotational
-    parts = [np.arange(len(model.dofs))] if model.tree is None else [p.dofs for p in model.tree.parts]
-    moved = [d for d in parts if distinct(other[d], dofs[d], rot[d])]
-    if not moved:
-        return None
-    start = dofs.copy()
-    for d in moved:
-        start[d] = other[d]
-    return start
 
 
 def _still_alternatives(best: Candidate, alternatives: tuple[Candidate, ...], previous: ImageFit,

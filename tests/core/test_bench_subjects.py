@@ -444,7 +444,7 @@ def test_the_next_images_posture_is_kept_only_where_it_lands_lower():
     assert wrong.objective > right.objective + 0.2 and abs(wrong.dofs[2] - right.dofs[2]) > 20
 
     def offered(fit: ImageFit, after: np.ndarray) -> ImageFit:
-        return seen_from_after(fit, after, det, model=model, rig=rig, params=params)
+        return seen_from_after(fit, after[None], det, model=model, rig=rig, params=params)
 
     assert offered(right, wrong.dofs) is right
     assert offered(right, right.dofs + 2.0) is right
