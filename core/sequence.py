@@ -8,9 +8,9 @@ these same functions; the workers add only the database, the queue and idempoten
    adds the root tracking of a video job).
 2. :func:`fit_chunk` fits a chunk's images once each (``core.fit.first_attempt``), starting
    from the given histograms and updating a working copy after every image whose error is
-   within the threshold (Eq. 4), then offers each image, last to first, the posture its
-   next images predict (``core.fit.seen_from_after``). It returns the fits and the
-   *observed* histograms of its images alone.
+   within the threshold (Eq. 4), then offers each image whose fit departs from what its
+   next images predict those postures, last to first (``core.fit.seen_from_after``). It
+   returns the fits and the *observed* histograms of its images alone.
 3. :func:`plan_reanalysis`: the prior merged with every chunk's observed histograms
    (count-weighted; exactly the sequential Eq. 4 update when there is one chunk), the
    sequence's :func:`typical_objective`, and the images ``core.fit.needs_reanalysis``
@@ -247,7 +247,7 @@ def _backward_starts(after: list[ImageFit], model: KinematicModel) -> np.ndarray
     last = after[0].dofs
     if len(after) < 2 or not np.all(np.isfinite(after[1].dofs)):
         return last[None]
-    return np.vstack([np.clip(2.0 * last - after[1].dofs, model.lower, model.upper), last])
+    return np.vstack([_stepped(last, after[1].dofs, model), last])
 
 
 def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:
@@ -273,10 +273,17 @@ def _warm_starts(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | No
         return None
     if len(fits) < 2 or not np.all(np.isfinite(before := fits[-2].dofs)):
         return last[None]
-    rows = [np.clip(2.0 * last - before, model.lower, model.upper), last]
+    rows = [_stepped(last, before, model), last]
     if (cycle := _next_in_cycle(fits, model)) is not None:
         rows.insert(1, cycle)
     return np.vstack(rows)
+
+
+def _stepped(last: np.ndarray, other: np.ndarray, model: KinematicModel) -> np.ndarray:
+    """(D,) ``last`` moved on by its step from ``other`` (constant velocity), within the
+    model's ranges: the image after ``last`` when ``other`` came before it, the image
+    before when ``other`` came after."""
+    return np.clip(2.0 * last - other, model.lower, model.upper)
 
 
 def _next_in_cycle(fits: list[ImageFit], model: KinematicModel) -> np.ndarray | None:
