@@ -219,6 +219,12 @@ class ImageFit:
         """Marker projections compared with detections: markers × views with any detection."""
         return _compared(self.detections, n_markers)
 
+    def charged_beyond(self, params: FitParams) -> float:
+        """Pixels of ``objective`` that the projections beyond their views' regions
+        (``outside``) cost, the empty-view penalty each: the same in every posture that
+        leaves them there, so no measure of how well the posture fits."""
+        return params.empty_view_penalty_px * self.outside[0]
+
     def error_per_marker(self, n_markers: int) -> float:
         """``error`` divided by :meth:`compared` (FORMATS §3 ``error_per_marker_px``); NaN
         without detections.
@@ -964,7 +970,7 @@ def needs_reanalysis(fit: ImageFit, model: KinematicModel, params: FitParams,
         return True
     views_seen = sum(1 for c in fit.detections if c > 0)
     limit = max(search_floor(model, params, views_seen), params.outlier_factor * typical)
-    seen = fit.objective - params.empty_view_penalty_px * fit.outside[0]
+    seen = fit.objective - fit.charged_beyond(params)
     return params.outlier_factor > 0 and math.isfinite(limit) and seen > limit
 
 

@@ -412,7 +412,7 @@ def _chosen_by_continuity(fits: list[ImageFit], n_markers: int, params: FitParam
     minima = [[i for i, c in enumerate(cands) if c.minimum] for cands in candidates]
     chosen_minima = choose_candidates(
         [[cands[i] for i in m] for cands, m in zip(candidates, minima, strict=True)],
-        [params.empty_view_penalty_px * f.outside[0] for f in fits])
+        [f.charged_beyond(params) for f in fits])
     out = []
     for fit, cands, m, j in zip(fits, candidates, minima, chosen_minima, strict=True):
         k = m[j] if m else 0
