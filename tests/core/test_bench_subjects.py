@@ -425,9 +425,10 @@ def test_an_image_left_in_a_wrong_minimum_by_its_warm_starts_is_searched_from_th
 
 def test_the_next_images_posture_is_kept_only_where_it_lands_lower():
     """``seen_from_after`` on image 35 of the same run: the wrong minimum (alpha and psi
-    26.8° and 18.3° off, 0.66 px) offered the right posture becomes it, and keeps the wrong
-    one as its alternative (within the tolerance); the right fit offered the wrong posture,
-    or a posture a few degrees from its own (nothing to search), stays as it is."""
+    26.8° and 18.3° off; 0.54-0.66 px by the machine, the truth's 0.34 px) offered the right
+    posture becomes it, and keeps the wrong one as its alternative (within the tolerance);
+    the right fit offered the wrong posture, or a posture a few degrees from its own (nothing
+    to search), stays as it is."""
     from core.error import view_offsets
     from core.fit import ImageFit, Status, seen_from_after
     from core.treefit import refine_whole
@@ -441,7 +442,7 @@ def test_the_next_images_posture_is_kept_only_where_it_lands_lower():
 
     right = fitted(data.truth[35])
     wrong = fitted(data.truth[35] + np.array([0.0, 0.0, 26.8, 18.3, 0.0, 0.0]))
-    assert wrong.objective > right.objective + 0.2 and abs(wrong.dofs[2] - right.dofs[2]) > 20
+    assert wrong.objective > right.objective + 0.1 and abs(wrong.dofs[2] - right.dofs[2]) > 20
 
     def offered(fit: ImageFit, after: np.ndarray) -> ImageFit:
         return seen_from_after(fit, after[None], det, model=model, rig=rig, params=params)
