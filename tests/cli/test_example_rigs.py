@@ -19,8 +19,15 @@ NEW_RIGS = ["rig_pinhole.json", "rig_dlt.json"]  # rig.json is the paper's, test
 
 
 def test_the_dlt_example_is_the_import_of_its_coefficients():
+    """To the last bits NumPy's linear algebra leaves, which differ between CPUs (OpenBLAS
+    picks its code for the one it runs on)."""
     committed = Rig.from_json(LOCUST / "rig_dlt.json")
-    assert committed == from_dlt(LOCUST / "cal_dltCoefs.csv", heights=[576])
+    imported = from_dlt(LOCUST / "cal_dltCoefs.csv", heights=[576])
+    assert committed.frames == imported.frames
+    assert [(v.name, v.video, v.roi, v.projection["type"]) for v in committed.views] == \
+        [(v.name, v.video, v.roi, v.projection["type"]) for v in imported.views]
+    for a, b in zip(committed.views, imported.views, strict=True):
+        np.testing.assert_allclose(a.projection["P"], b.projection["P"], rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("name", NEW_RIGS)
