@@ -210,13 +210,10 @@ def _offer_backward(fits: list[ImageFit], seen: list[tuple[Detections, np.ndarra
 
     Why only there: a wrong minimum lies 10° or more from the right one (a Fig. 9 flip, a
     leg swapped or folded), and the right posture continues the movement. Each offer
-    refines one or two whole postures: refining every image from its next ones cost a
-    walking hexapod 25 % of its fit time, while it departs from its next images' step by
-    10° in no image. At 50 Hz with 10 % of its markers hidden, where legs move 20-30° an
-    image and hidden markers leave DOFs loose, nearly every image is offered (7-10 % of the
-    hexapod's and the free fly's fit time). Also requiring an objective above the next
-    image's halved that, but lost the images it was for under sliding skin markers, where
-    a wrong fit need not score above its neighbour (the rat: 35.0 → 26.7 % within 5°)."""
+    refines one or two whole postures, which is a large share of a fit that walks with its
+    next images, as a clean walking hexapod does in every image. The objective is not
+    compared with the next image's: under sliding skin markers a wrong fit need not score
+    above its neighbour. What each rule cost and saved is in docs/BENCH_SUBJECTS.md, stop 54."""
     rot = model.rotational
     for k in range(len(fits) - 2, -1, -1):
         starts = _backward_starts(fits[k + 1:k + 3], model)
