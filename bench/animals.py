@@ -58,6 +58,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.imperfect import calibrated_rig, measured_model
+from bench.reference import labelled_postures
 from bench.subjects import NAMES, Subject, camera_choice, load
 from core.detect import DetectorParams, detect, marker_diameter, restored_at_edges
 from core.error import Detections, fusion_distance
@@ -95,6 +96,7 @@ class Rendered:
     detections: list[Detections]
     detect_seconds: float
     hidden: np.ndarray | None = None  # (T, V, M) bool: marker m not drawn in view v (occlusion)
+    markers: np.ndarray | None = None  # (T, M, 3) the model's markers as drawn (slid), model units
 
 
 def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
@@ -113,10 +115,11 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
     drawn after everything else is drawn from ``rng``.
     """
     truth = subject.trajectory(n, rng)
-    model, offsets = subject.model, None
+    model, offsets, markers = subject.model, None, subject.model.marker_positions(truth)
     if soft:
         model = subject.with_unmodelled_markers()
-        offsets = soft_tissue_offsets(subject, truth, rng)
+        slide = soft_tissue_slide(subject, truth, rng)
+        offsets, markers = soft_tissue_offsets(subject, truth, slide), markers + slide
     noise = rng.spawn(subject.rig.n_videos)
     hidden = None
     if occlusion > 0:
@@ -147,7 +150,7 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
     t0 = time.perf_counter()  # blobs cut by a view's edge restored, as `mocap fit`'s source does
     diameter = marker_diameter(detections[:50]) or 0.0
     detections = [restored_at_edges(d, subject.rig, diameter) for d in detections]
-    return Rendered(truth, detections, seconds + time.perf_counter() - t0, hidden)
+    return Rendered(truth, detections, seconds + time.perf_counter() - t0, hidden, markers)
 
 
 def glint_pixels(subject: Subject, truth: np.ndarray, per_view: int, marker_px: float,
@@ -229,8 +232,8 @@ def occlusion_mask(shape: tuple[int, int, int], fraction: float, mean_run: float
     return hidden
 
 
-def soft_tissue_offsets(subject: Subject, truth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """(T, V, M + K, 2) pixel offsets of the skin markers (the K unmodelled ones last, at 0).
+def soft_tissue_slide(subject: Subject, truth: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(T, M, 3) the model markers' slide over the skin, model units, world frame.
 
     Each model marker slides by a 3D offset, a sum of three random-direction sinusoids
     of periods near :data:`SOFT_TISSUE_PERIOD_S`, scaled so that its image displacement
@@ -245,11 +248,19 @@ def soft_tissue_offsets(subject: Subject, truth: np.ndarray, rng: np.random.Gene
         slide += direction * np.sin(2 * np.pi * t / period + rng.uniform(0, 2 * np.pi, (m, 1)))
     positions = subject.model.marker_positions(truth)
     base = subject.rig.project(positions)
-    offsets = np.zeros((*base.shape[:2], m + len(subject.unmodelled), 2))
     for _ in range(2):  # projection is nearly linear in the small offset: rescale once more
         shifted = subject.rig.project(positions + slide) - base
         slide *= SOFT_TISSUE_PX / np.sqrt(np.mean(np.sum(shifted**2, axis=-1)))
-    offsets[:, :, :m] = subject.rig.project(positions + slide) - base
+    return slide
+
+
+def soft_tissue_offsets(subject: Subject, truth: np.ndarray, slide: np.ndarray) -> np.ndarray:
+    """(T, V, M + K, 2) pixel offsets of the skin markers slid by ``slide`` (T, M, 3) from
+    their places in the postures ``truth`` (T, D) (the K unmodelled ones last, at 0)."""
+    positions = subject.model.marker_positions(truth)
+    base = subject.rig.project(positions)
+    offsets = np.zeros((*base.shape[:2], base.shape[2] + len(subject.unmodelled), 2))
+    offsets[:, :, : base.shape[2]] = subject.rig.project(positions + slide) - base
     return offsets
 
 
@@ -329,8 +340,10 @@ def ambiguous_flags(result: SequenceResult, csv_path: Path) -> tuple[np.ndarray,
 
 
 def report(subject: Subject, label: str, data: Rendered, result: SequenceResult, timing: dict,
-           csv_path: Path, *, soft: bool) -> None:
-    """Print the subject's table: per-DOF RMSE, then the issue's figures beside its targets."""
+           csv_path: Path, *, soft: bool, reference: np.ndarray | None = None) -> None:
+    """Print the subject's table: per-DOF RMSE, then the issue's figures beside its targets,
+    and with ``reference`` ((T, D), ``bench.reference.labelled_postures``) how far the fit and
+    the truth each lie from what inverse kinematics given the labels reports."""
     model, n = subject.model, len(data.detections)
     fitted = np.array([f.dofs for f in result.fits])
     err = angle_errors(model, fitted, data.truth)
@@ -390,6 +403,11 @@ def report(subject: Subject, label: str, data: Rendered, result: SequenceResult,
              med <= TARGET_SOFT_MEDIAN, med / TARGET_SOFT_MEDIAN)
         line("soft tissue: 90th percentile (deg)", f"{p90:.3f}", f"<= {TARGET_SOFT_P90}",
              p90 <= TARGET_SOFT_P90, p90 / TARGET_SOFT_P90)
+    if reference is not None:
+        for what, postures in (("labelled IK from the truth", data.truth), ("fit from labelled IK", fitted)):
+            gaps = np.nan_to_num(np.abs(angle_errors(model, postures.copy(), reference)[:, rot]), nan=np.inf)
+            line(f"{what}: median / 90th (deg)",
+                 f"{np.median(gaps):.2f} / {np.percentile(gaps, 90, method='higher'):.2f}")
     # The rate target is judged on CPU time: one core's work, whatever else the machine runs.
     rate_target: tuple = ("", None, None)
     if subject.name == "hexapod" and len(subject.rig.views) == 6:
@@ -431,7 +449,10 @@ def run(name: str, args: argparse.Namespace) -> None:
               f"({100 * h.mean():.1f} %); images with a marker hidden in some view: "
               f"{int(h.any(axis=(1, 2)).sum())} of {len(h)}; mean hidden run "
               f"{h.sum() / max(1, _run_starts(h)):.1f} images")
-    result, timing = fit(as_measured(subject, args), data, seed=args.seed, jobs=args.jobs)
+    measured = as_measured(subject, args)
+    result, timing = fit(measured, data, seed=args.seed, jobs=args.jobs)
+    reference = (labelled_postures(measured.model, data.markers, data.truth)
+                 if args.soft_tissue or args.model_error else None)
     tag = (name + (f"-{cameras}cams" if cameras else "") + ("-soft" if args.soft_tissue else "")
            + (f"-occ{round(100 * args.occlusion)}" + ("all" if args.everywhere else "") if args.occlusion
               else "")
@@ -445,7 +466,7 @@ def run(name: str, args: argparse.Namespace) -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     csv_path = OUT / f"animals-{tag}.csv"
     write_angles_csv(csv_path, subject.model, result.fits, SampleClock(subject.fps))
-    report(subject, label, data, result, timing, csv_path, soft=args.soft_tissue)
+    report(subject, label, data, result, timing, csv_path, soft=args.soft_tissue, reference=reference)
 
 
 def cut_at_edge(subject: Subject, truth: np.ndarray, share: float) -> Subject:
