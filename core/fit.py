@@ -712,7 +712,7 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     image, where it lands in another minimum: within ``tolerance`` of the fit's objective
     (or better) and more than :data:`~core.ambiguity.DISTINCT_DEG` from the fit and every
     other alternative in some rotational DOF; and the previous image's alternatives
-    (``carried``, (k, D) or None), reported only.
+    (``carried``, (k, D) or None), reported only unless they tie with the fit.
 
     The previous posture is tried only where the attempt searched (``searched``, (D,) bool,
     :func:`fit_image`'s) and the fit left the warm starts' basin (moved more than
@@ -727,9 +727,12 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     A carried alternative is tried wherever it differs from the fit: where the warm start
     carries a wrong minimum on and this image supports it as well as the right one, SA
     finds nothing lower, and the right posture was the previous image's alternative. The
-    best one that lands within the tolerance is kept, never for the choice by continuity
-    (``Candidate.minimum`` False): offered to it, the candidates followed from image to
-    image made smooth wrong paths that it took.
+    best one that lands within the tolerance is kept. The choice by continuity may take it
+    only where it ties with the fit, within the tolerance's fixed floor
+    (:func:`tolerance_readings`): offered wherever the tolerance reached, the candidates
+    followed from image to image made smooth wrong paths that it took. Reported only at a
+    tie, it left the choice no posture near the right neighbours', and the choice took a
+    third minimum 16 px above the fit (docs/BENCH_SUBJECTS.md, stop 56).
 
     Each start is refined twice: on every projection, and without those that look hidden
     at the start itself (``core.treefit.refine_without_lost``). With a marker hidden from a
@@ -759,27 +762,27 @@ def _warm_alternatives(fit: Candidate, others: list[Candidate], warm: np.ndarray
     found: list[Candidate] = []
 
     def keep(q: np.ndarray, error: float, objective: float, scores_as_well: bool,
-             choosable: bool) -> None:
+             choosable_px: float) -> None:
         if scores_as_well and all(distinct(q, c.dofs, rot) for c in (fit, *others, *found)):
-            found.append(Candidate(q, error, objective,
-                                   choosable and objective <= fit.objective + tolerance))
+            found.append(Candidate(q, error, objective, objective <= fit.objective + choosable_px))
 
-    def refine(start: np.ndarray, choosable: bool) -> None:
+    def refine(start: np.ndarray, choosable_px: float) -> None:
         q, error, objective = refine_whole(start.copy(), det, model, rig, params, off)
-        keep(q, error, objective, objective <= fit.objective + tolerance, choosable)
+        keep(q, error, objective, objective <= fit.objective + tolerance, choosable_px)
         if (without := refine_without_lost(start, det, model, rig, params, off)) is not None:
             q, error, objective, lost = without
             keep(q, error, objective, _seen_objective(q, lost, det, model, rig, params, off)
                  <= _seen_objective(fit.dofs, lost, det, model, rig, params, off) + tolerance,
-                 choosable)
+                 choosable_px)
 
     for start in starts:
-        refine(start, True)
+        refine(start, tolerance)
     found.sort(key=lambda c: c.objective)
     del found[2:]
     kept = len(found)
+    tie = tolerance_readings(params, det, model, fit.error, len(model.dofs))[0]
     for start in followed:
-        refine(start, False)
+        refine(start, tie)
     return found[:kept] + sorted(found[kept:], key=lambda c: c.objective)[:1]
 
 
