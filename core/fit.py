@@ -509,10 +509,18 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
                                          params, tolerance, offsets)
         others += _run_alternatives(fit, others, runs, det, model, rig, params, tolerance, offsets)
     ranked = sorted([fit, *others], key=lambda c: c.objective)
-    if not any(distinct(c.dofs, ranked[0].dofs, model.rotational) for c in ranked[1:]):
-        witness = _undetermined_witness(ranked[0], det, model, rig, params, offsets)
-        ranked += [witness] if witness is not None else []
-    return ranked[0], tuple(ranked[1:]), its, settled
+    return ranked[0], _witnessed(ranked[0], tuple(ranked[1:]), det, model, rig, params, offsets), its, settled
+
+
+def _witnessed(best: Candidate, alternatives: tuple[Candidate, ...], det: Detections, model: KinematicModel,
+               rig: Rig, params: FitParams, offsets: np.ndarray | None) -> tuple[Candidate, ...]:
+    """``alternatives`` of an image's kept posture ``best``, and where none of them is
+    distinct from it (``core.ambiguity.distinct``), the witness of a DOF the image does not
+    determine (:func:`_undetermined_witness`) after them, if there is one."""
+    if any(distinct(c.dofs, best.dofs, model.rotational) for c in alternatives):
+        return alternatives
+    witness = _undetermined_witness(best, det, model, rig, params, offsets)
+    return alternatives if witness is None else (*alternatives, witness)
 
 
 def _seen_error(error: float, outside: tuple[int, float]) -> float:
@@ -793,7 +801,8 @@ def seen_from_after(fit: ImageFit, after: np.ndarray, det: Detections, *, model:
     :data:`~core.ambiguity.DISTINCT_DEG` in some angle) is refined on this image, whole, and
     the lowest is kept where it lands in a lower minimum (by more than :data:`TIE_PX`),
     distinct from the fit; the old fit and its alternatives stay alternatives while within
-    the tolerance of it (:func:`_still_alternatives`). ``fit`` itself otherwise: a start
+    the tolerance of it (:func:`_still_alternatives`), and without any, the new posture is
+    given its witness as an attempt's is (:func:`_witnessed`). ``fit`` itself otherwise: a start
     that lands no lower adds no alternative, so a part the image does not determine (a leg
     beyond the frame) is not flagged for it.
 
@@ -818,7 +827,8 @@ def seen_from_after(fit: ImageFit, after: np.ndarray, det: Detections, *, model:
     kept = _still_alternatives(best, (), fit, det, model, params, _seen_error(error, outside))
     return replace(fit, dofs=q, error=error, objective=objective,
                    status=image_status(error, fit.detections, len(model.markers), params),
-                   alternatives=kept, settled=False, charged=charged, outside=outside)
+                   alternatives=_witnessed(best, kept, det, model, rig, params, offsets), settled=False,
+                   charged=charged, outside=outside)
 
 
 def _still_alternatives(best: Candidate, alternatives: tuple[Candidate, ...], previous: ImageFit,

@@ -1176,6 +1176,24 @@ def test_a_warm_started_fit_far_above_the_previous_image_is_searched_again_cold(
     assert angle_errors(kept.dofs[rot], data.truth[20][rot]).max() > 30.0
 
 
+def test_a_posture_taken_from_the_next_image_is_given_its_witness():
+    """``bench/random_trees.py --cameras 2 --rig side-top --markers 1``, seed 0, model 3 (33
+    DOFs; one marker per segment leaves ten rolls that no posture determines). Image 30's
+    SA ends 3 px above its minimum; image 31's posture, offered back to it (``_offer_backward``),
+    lands in the minimum, 76° off the truth in those rolls. The new posture had no
+    alternative (the old one, far above it, was dropped): the image was ``ok``, 76° off,
+    with nothing flagged. It is now given the witness an attempt's posture gets."""
+    rng = np.random.default_rng([0, 3])
+    model = random_model(rng, 1)
+    subject = filmed(model, 2, 100.0, "side-top")
+    data = render_and_detect(subject, 40, soft=False, ghosts=2, rng=rng)
+    fits = fit_chunk(data.detections[:32], model=model, rig=subject.rig, params=fit_params(data)[0],
+                     histograms=Histograms.uniform(model, prior_weight=100.0), seed=0).fits
+    rot = model.rotational
+    assert fits[30].status is Status.OK and angle_errors(fits[30].dofs[rot], data.truth[30][rot]).max() > 30
+    assert math.isfinite(fits[30].alternative_deg(rot))
+
+
 def test_a_projection_hidden_in_the_previous_image_does_not_widen_the_next_ceiling():
     """``bench/random_trees.py --cameras 2 --occlusion 0.1``, seed 3, model 0 (a free root,
     three branches, 17 DOFs): between images 19 and 20 the movement jumps (a branch's first
