@@ -514,10 +514,22 @@ def _attempt(det, model, rig, space, params, stream, draw_start, offsets, geomet
 
 def _witnessed(best: Candidate, alternatives: tuple[Candidate, ...], det: Detections, model: KinematicModel,
                rig: Rig, params: FitParams, offsets: np.ndarray | None) -> tuple[Candidate, ...]:
-    """``alternatives`` of an image's kept posture ``best``, and where none of them is
+    """``alternatives`` of an image's kept posture ``best``, and where a posture the choice by
+    continuity may keep (``best`` or an alternative that is a minimum) has no candidate
     distinct from it (``core.ambiguity.distinct``), the witness of a DOF the image does not
-    determine (:func:`_undetermined_witness`) after them, if there is one."""
-    if any(distinct(c.dofs, best.dofs, model.rotational) for c in alternatives):
+    determine (:func:`_undetermined_witness`) after them, if there is one.
+
+    Every posture the choice may keep, not ``best`` alone: alternatives a few degrees apart
+    along a valley leave one of them, chosen, with none distinct, though the valley reaches
+    far. A random tree whose rolls no posture determines had its best 6° from one
+    alternative and 2.6° from another; the choice took the second, 38° off the truth, and
+    the image was ``ok`` with nothing flagged (docs/BENCH_SUBJECTS.md, stop 56). The witness
+    lies at least ``core.undetermined.UNDETERMINED_DEG`` (10°) from ``best``, so it is
+    distinct from any posture within :data:`~core.ambiguity.DISTINCT_DEG` (5°) of it."""
+    members = (best, *alternatives)
+    rot = model.rotational
+    if all(any(distinct(c.dofs, o.dofs, rot) for o in members if o is not c)
+           for c in members if c.minimum):
         return alternatives
     witness = _undetermined_witness(best, det, model, rig, params, offsets)
     return alternatives if witness is None else (*alternatives, witness)
