@@ -1,7 +1,8 @@
 """Whole-animal accuracy and speed benchmark (issue 13): subjects from published anatomy.
 
     python bench/animals.py [--subject hexapod|freefly|biped|fullbody|stick|locust|rat|mouse|spider|all]
-        [--images N] [--cameras 6|4|3|2] [--soft-tissue] [--ghosts N] [--occlusion F [--everywhere]]
+        [--images N] [--cameras 6|4|3|2] [--soft-tissue] [--ghosts N]
+        [--occlusion F [--everywhere] [--hidden-run S]]
         [--lost-claw] [--glints N] [--beyond F] [--seed S] [--jobs 1]
         [--threshold auto|otsu|100] [--model-error F] [--rig-error PX]
 
@@ -17,7 +18,7 @@ every view.
 With ``--occlusion F`` every (view, marker) pair, the unmodelled markers included, is hidden
 (not drawn: no blob) in runs of images, as a leg hides a marker from one camera: a two-state
 Markov chain per pair, hidden a fraction F of the images on average, in runs of
-:data:`OCCLUSION_RUN_S` seconds on average (at least 2 images), started from its stationary
+:data:`OCCLUSION_RUN_S` seconds on average (``--hidden-run``; at least 2 images), started from its stationary
 state and drawn from the run's generator after the images' noise generators are spawned, so
 the images differ from those of F = 0 by the hidden blobs only. With ``--everywhere`` the
 chain is one per marker and hides it from every view at once (a claw tucked under the body,
@@ -103,11 +104,12 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
                       rng: np.random.Generator, occlusion: float = 0.0, everywhere: bool = False,
                       detector: DetectorParams = DetectorParams(),
                       marker_px: float = MARKER_DIAMETER_PX, lost_claw: bool = False,
-                      glints: int = 0) -> Rendered:
+                      glints: int = 0, hidden_run_s: float = OCCLUSION_RUN_S) -> Rendered:
     """Render ``n`` images of the subject's movement in every camera, then detect them (timed).
 
     ``occlusion``: the fraction of (image, view, marker) hidden (:func:`occlusion_mask`), each
-    marker from every view at once with ``everywhere``.
+    marker from every view at once with ``everywhere``, in runs of ``hidden_run_s`` seconds on
+    average (at least 2 images).
     ``lost_claw``: :func:`lost_marker` hidden from every view of every image too.
     ``detector``: the detection settings (``mocap fit``'s defaults unless given).
     ``marker_px``: the markers' imaged diameter, pixels.
@@ -123,7 +125,7 @@ def render_and_detect(subject: Subject, n: int, *, soft: bool, ghosts: int,
     noise = rng.spawn(subject.rig.n_videos)
     hidden = None
     if occlusion > 0:
-        mean_run = max(2.0, OCCLUSION_RUN_S * subject.fps)
+        mean_run = max(2.0, hidden_run_s * subject.fps)
         views = len(subject.rig.views)
         hidden = occlusion_mask((n, 1 if everywhere else views, len(model.markers)), occlusion,
                                 mean_run, rng)
@@ -442,7 +444,7 @@ def run(name: str, args: argparse.Namespace) -> None:
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=args.ghosts,
                              rng=rng, occlusion=args.occlusion, everywhere=args.everywhere,
                              detector=args.detector, marker_px=args.marker_px, lost_claw=args.lost_claw,
-                             glints=args.glints)
+                             glints=args.glints, hidden_run_s=args.hidden_run)
     if data.hidden is not None:
         h = data.hidden
         print(f"\n{label}: hidden {int(h.sum())} of {h.size} marker projections "
@@ -454,7 +456,8 @@ def run(name: str, args: argparse.Namespace) -> None:
     reference = (labelled_postures(measured.model, data.markers, data.truth)
                  if args.soft_tissue or args.model_error else None)
     tag = (name + (f"-{cameras}cams" if cameras else "") + ("-soft" if args.soft_tissue else "")
-           + (f"-occ{round(100 * args.occlusion)}" + ("all" if args.everywhere else "") if args.occlusion
+           + (f"-occ{round(100 * args.occlusion)}" + ("all" if args.everywhere else "")
+              + (f"-run{args.hidden_run:g}" if args.hidden_run != OCCLUSION_RUN_S else "") if args.occlusion
               else "")
            + (f"-{args.fps:g}hz" if args.fps else "")
            + (f"-model{100 * args.model_error:g}" if args.model_error else "")
@@ -518,6 +521,9 @@ def main() -> None:
     parser.add_argument("--occlusion", type=float, default=0.0, metavar="F",
                         help="fraction of marker projections hidden, in runs of "
                              f"{OCCLUSION_RUN_S:g} s per view and marker (default 0)")
+    parser.add_argument("--hidden-run", type=float, default=OCCLUSION_RUN_S, metavar="S",
+                        help="with --occlusion, the mean length of a hidden run, seconds "
+                             f"(default {OCCLUSION_RUN_S:g}: a leg passing; 0.3: a limb behind the body)")
     parser.add_argument("--everywhere", action="store_true",
                         help="with --occlusion, hide each marker from every view at once")
     parser.add_argument("--glints", type=int, default=0, metavar="N",
@@ -553,16 +559,18 @@ def main() -> None:
         args.ghosts = 0 if args.soft_tissue else 2
     if (args.images < 1 or args.jobs < 1 or min(args.ghosts, args.glints) < 0
             or not 0 <= args.occlusion <= 0.5 or not 0 <= args.beyond <= 0.5
-            or (args.fps is not None and args.fps <= 0)
+            or (args.fps is not None and args.fps <= 0) or not 0 < args.hidden_run <= 10
             or not (0 <= args.model_error <= 0.5 and 0 <= args.rig_error <= 50)):
         parser.error("--images and --jobs must be >= 1, --ghosts and --glints >= 0, --occlusion and "
-                     "--beyond in [0, 0.5], --fps > 0, --model-error in [0, 0.5], --rig-error in [0, 50]")
+                     "--beyond in [0, 0.5], --fps > 0, --hidden-run in (0, 10], --model-error in [0, 0.5], "
+                     "--rig-error in [0, 50]")
     names = NAMES if args.subject == "all" else (args.subject,)
     print(f"bench/animals.py: seed {args.seed}, {args.images} images per subject, "
           f"{args.marker_px:g} px markers, {args.ghosts} ghost blobs per view"
           + (f", soft tissue {SOFT_TISSUE_PX:g} px RMS + unmodelled markers" if args.soft_tissue else "")
           + (f", {100 * args.occlusion:g} % of marker projections hidden"
              + (" (each marker from every view at once)" if args.everywhere else "")
+             + f" in runs of {args.hidden_run:g} s"
              if args.occlusion else "")
           + (f", model off {100 * args.model_error:g} %" if args.model_error else "")
           + (f", rig off {args.rig_error:g} px" if args.rig_error else "")

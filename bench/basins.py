@@ -1,7 +1,8 @@
 """Why images are off with real markers: a wrong basin, or the minimum itself moved?
 
     python bench/basins.py --subject stick|locust|biped|fullbody|hexapod|freefly|rat|mouse|spider
-        [--images N] [--soft-tissue] [--cameras 6|4|3|2] [--occlusion F [--everywhere]] [--glints N]
+        [--images N] [--soft-tissue] [--cameras 6|4|3|2] [--occlusion F [--everywhere] [--hidden-run S]]
+        [--glints N]
         [--off DEG] [--fps HZ] [--seed S] [--huber PX] [--model-error F] [--rig-error PX]
         [--beyond F]
 
@@ -43,7 +44,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.animals import WITHIN_DEG, as_measured, cut_at_edge, fit, fit_params, render_and_detect
+from bench.animals import (
+    OCCLUSION_RUN_S,
+    WITHIN_DEG,
+    as_measured,
+    cut_at_edge,
+    fit,
+    fit_params,
+    render_and_detect,
+)
 from bench.subjects import NAMES, camera_choice, load
 from core.ambiguity import angle_gaps
 from core.error import view_error, view_offsets
@@ -88,6 +97,8 @@ def main() -> None:
                         help="fly or spider cameras (default 6 and 4) or rat cameras (default 3)")
     parser.add_argument("--occlusion", type=float, default=0.0, metavar="F",
                         help="fraction of marker projections hidden, as bench/animals.py")
+    parser.add_argument("--hidden-run", type=float, default=OCCLUSION_RUN_S, metavar="S",
+                        help="with --occlusion, the mean hidden run, seconds, as bench/animals.py")
     parser.add_argument("--everywhere", action="store_true",
                         help="with --occlusion, hide each marker from every view at once")
     parser.add_argument("--glints", type=int, default=0, metavar="N",
@@ -113,6 +124,7 @@ def main() -> None:
     data = render_and_detect(subject, args.images, soft=args.soft_tissue,
                              ghosts=0 if args.soft_tissue else 2,
                              rng=np.random.default_rng(args.seed), occlusion=args.occlusion,
+                             hidden_run_s=args.hidden_run,
                              everywhere=args.everywhere, glints=args.glints)
     subject = as_measured(subject, args)
     model, rig, rot = subject.model, subject.rig, subject.model.rotational
