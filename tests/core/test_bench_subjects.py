@@ -453,3 +453,30 @@ def test_the_next_images_posture_is_kept_only_where_it_lands_lower():
     assert lowered.objective == pytest.approx(right.objective, abs=1e-6)
     assert lowered.status is Status.OK and not lowered.settled
     assert [a.objective for a in lowered.alternatives] == pytest.approx([wrong.objective])
+
+
+def test_the_labelled_reference_is_the_posture_whose_markers_lie_nearest_in_3d():
+    """``bench.reference.labelled_ik``: given a posture's own markers it returns that posture
+    from a start 8° away in every angle; given those markers each moved by 2 mm (the rat is in
+    mm), its posture's markers lie nearer them, in summed squared distance, than the true
+    posture's and than any small step from it (a least-squares minimum, not just a descent)."""
+    from bench.reference import labelled_ik
+
+    subject = load("rat")
+    model = subject.model
+    truth = subject.trajectory(3, np.random.default_rng(0))[1]
+    markers = model.marker_positions(truth)
+    start = np.where(model.rotational, truth + 8.0, truth + 2.0)
+    assert np.abs(labelled_ik(model, markers, start) - truth).max() < 1e-4
+
+    slid = markers + np.random.default_rng(1).normal(0.0, 2.0, markers.shape)
+
+    def cost(q: np.ndarray) -> float:
+        return float(np.sum((model.marker_positions(q) - slid) ** 2))
+
+    fitted = labelled_ik(model, slid, truth)
+    assert cost(fitted) < cost(truth)
+    steps = 0.05 * np.eye(len(truth))
+    inside = [q for q in (*(fitted + steps), *(fitted - steps))
+              if np.all(q >= model.lower) and np.all(q <= model.upper)]
+    assert inside and all(cost(q) >= cost(fitted) - 1e-9 for q in inside)
