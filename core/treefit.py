@@ -241,7 +241,7 @@ def refit_tree(det: Detections, model: KinematicModel, rig: Rig, tree: Tree, spa
     stop 56). ``settled`` is True
     when every part is (``core.fit.reanalyse_image`` settles an
     image whose attempt is not lower than the kept posture as well). A kept posture that
-    reaches it only with a marker left out as hidden is searched where that marker's
+    reaches twice its ε only with a marker left out as hidden is searched where that marker's
     unexplained blobs meet in space (:func:`hidden_marker_triangulated`).
     """
     ceilings = (None if not math.isfinite(typical)
