@@ -35,7 +35,9 @@ With ``--model-error F`` the fit is given the subject's model with every segment
 marker placement off by a relative N(0, F) (a model measured by hand), and with
 ``--rig-error PX`` its rig with every view's image shifted by PX pixels (a calibration's
 error); the images are rendered with the true ones (``bench/imperfect.py``).
-Prints, per subject, the per-DOF RMSE and the issue's figures next to its targets, and
+Prints, per subject, the per-DOF RMSE and the issue's figures next to its targets (with
+``--soft-tissue`` or ``--model-error``, also how far the truth and the fit lie from inverse
+kinematics given the labels, ``bench/reference.py``: what a labelled pipeline reports), and
 writes every image's fit to
 ``bench/out/animals-<subject>[-<cameras>cams][-soft][-occ<percent>[all]]…[-glints<N>][-beyond<percent>].csv``
 (angles.csv).
