@@ -2,7 +2,7 @@
 
     python bench/random_trees.py [--models 8] [--images 40] [--seed 0] [--cameras 3]
         [--rig ring|side-top] [--distortion K1] [--markers 1|2] [--occlusion F] [--fps 100]
-        [--soft-tissue] [--glints N] [--beyond F]
+        [--soft-tissue] [--glints N] [--beyond F] [--model-error F] [--rig-error PX]
 
 The subjects of ``bench/animals.py`` are nine animals; labs bring others. Each model here
 is drawn at random: a root with three markers, fixed or (two models in five) free with
@@ -28,7 +28,10 @@ images are rendered, detected and fitted as ``bench/animals.py`` does (5 px mark
 ghost blobs per view, ``--occlusion`` as there; ``--soft-tissue`` as there: every marker
 slides 2 px RMS, no ghost blobs, an unmodelled marker on the root, :data:`UNMODELLED`;
 ``--glints`` as there: reflections on the segments; ``--beyond`` as there: every view's roi ending
-where the share F of its projections lies beyond).
+where the share F of its projections lies beyond; ``--model-error`` as there: the model fitted
+is measured, its segment lengths and marker placements off by N(0, F), and the line adds the
+median distance of the fit from inverse kinematics given the labels with that model,
+``bench/reference.py``; ``--rig-error`` as there: every view of the rig fitted shifted).
 Prints one line per model (DOFs, the parts ``core.tree`` fits, the median absolute
 rotational DOF error, the worst image, the share of images with every DOF within 5°,
 ``ok`` images more than 10° off without an alternative, statuses, fit images per CPU
@@ -50,11 +53,13 @@ from bench.animals import (
     OUT,
     ambiguous_flags,
     angle_errors,
+    as_measured,
     cut_at_edge,
     far_off_unflagged,
     fit,
     render_and_detect,
 )
+from bench.reference import labelled_postures
 from bench.subjects import Subject
 from bench.subjects.build import ring
 from core.fit import Status
@@ -163,7 +168,8 @@ def run_model(model: KinematicModel, args: argparse.Namespace, rng: np.random.Ge
         subject = cut_at_edge(subject, subject.trajectory(args.images, copy.deepcopy(rng)), args.beyond)
     data = render_and_detect(subject, args.images, soft=args.soft_tissue, ghosts=0 if args.soft_tissue else 2,
                              rng=rng, occlusion=args.occlusion, glints=args.glints)
-    result, timing = fit(subject, data, seed=args.seed, jobs=1)
+    measured = as_measured(subject, args)
+    result, timing = fit(measured, data, seed=args.seed, jobs=1)
     csv_path = OUT / "random-tree.csv"
     OUT.mkdir(parents=True, exist_ok=True)
     write_angles_csv(csv_path, model, result.fits, SampleClock(subject.fps))
@@ -172,8 +178,12 @@ def run_model(model: KinematicModel, args: argparse.Namespace, rng: np.random.Ge
     worst = errors.max(axis=1)
     ok = np.array([f.status is Status.OK for f in result.fits])
     flagged = ambiguous_flags(result, csv_path)[0]
-    return {"errors": errors, "worst": worst, "ok": ok, "flagged": flagged, "cpu": timing["cpu"],
-            "parts": [len(p.dofs) for p in model.tree.parts] if model.tree else [len(model.dofs)]}
+    figures = {"errors": errors, "worst": worst, "ok": ok, "flagged": flagged, "cpu": timing["cpu"],
+               "parts": [len(p.dofs) for p in model.tree.parts] if model.tree else [len(model.dofs)]}
+    if args.model_error:
+        reference = labelled_postures(measured.model, data.markers, data.truth)
+        figures["from_reference"] = np.abs(angle_errors(model, fitted, reference)[:, model.rotational])
+    return figures
 
 
 def main() -> None:
@@ -195,11 +205,16 @@ def main() -> None:
                         help="reflections off the body per view and image, on its segments")
     parser.add_argument("--beyond", type=float, default=0.0, metavar="F",
                         help="the share of each view's marker projections beyond its frame's edge (a roi)")
+    parser.add_argument("--model-error", type=float, default=0.0, metavar="F",
+                        help="fit with segment lengths and marker placements off by N(0, F)")
+    parser.add_argument("--rig-error", type=float, default=0.0, metavar="PX",
+                        help="fit with every view's image shifted by PX pixels")
     args = parser.parse_args()
     if (args.models < 1 or args.images < 1 or args.cameras < 2 or args.glints < 0
-            or not 0 <= args.occlusion <= 0.5 or not 0 <= args.beyond <= 0.5):
-        parser.error("--models and --images must be >= 1, --cameras >= 2, --glints >= 0, "
-                     "--occlusion and --beyond in [0, 0.5]")
+            or not 0 <= args.occlusion <= 0.5 or not 0 <= args.beyond <= 0.5
+            or not (0 <= args.model_error <= 0.5 and 0 <= args.rig_error <= 50)):
+        parser.error("--models and --images must be >= 1, --cameras >= 2, --glints >= 0, --occlusion "
+                     "and --beyond in [0, 0.5], --model-error in [0, 0.5], --rig-error in [0, 50]")
     if not -0.5 <= args.distortion <= 0.5:
         parser.error("--distortion must lie in [-0.5, 0.5]")
     if args.rig == "side-top" and args.cameras != 2:
@@ -210,7 +225,9 @@ def main() -> None:
           + f", {args.markers} marker(s) per segment, {100 * args.occlusion:g} % hidden"
           + (", sliding skin" if args.soft_tissue else "")
           + (f", {args.glints} glints per view" if args.glints else "")
-          + (f", {100 * args.beyond:g} % beyond the frames' edge" if args.beyond else ""))
+          + (f", {100 * args.beyond:g} % beyond the frames' edge" if args.beyond else "")
+          + (f", model off {100 * args.model_error:g} %" if args.model_error else "")
+          + (f", rig off {args.rig_error:g} px" if args.rig_error else ""))
     totals = {"images": 0, "within": 0, "bad": 0, "cpu": 0.0}
     errors = []
     for k in range(args.models):
@@ -225,7 +242,9 @@ def main() -> None:
               f"{r['worst'].max():.1f} deg, {100 * np.mean(r['worst'] <= 5.0):.0f} % within 5 deg; "
               f"ok > 10 deg off without an "
               f"alternative: {len(bad)} {bad.tolist()}; over threshold {int(np.sum(~r['ok']))}, "
-              f"ambiguous {int(r['flagged'].sum())}; {n / r['cpu']:.0f} images per CPU s", flush=True)
+              f"ambiguous {int(r['flagged'].sum())}; {n / r['cpu']:.0f} images per CPU s"
+              + (f"; from labelled IK median {np.median(r['from_reference']):.2f} deg"
+                 if "from_reference" in r else ""), flush=True)
         totals["images"] += n
         totals["within"] += int(np.sum(r["worst"] <= 5.0))
         totals["bad"] += len(bad)
