@@ -409,7 +409,7 @@ def report(subject: Subject, label: str, data: Rendered, result: SequenceResult,
              p90 <= TARGET_SOFT_P90, p90 / TARGET_SOFT_P90)
     if reference is not None:
         for what, postures in (("labelled IK from the truth", data.truth), ("fit from labelled IK", fitted)):
-            gaps = np.nan_to_num(np.abs(angle_errors(model, postures.copy(), reference)[:, rot]), nan=np.inf)
+            gaps = np.nan_to_num(np.abs(angle_errors(model, postures, reference)[:, rot]), nan=np.inf)
             line(f"{what}: median / 90th (deg)",
                  f"{np.median(gaps):.2f} / {np.percentile(gaps, 90, method='higher'):.2f}")
     # The rate target is judged on CPU time: one core's work, whatever else the machine runs.

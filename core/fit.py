@@ -855,8 +855,7 @@ def _reported_from_after(fit: ImageFit, other: Candidate, det: Detections, model
     landing no lower, reported as its alternative (``Candidate.minimum`` False) where it lies
     within :func:`alternative_tolerance` of the fit and the fit has no alternative distinct
     from it; else ``fit``."""
-    rot = model.rotational
-    if any(distinct(a.dofs, fit.dofs, rot) for a in fit.alternatives):
+    if math.isfinite(fit.alternative_deg(model.rotational)):
         return fit
     seen = _seen_error(fit.error, fit.outside)
     if other.objective > fit.objective + alternative_tolerance(params, det, model, seen, len(model.dofs)):
